@@ -1,0 +1,204 @@
+"""Backend-neutral volume meshes and the node layout shared by every backend.
+
+Conventions (every backend follows them, so vectors are interchangeable):
+
+* ``points`` are the mesh vertices, shape ``(n_vertices, 3)``, in the user's length unit.
+* Cells follow meshio/VTK vertex order: ``"tetra"`` (4 vertices) or ``"hexahedron"``
+  (8 vertices, bottom face 0-1-2-3 counter-clockwise seen from above, top face 4-7).
+* Cells are stored with positive orientation: a cell whose signed volume is negative only
+  because of its node order is reoriented on construction; a cell of (near) zero volume,
+  or a hexahedron whose corner Jacobians change sign (tangled), is refused.
+* Discretisation nodes: for ``P1`` and ``Q1`` they are the vertices; for ``P2`` the
+  vertices come first, then one node per mesh edge, edges in lexicographic order of
+  their sorted vertex pair ``(a, b)``, ``a < b``.
+* DOF ordering is node-major: dof ``3 * node + c`` is component ``c`` (x, y, z) of ``node``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+CELL_TYPES = {"tetra": 4, "hexahedron": 8}
+ELEMENTS = {"P1": "tetra", "P2": "tetra", "Q1": "hexahedron"}
+
+# Local faces with outward normals (right-hand rule) for positively oriented cells.
+TET_FACES = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
+HEX_FACES = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4],
+                      [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
+# VTK tetra10 edge order: the local vertex pairs of nodes 4..9.
+TET_EDGES = np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])
+# Corners of the reference hexahedron [-1, 1]^3 in VTK order.
+_HEX_CORNERS = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
+                         [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float)
+
+
+def _tet_signed_volumes(points, cells):
+    a, b, c, d = (points[cells[:, i]] for i in range(4))
+    return np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) / 6.0
+
+
+def _hex_corner_jacobians(points, cells):
+    """Jacobian determinants of the trilinear map at the 8 corners, shape (n_cells, 8)."""
+    x = points[cells]  # (n, 8, 3)
+    dets = np.empty((len(cells), 8))
+    for k, (xi, eta, zeta) in enumerate(_HEX_CORNERS):
+        dN = np.stack([
+            _HEX_CORNERS[:, 0] * (1 + _HEX_CORNERS[:, 1] * eta) * (1 + _HEX_CORNERS[:, 2] * zeta),
+            _HEX_CORNERS[:, 1] * (1 + _HEX_CORNERS[:, 0] * xi) * (1 + _HEX_CORNERS[:, 2] * zeta),
+            _HEX_CORNERS[:, 2] * (1 + _HEX_CORNERS[:, 0] * xi) * (1 + _HEX_CORNERS[:, 1] * eta),
+        ]) / 8.0  # (3, 8)
+        J = np.einsum("nai,da->nid", x, dN)
+        dets[:, k] = np.linalg.det(J)
+    return dets
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """A volume mesh of tetrahedra or hexahedra.
+
+    Parameters
+    ----------
+    points : array_like, shape (n_vertices, 3)
+        Vertex coordinates.
+    cells : array_like of int, shape (n_cells, 4) or (n_cells, 8)
+        Vertex indices per cell in meshio/VTK order.
+    cell_type : {"tetra", "hexahedron"}
+    reorient : bool
+        Reorient cells with negative signed volume (default) instead of refusing them.
+    """
+
+    points: np.ndarray
+    cells: np.ndarray
+    cell_type: str
+    reorient: bool = True
+    n_reoriented: int = field(init=False, default=0)
+
+    def __post_init__(self):
+        if self.cell_type not in CELL_TYPES:
+            raise ValueError(f"cell_type={self.cell_type!r} is not one of {sorted(CELL_TYPES)}")
+        pts = np.ascontiguousarray(self.points, dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"points must have shape (n, 3), got {pts.shape}")
+        if not np.all(np.isfinite(pts)):
+            bad = np.argwhere(~np.isfinite(pts))[0]
+            raise ValueError(f"points[{bad[0]}, {bad[1]}] = {pts[tuple(bad)]} is not finite")
+        cells = np.ascontiguousarray(self.cells, dtype=np.int64)
+        nv = CELL_TYPES[self.cell_type]
+        if cells.ndim != 2 or cells.shape[1] != nv or len(cells) == 0:
+            raise ValueError(f"cells for {self.cell_type!r} must have shape (n>0, {nv}), got {cells.shape}")
+        if cells.min() < 0 or cells.max() >= len(pts):
+            raise ValueError(f"cells reference vertex {cells.max() if cells.max() >= len(pts) else cells.min()}"
+                             f" outside 0..{len(pts) - 1}")
+        cells, n_flipped = self._orient(pts, cells)
+        object.__setattr__(self, "points", pts)
+        object.__setattr__(self, "cells", cells)
+        object.__setattr__(self, "n_reoriented", n_flipped)
+        self.points.setflags(write=False)
+        self.cells.setflags(write=False)
+
+    def _orient(self, pts, cells):
+        h3 = float(np.prod(np.ptp(pts, axis=0)[np.ptp(pts, axis=0) > 0])) or 1.0
+        tol = 1e-12 * h3
+        if self.cell_type == "tetra":
+            vol = _tet_signed_volumes(pts, cells)
+            zero = np.abs(vol) <= tol
+            if zero.any():
+                i = int(np.argmax(zero))
+                raise ValueError(f"cells[{i}] = {cells[i].tolist()} has zero volume ({vol[i]:.3e})")
+            neg = vol < 0
+            if neg.any() and not self.reorient:
+                raise ValueError(f"cells[{int(np.argmax(neg))}] has negative volume and reorient=False")
+            cells = cells.copy()
+            cells[neg] = cells[neg][:, [0, 2, 1, 3]]
+            return cells, int(neg.sum())
+        dets = _hex_corner_jacobians(pts, cells)
+        scale = tol / 8.0
+        pos, neg = (dets > scale).all(axis=1), (dets < -scale).all(axis=1)
+        bad = ~(pos | neg)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise ValueError(f"cells[{i}] = {cells[i].tolist()} is degenerate or tangled "
+                             f"(corner Jacobians {np.round(dets[i], 12).tolist()})")
+        if neg.any() and not self.reorient:
+            raise ValueError(f"cells[{int(np.argmax(neg))}] has negative volume and reorient=False")
+        cells = cells.copy()
+        cells[neg] = cells[neg][:, [4, 5, 6, 7, 0, 1, 2, 3]]
+        return cells, int(neg.sum())
+
+    # ------------------------------------------------------------------ topology
+    @property
+    def n_vertices(self) -> int:
+        return len(self.points)
+
+    @property
+    def n_cells(self) -> int:
+        return len(self.cells)
+
+    def cell_volumes(self) -> np.ndarray:
+        """Cell volumes, shape (n_cells,) (hexahedra: 2x2x2 Gauss)."""
+        if self.cell_type == "tetra":
+            return _tet_signed_volumes(self.points, self.cells)
+        g = 1 / np.sqrt(3.0)
+        x = self.points[self.cells]
+        vol = np.zeros(self.n_cells)
+        for xi in (-g, g):
+            for eta in (-g, g):
+                for zeta in (-g, g):
+                    c = _HEX_CORNERS
+                    dN = np.stack([c[:, 0] * (1 + c[:, 1] * eta) * (1 + c[:, 2] * zeta),
+                                   c[:, 1] * (1 + c[:, 0] * xi) * (1 + c[:, 2] * zeta),
+                                   c[:, 2] * (1 + c[:, 0] * xi) * (1 + c[:, 1] * eta)]) / 8.0
+                    vol += np.linalg.det(np.einsum("nai,da->nid", x, dN))
+        return vol
+
+    @cached_property
+    def edges(self) -> np.ndarray:
+        """Unique tetrahedron edges ``(a, b)``, ``a < b``, lexicographically sorted."""
+        if self.cell_type != "tetra":
+            raise ValueError("edges are only defined here for tetrahedral meshes (P2 nodes)")
+        e = np.sort(self.cells[:, TET_EDGES].reshape(-1, 2), axis=1)
+        return np.unique(e, axis=0)
+
+    @cached_property
+    def boundary_facets(self) -> np.ndarray:
+        """Boundary faces with outward orientation, shape (n_facets, 3 or 4)."""
+        local = TET_FACES if self.cell_type == "tetra" else HEX_FACES
+        faces = self.cells[:, local].reshape(-1, local.shape[1])
+        key = np.sort(faces, axis=1)
+        _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        return faces[counts[inv.ravel()] == 1]
+
+    def select_facets(self, where) -> np.ndarray:
+        """Boundary facets all of whose vertices satisfy ``where(x) -> bool mask``."""
+        f = self.boundary_facets
+        mask = np.asarray(where(self.points), dtype=bool)
+        if mask.shape != (self.n_vertices,):
+            raise ValueError(f"facet predicate must return a mask of shape ({self.n_vertices},), got {mask.shape}")
+        return f[mask[f].all(axis=1)]
+
+
+def node_layout(mesh: Mesh, element: str):
+    """Discretisation nodes and per-cell node connectivity for ``element``.
+
+    Returns
+    -------
+    nodes : ndarray, shape (n_nodes, 3)
+        Node coordinates (vertices, then edge midpoints for P2).
+    cell_nodes : ndarray of int, shape (n_cells, n_local)
+        Node indices per cell; P2 cells follow VTK ``tetra10`` order.
+    """
+    if element not in ELEMENTS:
+        raise ValueError(f"element={element!r} is not one of {sorted(ELEMENTS)}")
+    if ELEMENTS[element] != mesh.cell_type:
+        raise ValueError(f"element={element!r} needs {ELEMENTS[element]!r} cells, mesh has {mesh.cell_type!r}")
+    if element != "P2":
+        return mesh.points, mesh.cells
+    edges = mesh.edges
+    nv = mesh.n_vertices
+    local = np.sort(mesh.cells[:, TET_EDGES], axis=2)  # (n_cells, 6, 2)
+    code = local[..., 0] * nv + local[..., 1]
+    edge_ids = np.searchsorted(edges[:, 0] * nv + edges[:, 1], code)
+    nodes = np.vstack([mesh.points, mesh.points[edges].mean(axis=1)])
+    return nodes, np.hstack([mesh.cells, nv + edge_ids])

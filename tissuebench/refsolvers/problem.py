@@ -1,0 +1,249 @@
+"""Backend-neutral description of a solid-mechanics problem.
+
+A :class:`Problem` bundles a :class:`~tissuebench.refsolvers.mesh.Mesh`, an element
+(``"P1"``, ``"P2"``, ``"Q1"``), a material, Dirichlet sets and loads. Everything that
+depends on a load factor ``lam`` scales linearly with it: prescribed displacements,
+point loads, tractions, follower pressure and body force.
+
+Node selections (``nodes`` of :class:`Dirichlet` and :class:`PointLoad`) are either an
+integer array of discretisation-node indices (see :func:`~tissuebench.refsolvers.mesh.node_layout`)
+or a predicate ``where(x) -> bool mask`` evaluated on the node coordinates ``x`` of
+shape ``(n_nodes, 3)``. Facet selections are ``(n_facets, 3|4)`` vertex arrays with
+outward orientation (see :meth:`Mesh.select_facets`) or a predicate on vertices.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .materials import Material
+from .mesh import ELEMENTS, Mesh, node_layout
+
+
+def _finite_array(name, value, shape=None):
+    arr = np.asarray(value, dtype=float)
+    if shape is not None and arr.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} contains a non-finite value: {arr[~np.isfinite(arr)][0]!r}")
+    return arr
+
+
+def _resolve_nodes(name, nodes, coords):
+    if callable(nodes):
+        mask = np.asarray(nodes(coords), dtype=bool)
+        if mask.shape != (len(coords),):
+            raise ValueError(f"{name}: predicate must return a mask of shape ({len(coords)},), got {mask.shape}")
+        idx = np.flatnonzero(mask)
+    else:
+        idx = np.unique(np.asarray(nodes, dtype=np.int64).ravel())
+        if idx.size and (idx.min() < 0 or idx.max() >= len(coords)):
+            raise ValueError(f"{name}: node index out of range 0..{len(coords) - 1}")
+    if idx.size == 0:
+        raise ValueError(f"{name}: the node selection is empty")
+    return idx
+
+
+@dataclass(frozen=True)
+class Dirichlet:
+    """Prescribed displacement components on a node set.
+
+    ``value`` is the displacement at load factor 1: a scalar or ``(len(components),)``
+    array applied to every node, or a callable ``value(x) -> (n, len(components))``.
+    With ``scaled=False`` the value is imposed at every load factor.
+    """
+
+    nodes: np.ndarray | Callable
+    components: Sequence[int] = (0, 1, 2)
+    value: float | np.ndarray | Callable = 0.0
+    scaled: bool = True
+
+    def __post_init__(self):
+        comps = tuple(int(c) for c in self.components)
+        if not comps or any(c not in (0, 1, 2) for c in comps) or len(set(comps)) != len(comps):
+            raise ValueError(f"Dirichlet.components must be distinct values in (0, 1, 2), got {self.components!r}")
+        object.__setattr__(self, "components", comps)
+        if not callable(self.value):
+            _finite_array("Dirichlet.value", self.value)
+
+    def resolve(self, coords):
+        """Return (dofs, values at load factor 1, scaled flags) for node coordinates ``coords``."""
+        idx = _resolve_nodes("Dirichlet.nodes", self.nodes, coords)
+        comps = np.array(self.components)
+        if callable(self.value):
+            vals = _finite_array("Dirichlet.value(x)", self.value(coords[idx]), (len(idx), len(comps)))
+        else:
+            vals = np.broadcast_to(_finite_array("Dirichlet.value", self.value), (len(idx), len(comps)))
+        dofs = (3 * idx[:, None] + comps[None, :]).ravel()
+        return dofs, np.asarray(vals, float).ravel(), np.full(dofs.size, self.scaled)
+
+
+@dataclass(frozen=True)
+class PointLoad:
+    """Nodal forces: ``force`` of shape (3,) on every selected node, or (n_selected, 3)."""
+
+    nodes: np.ndarray | Callable
+    force: np.ndarray
+
+    def __post_init__(self):
+        _finite_array("PointLoad.force", self.force)
+
+    def resolve(self, coords):
+        idx = _resolve_nodes("PointLoad.nodes", self.nodes, coords)
+        f = np.asarray(self.force, float)
+        if f.shape not in ((3,), (len(idx), 3)):
+            raise ValueError(f"PointLoad.force must have shape (3,) or ({len(idx)}, 3), got {f.shape}")
+        return idx, np.broadcast_to(f, (len(idx), 3))
+
+
+@dataclass(frozen=True)
+class SurfaceTraction:
+    """Dead traction per reference area, shape (3,), on boundary facets."""
+
+    facets: np.ndarray | Callable
+    traction: np.ndarray
+
+    def __post_init__(self):
+        _finite_array("SurfaceTraction.traction", self.traction, (3,))
+
+
+@dataclass(frozen=True)
+class FollowerPressure:
+    """Pressure on the deformed surface, acting against the outward normal: t = -p n da."""
+
+    facets: np.ndarray | Callable
+    pressure: float
+
+    def __post_init__(self):
+        _finite_array("FollowerPressure.pressure", self.pressure, ())
+
+
+@dataclass(frozen=True)
+class BodyForce:
+    """Body force per reference volume, shape (3,)."""
+
+    force: np.ndarray
+
+    def __post_init__(self):
+        _finite_array("BodyForce.force", self.force, (3,))
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """Mesh + element + material + boundary conditions + loads (+ density for dynamics).
+
+    Raises
+    ------
+    ValueError
+        Unknown element, material data inconsistent with the mesh, no Dirichlet set
+        (rigid-body modes left free), or a Dirichlet set that cannot remove all six
+        rigid-body modes.
+    """
+
+    mesh: Mesh
+    material: Material
+    element: str = "P1"
+    dirichlet: Sequence[Dirichlet] = ()
+    loads: Sequence[PointLoad | SurfaceTraction | FollowerPressure | BodyForce] = ()
+    density: float = 1.0
+    quadrature_order: int | None = None
+
+    def __post_init__(self):
+        if not isinstance(self.mesh, Mesh):
+            raise TypeError(f"mesh must be a tissuebench Mesh, got {type(self.mesh).__name__}")
+        if not isinstance(self.material, Material):
+            raise TypeError(f"material must be a tissuebench Material, got {type(self.material).__name__}")
+        if self.element not in ELEMENTS:
+            raise ValueError(f"element={self.element!r} is not one of {sorted(ELEMENTS)}")
+        node_layout(self.mesh, self.element)  # checks element/cell compatibility
+        self.material.validate_for_mesh(self.mesh.n_cells)
+        if not (np.isfinite(self.density) and self.density > 0):
+            raise ValueError(f"density must be a finite number > 0, got {self.density!r}")
+        if self.quadrature_order is not None and int(self.quadrature_order) < 1:
+            raise ValueError(f"quadrature_order must be >= 1, got {self.quadrature_order!r}")
+        object.__setattr__(self, "dirichlet", tuple(self.dirichlet))
+        object.__setattr__(self, "loads", tuple(self.loads))
+        for ld in self.loads:
+            if not isinstance(ld, (PointLoad, SurfaceTraction, FollowerPressure, BodyForce)):
+                raise TypeError(f"loads: unsupported load type {type(ld).__name__}")
+        if not self.dirichlet:
+            raise ValueError("dirichlet: no Dirichlet condition given; the six rigid-body modes are free")
+        self._check_rigid_body_modes()
+
+    # ---------------------------------------------------------------- layout
+    @cached_property
+    def layout(self):
+        """(nodes, cell_nodes) of the discretisation, see :func:`node_layout`."""
+        return node_layout(self.mesh, self.element)
+
+    @property
+    def nodes(self) -> np.ndarray:
+        return self.layout[0]
+
+    @property
+    def ndof(self) -> int:
+        return 3 * len(self.nodes)
+
+    @cached_property
+    def constraints(self):
+        """(dofs, values at load factor 1, scaled) of all Dirichlet sets, dofs unique."""
+        parts = [d.resolve(self.nodes) for d in self.dirichlet]
+        dofs = np.concatenate([p[0] for p in parts])
+        vals = np.concatenate([p[1] for p in parts])
+        scaled = np.concatenate([p[2] for p in parts])
+        # later sets win on duplicated dofs
+        _, first_rev = np.unique(dofs[::-1], return_index=True)
+        keep = len(dofs) - 1 - first_rev
+        return dofs[keep], vals[keep], scaled[keep]
+
+    @property
+    def fixed_dofs(self) -> np.ndarray:
+        return self.constraints[0]
+
+    @cached_property
+    def free_dofs(self) -> np.ndarray:
+        return np.setdiff1d(np.arange(self.ndof), self.fixed_dofs)
+
+    def prescribed_values(self, load_factor: float) -> np.ndarray:
+        """Values of the fixed dofs at ``load_factor``, aligned with :attr:`fixed_dofs`."""
+        _, vals, scaled = self.constraints
+        return np.where(scaled, load_factor * vals, vals)
+
+    def point_load_vector(self) -> np.ndarray:
+        """Nodal point loads at load factor 1, shape (ndof,)."""
+        f = np.zeros(self.ndof)
+        for ld in self.loads:
+            if isinstance(ld, PointLoad):
+                idx, force = ld.resolve(self.nodes)
+                np.add.at(f.reshape(-1, 3), idx, force)
+        return f
+
+    def facets_of(self, load) -> np.ndarray:
+        """Outward-oriented vertex arrays of the facets a traction/pressure acts on."""
+        if callable(load.facets):
+            facets = self.mesh.select_facets(load.facets)
+        else:
+            facets = np.asarray(load.facets, dtype=np.int64)
+        name = type(load).__name__
+        if facets.ndim != 2 or len(facets) == 0:
+            raise ValueError(f"{name}.facets: empty or malformed facet selection (shape {facets.shape})")
+        return facets
+
+    def _check_rigid_body_modes(self):
+        """Refuse a constraint set that leaves a rigid-body mode free (u = a + w x X)."""
+        dofs = self.fixed_dofs
+        nodes, comps = dofs // 3, dofs % 3
+        X = self.nodes[nodes] - self.nodes.mean(axis=0)
+        rows = np.zeros((len(dofs), 6))
+        rows[np.arange(len(dofs)), comps] = 1.0
+        # rotation part: (w x X)_c
+        e = np.eye(3)
+        for k in range(3):
+            rows[:, 3 + k] = np.cross(e[k], X)[np.arange(len(dofs)), comps]
+        s = np.linalg.svd(rows, compute_uv=False) if len(dofs) else np.zeros(0)
+        rank = int(np.sum(s > 1e-10 * max(1.0, s.max(initial=0.0))))
+        if rank < 6:
+            raise ValueError(f"dirichlet: the fixed dofs remove only {rank} of 6 rigid-body modes")
