@@ -1,0 +1,1 @@
+"""The case catalogue: scene builders and mesh generators."""

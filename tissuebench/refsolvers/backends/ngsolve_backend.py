@@ -1,0 +1,461 @@
+"""NGSolve backend: energies written symbolically and differentiated by NGSolve.
+
+Independent of the NumPy material kernels of :mod:`~tissuebench.refsolvers.materials`:
+each strain-energy density W(F) is a CoefficientFunction; ``Variation(W dx)`` gives
+f_int (``Apply``), K_t (``AssembleLinearization``) and the energy (``Energy``).
+
+NGSolve conventions met here (checked by ``tests/test_ngsolve_backend.py``):
+
+* Vertex numbers and cell order are kept (``AddPoints``/``AddElements``).
+* Netgen's tetrahedra have the opposite orientation to VTK's: a positive VTK tet
+  ``(0, 1, 2, 3)`` is stored as ``(1, 0, 2, 3)``. Hexahedra keep the VTK order.
+* NGSolve's reference tet has vertex k at barycentric ``lambda_k = x_k`` (k < 3) and
+  vertex 3 at the origin; reference triangles likewise. The shared rules (unit simplex
+  with vertex 0 at the origin) are mapped through barycentric coordinates, so both
+  backends use the same physical points. Hexes and quads use the unit cube/square.
+* A boundary ``Element2D`` whose vertices follow the right-hand rule outward has the
+  outward ``specialcf.normal``; ``Grad`` of an H1 function on the boundary is the
+  surface gradient, so ``Cof(I + Grad u) N`` is exactly cof(F) N.
+* ``H1(order=2, nodalp2=True)`` is unusable in NGSolve 6.2.2608: its volume basis is
+  nodal times 0.25, but the boundary traces use another basis (surface loads come out
+  wrong). P2 therefore uses the hierarchical basis (vertex hats ``lambda_a``, edge
+  bubbles equal to ``c = -1/8`` at their midpoint, both measured) and the sparse map
+  ``d = T u`` from tissuebench's nodal values: ``f = T^T f_ng``, ``K = T^T K_ng T``.
+"""
+from __future__ import annotations
+
+import time
+from functools import cached_property
+
+import netgen.meshing as nm
+import ngsolve as ngs
+import numpy as np
+import scipy.sparse as sp
+
+from ..materials import Guccione, LinearElastic, MooneyRivlin, NeoHookean, SaintVenantKirchhoff
+from ..problem import BodyForce, FollowerPressure, SurfaceTraction
+from ..quadrature import default_order, facet_rule, mass_order, volume_rule
+from .base import Backend
+
+TET_TO_NG = np.array([1, 0, 2, 3])  # netgen vertex k of a tet = VTK vertex TET_TO_NG[k]
+_VOL_ET = {"tetra": ngs.ET.TET, "hexahedron": ngs.ET.HEX}
+_BND_ET = {"tetra": ngs.ET.TRIG, "hexahedron": ngs.ET.QUAD}
+
+
+# ---------------------------------------------------------------- mesh and rules
+def simplex_rule_to_ng(points, vertex_map):
+    """Map unit-simplex points (vertex 0 at the origin) to NGSolve reference coordinates.
+
+    Parameters
+    ----------
+    points : ndarray, shape (dim, n_qp)
+        Points of the shared rule (barycentrics ``(1 - sum, x_1, ..., x_dim)``).
+    vertex_map : ndarray of int, shape (dim + 1,)
+        NGSolve local vertex k is local vertex ``vertex_map[k]`` of the shared ordering.
+
+    Returns
+    -------
+    ndarray, shape (n_qp, dim)
+        NGSolve reference coordinates ``(lambda_{map[0]}, ..., lambda_{map[dim-1]})``.
+    """
+    bary = np.vstack([1.0 - points.sum(axis=0), points])
+    return bary[vertex_map[:-1]].T
+
+
+def _intrule(points_ng, weights):
+    return ngs.IntegrationRule([tuple(map(float, p)) for p in points_ng], [float(w) for w in weights])
+
+
+def make_intrules(element, order, facet=False):
+    """``{ET: IntegrationRule}`` equal to the shared rule of :mod:`..quadrature`."""
+    cell = "hexahedron" if element == "Q1" else "tetra"
+    if facet:
+        pts, w = facet_rule(element, order)
+        ng = pts.T if cell == "hexahedron" else simplex_rule_to_ng(pts, np.arange(3))
+        return {_BND_ET[cell]: _intrule(ng, w)}
+    pts, w = volume_rule(element, order)
+    ng = pts.T if cell == "hexahedron" else simplex_rule_to_ng(pts, TET_TO_NG)
+    return {_VOL_ET[cell]: _intrule(ng, w)}
+
+
+def build_ngsolve_mesh(mesh, facet_sets=()):
+    """NGSolve mesh with the vertices and cells of ``mesh`` in the same order.
+
+    Parameters
+    ----------
+    mesh : tissuebench Mesh
+    facet_sets : sequence of ndarray, shape (n_facets, 3 or 4)
+        Outward-oriented facets; set k becomes boundary region ``"load{k}"``.
+    """
+    m = nm.Mesh(dim=3)
+    m.AddPoints(np.ascontiguousarray(mesh.points, dtype=float))
+    m.SetMaterial(1, "body")
+    cells = mesh.cells[:, TET_TO_NG] if mesh.cell_type == "tetra" else mesh.cells
+    m.AddElements(dim=3, index=1, data=np.ascontiguousarray(cells, dtype=np.int32), base=0)
+    for k, facets in enumerate(facet_sets):
+        m.Add(nm.FaceDescriptor(surfnr=k + 1, domin=1, domout=0, bc=k + 1))
+        m.SetBCName(k, f"load{k}")
+        m.AddElements(dim=2, index=k + 1, data=np.ascontiguousarray(facets, dtype=np.int32), base=0)
+    return ngs.Mesh(m)
+
+
+# ---------------------------------------------------------------- energies
+def energy_cf(material, F, fibre=None):
+    """Strain-energy density W(F) as a CoefficientFunction (SPEC.md definitions).
+
+    ``fibre`` is a unit-vector CoefficientFunction (Guccione only).
+    """
+    I = ngs.Id(3)
+    if isinstance(material, LinearElastic):
+        lam, mu = material.lame
+        eps = 0.5 * (F + F.trans) - I
+        return 0.5 * lam * ngs.Trace(eps) ** 2 + mu * ngs.InnerProduct(eps, eps)
+    C = F.trans * F
+    E = 0.5 * (C - I)
+    J = ngs.Det(F)
+    if isinstance(material, SaintVenantKirchhoff):
+        lam, mu = material.lame
+        return 0.5 * lam * ngs.Trace(E) ** 2 + mu * ngs.InnerProduct(E, E)
+    if isinstance(material, NeoHookean):
+        lam, mu = material.lame
+        return 0.5 * mu * (ngs.Trace(C) - 3) - mu * ngs.log(J) + 0.5 * lam * ngs.log(J) ** 2
+    if isinstance(material, MooneyRivlin):
+        I1 = ngs.Trace(C)
+        I2 = 0.5 * (I1 ** 2 - ngs.InnerProduct(C, C))
+        return (0.5 * material.mu1 * (J ** (-2 / 3) * I1 - 3) + 0.5 * material.mu2 * (J ** (-4 / 3) * I2 - 3)
+                + 0.5 * material.kappa * (J - 1) ** 2)
+    if isinstance(material, Guccione):
+        m = material
+        Ef = E * fibre
+        a = ngs.InnerProduct(fibre, Ef)
+        Ef2 = ngs.InnerProduct(Ef, Ef)
+        Q = m.bf * a ** 2 + m.bt * (ngs.InnerProduct(E, E) - 2 * Ef2 + a ** 2) + 2 * m.bfs * (Ef2 - a ** 2)
+        return 0.5 * m.C * (ngs.exp(Q) - 1) + 0.5 * m.kappa * (J - 1) ** 2
+    raise TypeError(f"NGSolve backend: no symbolic energy for {type(material).__name__}")
+
+
+# ---------------------------------------------------------------- CSR transfer
+class _CsrTransfer:
+    """Maps an NGSolve matrix to tissuebench numbering: ``K = T^T K_ng T``.
+
+    ``T`` (NGSolve dof i <- tissuebench dofs ``cols[i]`` times ``vals[i]``, padded
+    arrays of shape (ng_ndof, r)) is a scaled permutation for P1/Q1 (r = 1): then
+    ``K[cols[i], cols[j]] = K_ng[i, j] w_i w_j`` by one gather whose index is computed
+    from the first pattern and reused while the pattern is unchanged. P2 (r = 3) uses
+    sparse products.
+    """
+
+    def __init__(self, cols, vals):
+        self.ndof = int(cols.max()) + 1
+        self.nnz = -1
+        if cols.shape[1] == 1:
+            self.perm, self.w, self.T = cols[:, 0], vals[:, 0], None
+        else:
+            rows = np.repeat(np.arange(len(cols)), cols.shape[1])
+            self.T = sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(len(cols), self.ndof))
+
+    def _setup(self, cols, rowptr):
+        n = len(self.perm)
+        rows = np.repeat(np.arange(n), np.diff(rowptr))
+        r, c = self.perm[rows], self.perm[cols]
+        self.order = np.lexsort((c, r))
+        self.indices = c[self.order].astype(np.int32)
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n))]).astype(np.int32)
+        self.factor = (self.w[rows] * self.w[cols])[self.order]
+        self.nnz = len(cols)
+
+    def __call__(self, mat):
+        vals, cols, rowptr = (np.asarray(a) for a in mat.CSR())
+        if self.T is not None:
+            K = sp.csr_matrix((vals.copy(), cols.copy(), rowptr.copy()), shape=(mat.height, mat.width))
+            return (self.T.T @ K @ self.T).tocsr()
+        if len(vals) != self.nnz:
+            self._setup(cols.astype(np.int64), rowptr.astype(np.int64))
+        n = len(self.perm)
+        return sp.csr_matrix((vals[self.order] * self.factor, self.indices.copy(), self.indptr.copy()),
+                             shape=(n, n))
+
+
+# ---------------------------------------------------------------- linear solver
+class NgsolveDirectSolver:
+    """Sparse direct solve of a scipy CSR system with NGSolve's own factorisations.
+
+    Parameters
+    ----------
+    symmetric : bool or None
+        None: test ``|K - K^T| <= 1e-12 |K|`` (max norms) on each solve.
+    inverse : str or None
+        Force an NGSolve inverse type; default ``"sparsecholesky"`` (LDL^T) for symmetric
+        K, else ``"umfpack"`` (falls back to ``"sparsecholesky"`` if unavailable).
+    """
+
+    def __init__(self, symmetric=None, inverse=None):
+        self.symmetric, self.inverse = symmetric, inverse
+
+    def _inverse_type(self, K):
+        if self.inverse:
+            return self.inverse
+        sym = self.symmetric
+        if sym is None:
+            scale = abs(K).max() if K.nnz else 0.0
+            sym = K.nnz == 0 or abs(K - K.T).max() <= 1e-12 * scale
+        return "sparsecholesky" if sym else "umfpack"
+
+    def solve(self, K, b):
+        """Return ``(x, info)`` for square CSR ``K`` and ``b`` of shape (n,) or (n, k)."""
+        K = sp.csr_matrix(K)
+        n = K.shape[0]
+        t0 = time.perf_counter()
+        coo = K.tocoo()
+        A = ngs.la.SparseMatrixd.CreateFromCOO(coo.row.astype(np.int64), coo.col.astype(np.int64),
+                                               coo.data.astype(float), n, n)
+        kind = self._inverse_type(K)
+        try:
+            Ainv = A.Inverse(inverse=kind)
+        except Exception:  # umfpack missing in this build
+            kind = "sparsecholesky"
+            Ainv = A.Inverse(inverse=kind)
+        factor_s = time.perf_counter() - t0
+        bb = np.asarray(b, dtype=float)
+        cols = bb.reshape(n, -1)
+        x = np.empty_like(cols)
+        bv, xv = A.CreateColVector(), A.CreateColVector()
+        for j in range(cols.shape[1]):
+            bv.FV().NumPy()[:] = cols[:, j]
+            xv.data = Ainv * bv
+            x[:, j] = xv.FV().NumPy()
+        info = {"solver": "ngsolve-direct", "iterations": 1, "factor_s": factor_s,
+                "inverse": kind, "solve_s": time.perf_counter() - t0 - factor_s}
+        return x.reshape(bb.shape), info
+
+
+# ---------------------------------------------------------------- the backend
+class NgsolveBackend(Backend):
+    """Operators of a :class:`~tissuebench.refsolvers.problem.Problem` assembled by NGSolve."""
+
+    name = "ngsolve"
+
+    def __init__(self, problem):
+        super().__init__(problem)
+        pb = problem
+        self._order = pb.quadrature_order or default_order(pb.element)
+        self._surface_loads = [ld for ld in pb.loads if isinstance(ld, (SurfaceTraction, FollowerPressure))]
+        self.ngmesh = build_ngsolve_mesh(pb.mesh, [pb.facets_of(ld) for ld in self._surface_loads])
+        self.fes = ngs.VectorH1(self.ngmesh, order=2 if pb.element == "P2" else 1)
+        self._Tcols, self._Tvals = self._dof_map()
+        self._gfu = ngs.GridFunction(self.fes)
+        self._dx = ngs.dx(intrules=make_intrules(pb.element, self._order))
+        self._a_int = ngs.BilinearForm(self.fes, symmetric=True)
+        self._a_int += ngs.Variation(self._energy(self.fes.TrialFunction()) * self._dx)
+        self._K_int = _CsrTransfer(self._Tcols, self._Tvals)
+        self._K_ext = _CsrTransfer(self._Tcols, self._Tvals)
+
+    # ------------------------------------------------------------ numbering
+    def _dof_map(self):
+        """The map ``d = T u`` from tissuebench values to NGSolve coefficients.
+
+        Returns
+        -------
+        cols, vals : ndarray, shape (ng_ndof, r)
+            ``d[i] = sum_k vals[i, k] * u[cols[i, k]]``; r = 1 (P1, Q1) or 3 (P2:
+            ``d_e = (u_e - (u_a + u_b) / 2) / c`` for the bubble of edge (a, b)).
+        """
+        m, fes, p2 = self.ngmesh, self.fes, self.problem.element == "P2"
+        comp = np.arange(3)
+        cols = np.full((fes.ndof, 3 if p2 else 1), -1, dtype=np.int64)
+        vals = np.zeros(cols.shape)
+        vd = np.array([fes.GetDofNrs(ngs.NodeId(ngs.VERTEX, v)) for v in range(m.nv)], dtype=np.int64)
+        cols[vd] = (3 * np.arange(m.nv)[:, None] + comp)[..., None]
+        vals[vd, 0] = 1.0 / self._basis_value(vd[0, 0], self.problem.nodes[0])
+        if p2:
+            ev = np.sort([[a.nr, b.nr] for a, b in (e.vertices for e in m.edges)], axis=1)
+            tbe = self.problem.mesh.edges
+            node = m.nv + np.searchsorted(tbe[:, 0] * m.nv + tbe[:, 1], ev[:, 0] * m.nv + ev[:, 1])
+            ed = np.array([fes.GetDofNrs(ngs.NodeId(ngs.EDGE, e)) for e in range(m.nedge)], dtype=np.int64)
+            c = self._basis_value(ed[0, 0], self.problem.nodes[node[0]])
+            for k, n in enumerate((node, ev[:, 0], ev[:, 1])):
+                cols[ed, k] = 3 * n[:, None] + comp
+            vals[ed] = [1.0 / c, -0.5 / c, -0.5 / c]
+        if (cols < 0).any() or len(np.unique(cols[:, 0])) != len(cols) or len(cols) != self.ndof:
+            raise RuntimeError("NGSolve dofs do not map one-to-one onto tissuebench nodes")
+        return cols, vals
+
+    def _basis_value(self, dof, x):
+        """Value (component 0) of NGSolve basis function ``dof`` at point ``x``."""
+        gf = ngs.GridFunction(self.fes)
+        gf.vec[:] = 0.0
+        gf.vec[int(dof)] = 1.0
+        return gf(self.ngmesh(*map(float, x)))[0]
+
+    def _set_u(self, u):
+        u = self._check_u(u)
+        self._gfu.vec.FV().NumPy()[:] = np.einsum("ir,ir->i", self._Tvals, u[self._Tcols])
+        return self._gfu
+
+    def _to_tb(self, vec):
+        """NGSolve dual vector -> tissuebench vector, ``T^T r``."""
+        w = self._Tvals * vec.FV().NumPy()[:, None]
+        return np.bincount(self._Tcols.ravel(), weights=w.ravel(), minlength=self.ndof)
+
+    # ------------------------------------------------------------ material
+    @cached_property
+    def _fibre(self):
+        """Fibre direction CoefficientFunction (Guccione), per-cell via L2 order 0."""
+        mat = self.problem.material
+        if not isinstance(mat, Guccione):
+            return None
+        f = np.asarray(mat.fibres, dtype=float)
+        if f.ndim == 1:
+            return ngs.CF(tuple(float(c) for c in f))
+        l2 = ngs.L2(self.ngmesh, order=0)  # dof i = element i = cell i
+        self._fibre_gfs = [ngs.GridFunction(l2) for _ in range(3)]
+        for c, g in enumerate(self._fibre_gfs):
+            g.vec.FV().NumPy()[:] = f[:, c]
+        return ngs.CF(tuple(self._fibre_gfs))
+
+    def _energy(self, u):
+        return energy_cf(self.problem.material, ngs.Id(3) + ngs.Grad(u), self._fibre).Compile()
+
+    # ------------------------------------------------------------ internal
+    def internal_force(self, u):
+        gfu = self._set_u(u)
+        r = gfu.vec.CreateVector()
+        self._a_int.Apply(gfu.vec, r)
+        return self._to_tb(r)
+
+    def tangent(self, u):
+        gfu = self._set_u(u)
+        self._a_int.AssembleLinearization(gfu.vec)
+        return self._K_int(self._a_int.mat)
+
+    def internal_force_and_tangent(self, u):
+        return self.internal_force(u), self.tangent(u)
+
+    def strain_energy(self, u):
+        return float(self._a_int.Energy(self._set_u(u).vec))
+
+    @cached_property
+    def _element_energy_form(self):
+        w = ngs.L2(self.ngmesh, order=0).TestFunction()  # basis 1 on element i
+        return ngs.LinearForm(self._energy(self._gfu) * w * self._dx)
+
+    def element_strain_energies(self, u):
+        self._set_u(u)
+        return self._element_energy_form.Assemble().vec.FV().NumPy().copy()
+
+    @cached_property
+    def _dc(self):
+        """Discontinuous copy of the space and the maps of its element blocks.
+
+        Returns (gridfunction, form, cd, dd, flat, w): ``cd``/``dd`` (n_cells, m) continuous
+        and discontinuous NGSolve dofs per cell; element vectors go to tissuebench
+        local order by ``bincount(flat, w * r[dd][..., None])`` (``flat``, ``w`` of shape
+        (n_cells, m, r)).
+        """
+        fes_dc = ngs.Discontinuous(self.fes)
+        gf = ngs.GridFunction(fes_dc)
+        a = ngs.BilinearForm(fes_dc, symmetric=True)
+        a += ngs.Variation(self._energy(fes_dc.TrialFunction()) * self._dx)
+        els = list(self.ngmesh.Elements(ngs.VOL))
+        cd = np.array([self.fes.GetDofNrs(el) for el in els], dtype=np.int64)
+        dd = np.array([fes_dc.GetDofNrs(el) for el in els], dtype=np.int64)
+        edofs = self.element_dofs()
+        n, mloc = edofs.shape
+        order = np.argsort(edofs, axis=1)
+        keys = (np.arange(n)[:, None] * self.ndof + np.take_along_axis(edofs, order, axis=1)).ravel()
+        target = np.arange(n)[:, None, None] * self.ndof + self._Tcols[cd]
+        idx = np.searchsorted(keys, target)
+        if not np.array_equal(keys[np.minimum(idx, keys.size - 1)], target):
+            raise RuntimeError("element dofs of NGSolve and tissuebench differ")
+        flat = idx - (idx % mloc) + np.take_along_axis(order, (idx % mloc).reshape(n, -1), axis=1).reshape(idx.shape)
+        return gf, a, cd, dd, flat, self._Tvals[cd]
+
+    def element_internal_forces(self, u):
+        d = self._set_u(u).vec.FV().NumPy()
+        gf, a, cd, dd, flat, w = self._dc
+        gf.vec.FV().NumPy()[dd] = d[cd]
+        r = gf.vec.CreateVector()
+        a.Apply(gf.vec, r)
+        fe = w * r.FV().NumPy()[dd][..., None]
+        return np.bincount(flat.ravel(), weights=fe.ravel(), minlength=flat.shape[0] * flat.shape[1]).reshape(
+            flat.shape[0], -1)
+
+    @cached_property
+    def _qp(self):
+        return self.ngmesh.MapToAllElements(make_intrules(self.problem.element, self._order), ngs.VOL)
+
+    def min_jacobian(self, u):
+        gfu = self._set_u(u)
+        return float(np.min(ngs.Det(ngs.Id(3) + ngs.Grad(gfu))(self._qp)))
+
+    # ------------------------------------------------------------ loads
+    def _ds(self, k):
+        return ngs.ds(definedon=self.ngmesh.Boundaries(f"load{k}"),
+                      intrules=make_intrules(self.problem.element, self._order, facet=True))
+
+    @cached_property
+    def _dead_load(self):
+        """Point loads, dead tractions and body forces at load factor 1, shape (ndof,)."""
+        f = self.problem.point_load_vector()
+        v = self.fes.TestFunction()
+        terms = [ngs.InnerProduct(ngs.CF(tuple(map(float, ld.traction))), v) * self._ds(k)
+                 for k, ld in enumerate(self._surface_loads) if isinstance(ld, SurfaceTraction)]
+        terms += [ngs.InnerProduct(ngs.CF(tuple(map(float, ld.force))), v) * self._dx
+                  for ld in self.problem.loads if isinstance(ld, BodyForce)]
+        if terms:
+            lf = ngs.LinearForm(self.fes)
+            for t in terms:
+                lf += t
+            f = f + self._to_tb(lf.Assemble().vec)
+        return f
+
+    @cached_property
+    def _pressure_form(self):
+        """Follower pressure form -p cof(F) N . v dA (unit load factor), or None."""
+        u, v = self.fes.TnT()
+        cofN = ngs.Cof(ngs.Id(3) + ngs.Grad(u).Trace()) * ngs.specialcf.normal(3)
+        terms = [-float(ld.pressure) * ngs.InnerProduct(cofN, v) * self._ds(k)
+                 for k, ld in enumerate(self._surface_loads) if isinstance(ld, FollowerPressure)]
+        if not terms:
+            return None
+        a = ngs.BilinearForm(self.fes)
+        for t in terms:
+            a += t
+        return a
+
+    def external_force(self, u, load_factor):
+        f = load_factor * self._dead_load
+        if self._pressure_form is None:
+            self._check_u(u)
+            return f
+        gfu = self._set_u(u)
+        r = gfu.vec.CreateVector()
+        self._pressure_form.Apply(gfu.vec, r)
+        return f + load_factor * self._to_tb(r)
+
+    def external_tangent(self, u, load_factor):
+        if self._pressure_form is None:
+            return None
+        gfu = self._set_u(u)
+        self._pressure_form.AssembleLinearization(gfu.vec)
+        return load_factor * self._K_ext(self._pressure_form.mat)
+
+    # ------------------------------------------------------------ mass, solver
+    @cached_property
+    def _mass(self):
+        u, v = self.fes.TnT()
+        dxm = ngs.dx(intrules=make_intrules(self.problem.element, mass_order(self.problem.element)))
+        a = ngs.BilinearForm(self.fes, symmetric=True)
+        a += float(self.problem.density) * ngs.InnerProduct(u, v) * dxm
+        return _CsrTransfer(self._Tcols, self._Tvals)(a.Assemble().mat)
+
+    def mass(self, lumped=False):
+        if lumped:
+            return sp.diags(np.asarray(self._mass.sum(axis=1)).ravel(), format="csr")
+        return self._mass.copy()
+
+    def make_linear_solver(self, name="direct", **options):
+        """``"direct"``: :class:`NgsolveDirectSolver`; other names: the shared solvers."""
+        if name == "direct":
+            return NgsolveDirectSolver(**options)
+        return super().make_linear_solver(name, **options)

@@ -1,0 +1,19 @@
+"""Full-order time integrators for ``M a + C v + f_int(u) = f_ext(t, u)``.
+
+HHT-alpha, Newmark (trapezoidal), Bathe composite, explicit central difference and
+forward Euler, with per-step energy bookkeeping. Integrators consume a
+:class:`SecondOrderSystem`, never a backend module.
+"""
+from .base import Integrator, StepReport, check_dt
+from .driver import integrate
+from .explicit import CentralDifference, ForwardEuler, critical_time_step, lumped_mass, max_frequency
+from .implicit import HHT, Bathe, Newmark, NewmarkFamily
+from .newton import NewtonOptions
+from .registry import INTEGRATORS, make_integrator
+from .result import DynamicsResult
+from .system import SecondOrderSystem
+
+__all__ = ["Integrator", "StepReport", "check_dt", "integrate", "CentralDifference", "ForwardEuler",
+           "critical_time_step", "lumped_mass", "max_frequency", "HHT", "Bathe", "Newmark",
+           "NewmarkFamily", "NewtonOptions", "INTEGRATORS", "make_integrator", "DynamicsResult",
+           "SecondOrderSystem"]

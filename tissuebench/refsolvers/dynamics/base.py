@@ -1,0 +1,154 @@
+"""Contract of a time integrator for ``M a + C v + f_int(u) = f_ext(t, u)``.
+
+An integrator is configured with its options (``HHT(alpha=-0.1)``), bound to a
+:class:`~tissuebench.refsolvers.dynamics.system.SecondOrderSystem` and an initial
+state with :meth:`Integrator.start`, then advanced by :meth:`Integrator.step`, one
+fixed step ``dt`` at a time (like SciPy's ``integrate._ivp.base.OdeSolver``).
+
+State after ``start`` / each successful ``step`` (free dofs only, shape (n_free,)):
+``t`` [s], ``u`` [m], ``v`` [m/s], ``a`` [m/s^2], plus ``f_ext`` and ``f_int`` [N]
+at that state. A step that fails (Newton divergence, non-finite values) leaves the
+state unchanged and says so in its :class:`StepReport`; it never raises. Bad input
+(dt <= 0, options out of range, wrong shapes, a non-finite load) raises ValueError.
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .system import SecondOrderSystem, check_vector
+
+__all__ = ["Integrator", "StepReport", "SecondOrderSystem", "check_dt"]
+
+
+@dataclass
+class StepReport:
+    """Outcome of one step: ``converged`` False means the state was not advanced."""
+
+    converged: bool = True
+    iterations: int = 0
+    message: str = ""
+    residuals: list = field(default_factory=list)
+
+
+def check_dt(dt) -> float:
+    dt = float(dt)
+    if not np.isfinite(dt) or dt <= 0:
+        raise ValueError(f"dt must be a finite time step > 0, got {dt!r}")
+    return dt
+
+
+class Integrator(ABC):
+    """Base class: subclasses implement :meth:`_advance` and may override :meth:`_setup`.
+
+    Class attributes
+    ----------------
+    name : str
+        Registry name.
+    implicit : bool
+        Whether steps solve (non)linear systems.
+    order : int
+        Nominal global order of accuracy.
+    growth_tol : float or None
+        Default tolerance on ``energy_growth_ratio - 1`` above which
+        :func:`~tissuebench.refsolvers.dynamics.integrate` reports ``"energy_growth"``
+        (None: not checked).
+    """
+
+    name = ""
+    implicit = False
+    order = 2
+    growth_tol: float | None = None
+
+    def __init__(self):
+        self.system = None
+
+    # ------------------------------------------------------------------ binding
+    def start(self, system: SecondOrderSystem, u0=None, v0=None, dt=None, t0=0.0):
+        """Bind to ``system`` with full-vector initial state u0, v0 (n,) at time t0 [s].
+
+        Values of u0, v0 on constrained dofs must be zero. The initial acceleration
+        comes from the equation of motion: M a0 = f_ext(t0) - f_int(u0) - C v0.
+        """
+        if not isinstance(system, SecondOrderSystem):
+            raise TypeError(f"system must be a SecondOrderSystem, got {type(system).__name__}")
+        self.system = system
+        self.dt = check_dt(dt)
+        t0 = float(t0)
+        if not np.isfinite(t0):
+            raise ValueError(f"t0 must be finite, got {t0!r}")
+        u_full = self._initial("u0", u0)
+        v_full = self._initial("v0", v0)
+        self._setup()
+        u, v = u_full[system.free], v_full[system.free]
+        self.set_state(t0, u, v, None)
+        return self
+
+    def _initial(self, name, x):
+        n = self.system.n
+        x = np.zeros(n) if x is None else check_vector(name, x, n)
+        fixed = np.setdiff1d(np.arange(n), self.system.free)
+        if fixed.size and np.any(x[fixed] != 0):
+            raise ValueError(f"{name} must be zero on the constrained dofs (prescribed motion is "
+                             f"not supported), max |{name}| there = {np.abs(x[fixed]).max():.3e}")
+        return x
+
+    @property
+    def mass_ff(self) -> sp.csr_matrix:
+        """The mass matrix the scheme uses on the free dofs (lumped for explicit schemes)."""
+        return self.system.M_ff
+
+    def damping_force(self, v):
+        """C v [N] with the damping matrix the scheme uses (free dofs)."""
+        return self.system.damping_force(v)
+
+    def _setup(self):
+        """Hook: factorisations and step-size checks once ``system`` and ``dt`` are known."""
+
+    def solve_mass(self, rhs):
+        """M_ff^{-1} rhs with a factorisation computed once."""
+        if getattr(self, "_mass_lu", None) is None or self._mass_lu[0] is not self.system:
+            self._mass_lu = (self.system, spla.splu(sp.csc_matrix(self.mass_ff)))
+        return self._mass_lu[1].solve(rhs)
+
+    def set_state(self, t, u, v, a=None):
+        """Set the free-dof state; ``a=None`` computes it from the equation of motion."""
+        nf = len(self.system.free)
+        self.t = float(t)
+        self.u = check_vector("u", u, nf).copy()
+        self.v = check_vector("v", v, nf).copy()
+        self.f_ext = self.system.f_ext(self.t, self.u)
+        self.f_int = self.system.f_int(self.u)
+        if a is None:
+            a = self.solve_mass(self.f_ext - self.f_int - self.damping_force(self.v))
+        self.a = check_vector("a", a, nf).copy()
+
+    # ------------------------------------------------------------------ stepping
+    def step(self) -> StepReport:
+        """Advance one step of size ``dt``; on failure the state is left unchanged."""
+        if self.system is None:
+            raise RuntimeError("call start(system, u0, v0, dt) before step()")
+        with np.errstate(over="ignore", invalid="ignore"):
+            out = self._advance()
+        report, new = out if isinstance(out, tuple) else (out, None)
+        if not report.converged:
+            return report
+        t, u, v, a, f_ext, f_int = new
+        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(v)) and np.all(np.isfinite(a))):
+            report.converged = False
+            report.message = f"non-finite state at t={t:.6g}"
+            return report
+        self.t, self.u, self.v, self.a, self.f_ext, self.f_int = t, u, v, a, f_ext, f_int
+        return report
+
+    @abstractmethod
+    def _advance(self):
+        """Compute one step from the current state.
+
+        Returns ``(StepReport, (t, u, v, a, f_ext, f_int))`` on success or a
+        ``StepReport`` with ``converged=False`` on failure (state untouched).
+        """

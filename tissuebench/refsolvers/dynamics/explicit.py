@@ -1,0 +1,152 @@
+"""Explicit schemes: central difference (lumped mass) and forward Euler.
+
+Central difference is written in the half-step velocity form (Belytschko et al.,
+"Nonlinear finite elements", box 6.1)::
+
+    v_{n+1/2} = v_n + dt/2 a_n
+    u_{n+1}   = u_n + dt v_{n+1/2}
+    a_{n+1}   = M_L^{-1} [f_ext(t_{n+1}) - f_int(u_{n+1}) - C v_{n+1/2}]
+    v_{n+1}   = v_{n+1/2} + dt/2 a_{n+1}
+
+identical to ``u_{n+1} - 2 u_n + u_{n-1} = dt^2 a_n`` without damping. The scheme's
+damping matrix is C_L = alpha_m M_L + beta_k K0. With mass-proportional damping only
+(beta_k = 0) C_L is diagonal and the damping force uses v_{n+1} (a diagonal solve,
+second order); with beta_k > 0 it uses the lagged v_{n+1/2} (no solve, first order in
+the damping term). Stable for dt <= dt_cr = 2 / omega_max
+(undamped), omega_max^2 the largest eigenvalue of (K0, M_L) on the free dofs.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .base import Integrator, StepReport
+from .system import DENSE_LIMIT
+
+
+def lumped_mass(M) -> np.ndarray:
+    """Row-sum lumped diagonal of M, shape (n,) [kg]; refuses non-positive entries."""
+    d = np.asarray(sp.csr_matrix(M).sum(axis=1)).ravel()
+    if np.any(d <= 0):
+        i = int(np.flatnonzero(d <= 0)[0])
+        raise ValueError(f"lumped mass: row sum {i} is {float(d[i])!r} <= 0; the mass cannot be lumped")
+    return d
+
+
+def max_frequency(K, m_diag) -> float:
+    """Largest omega [rad/s] of K phi = omega^2 diag(m) phi (K symmetric, (n, n))."""
+    s = 1.0 / np.sqrt(m_diag)
+    A = sp.diags(s) @ sp.csr_matrix(K) @ sp.diags(s)
+    A = 0.5 * (A + A.T)
+    if A.shape[0] <= DENSE_LIMIT:
+        lam = sla.eigvalsh(A.toarray(), subset_by_index=[A.shape[0] - 1, A.shape[0] - 1])[0]
+    else:
+        lam = spla.eigsh(A, k=1, which="LA", tol=1e-8, return_eigenvectors=False)[0]
+    return float(np.sqrt(max(lam, 0.0)))
+
+
+def critical_time_step(system) -> float:
+    """dt_cr [s] of central difference on ``system`` with its row-sum lumped mass.
+
+    Undamped: 2 / omega_max; with Rayleigh damping the usual estimate
+    (2 / omega_max) (sqrt(1 + xi^2) - xi), xi = alpha_m / (2 omega) + beta_k omega / 2.
+    The tangent at u = 0 is used: a stiffening nonlinear system lowers the true limit.
+    """
+    w = max_frequency(system.K0_ff, lumped_mass(system.M_ff))
+    if w == 0:
+        return float("inf")
+    xi = 0.5 * system.alpha_m / w + 0.5 * system.beta_k * w
+    return float(2.0 / w * (np.sqrt(1.0 + xi * xi) - xi))
+
+
+class CentralDifference(Integrator):
+    """Explicit central difference with the row-sum lumped mass.
+
+    Parameters
+    ----------
+    force : bool
+        Accept dt > dt_cr (for demonstrating instability); the run then reports
+        ``"blow_up"`` when the energy explodes.
+    """
+
+    name = "central_difference"
+
+    def __init__(self, force=False):
+        super().__init__()
+        self.force = bool(force)
+        self.dt_critical = None
+
+    @property
+    def mass_ff(self):
+        return sp.diags(self._m)
+
+    def _setup(self):
+        self._m = lumped_mass(self.system.M_ff)
+        self.dt_critical = critical_time_step(self.system)
+        if self.dt > self.dt_critical and not self.force:
+            raise ValueError(f"dt = {self.dt!r} exceeds the critical time step dt_cr = "
+                             f"{self.dt_critical!r} of central difference; pass force=True to run anyway")
+
+    def solve_mass(self, rhs):
+        return rhs / self._m
+
+    def damping_force(self, v):
+        """C_L v [N] with the scheme's damping matrix (lumped mass part)."""
+        sys = self.system
+        if not sys.damped:
+            return np.zeros_like(v)
+        out = sys.alpha_m * self._m * v
+        return out + sys.beta_k * (sys.K0_ff @ v) if sys.beta_k else out
+
+    def _advance(self):
+        sys, dt = self.system, self.dt
+        v_half = self.v + 0.5 * dt * self.a
+        u1 = self.u + dt * v_half
+        t1 = self.t + dt
+        if not np.all(np.isfinite(u1)):
+            return StepReport(False, 0, f"non-finite displacement at t={t1:.6g}")
+        f_ext, f_int = sys.f_ext(t1, u1), sys.f_int(u1)
+        if sys.beta_k == 0:
+            # diagonal C_L = alpha_m M_L: (M_L + dt/2 C_L) a1 = f - f_int - C_L v_half
+            c = sys.alpha_m * self._m
+            a1 = (f_ext - f_int - c * v_half) / (self._m + 0.5 * dt * c)
+        else:
+            a1 = (f_ext - f_int - self.damping_force(v_half)) / self._m
+        return StepReport(), (t1, u1, v_half + 0.5 * dt * a1, a1, f_ext, f_int)
+
+
+class ForwardEuler(Integrator):
+    """Forward Euler on the first-order form (u, v)::
+
+        u_{n+1} = u_n + dt v_n,   v_{n+1} = v_n + dt a_n,   M a_n = f_ext_n - f_int(u_n) - C v_n
+
+    First order and unconditionally unstable on an undamped oscillator (amplification
+    sqrt(1 + (omega dt)^2) per step): the growth is reported by ``integrate`` through
+    ``energy_growth_ratio`` and status ``"energy_growth"`` (default tolerance 1e-3).
+    ``lumped=True`` uses the row-sum lumped mass instead of the system's.
+    """
+
+    name = "forward_euler"
+    order = 1
+    growth_tol = 1e-3
+
+    def __init__(self, lumped=False):
+        super().__init__()
+        self.lumped = bool(lumped)
+
+    @property
+    def mass_ff(self):
+        return sp.diags(lumped_mass(self.system.M_ff)) if self.lumped else self.system.M_ff
+
+    def _advance(self):
+        sys, dt = self.system, self.dt
+        t1 = self.t + dt
+        u1 = self.u + dt * self.v
+        v1 = self.v + dt * self.a
+        if not (np.all(np.isfinite(u1)) and np.all(np.isfinite(v1))):
+            return StepReport(False, 0, f"non-finite state at t={t1:.6g}")
+        f_ext, f_int = sys.f_ext(t1, u1), sys.f_int(u1)
+        a1 = self.solve_mass(f_ext - f_int - sys.damping_force(v1))
+        return StepReport(), (t1, u1, v1, a1, f_ext, f_int)

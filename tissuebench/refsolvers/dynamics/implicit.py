@@ -1,0 +1,182 @@
+"""Implicit schemes: Newmark family, HHT-alpha, Bathe composite.
+
+All solve for the displacement at the end of each (sub)step with Newton iterations on
+the nonlinear residual (:func:`~tissuebench.refsolvers.dynamics.newton.newton`); for a
+linear system the effective matrix is factorised once and each step is one solve.
+
+References: Hilber, Hughes, Taylor (1977) EESD 5:283; Bathe, Baig (2005) C&S 83:2513;
+Bathe (2007) C&S 85:437.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Integrator, StepReport
+from .newton import CachedLU, newton, newton_options
+
+
+class NewmarkFamily(Integrator):
+    """Newmark(beta, gamma) with HHT weighting ``alpha`` of the force terms.
+
+    Residual at t_{n+1} (Hilber's convention, alpha <= 0)::
+
+        M a_{n+1} + (1 + alpha) [C v_{n+1} + f_int(u_{n+1}) - f_ext_{n+1}]
+                  - alpha     [C v_n     + f_int(u_n)     - f_ext_n]      = 0
+        u_{n+1} = u_n + dt v_n + dt^2 [(1/2 - beta) a_n + beta a_{n+1}]
+        v_{n+1} = v_n + dt [(1 - gamma) a_n + gamma a_{n+1}]
+    """
+
+    implicit = True
+
+    def __init__(self, alpha=0.0, beta=0.25, gamma=0.5, **newton_opts):
+        super().__init__()
+        for name, val in (("alpha", alpha), ("beta", beta), ("gamma", gamma)):
+            if not np.isfinite(val):
+                raise ValueError(f"{name} must be finite, got {val!r}")
+        if beta <= 0:
+            raise ValueError(f"beta must be > 0 (explicit Newmark is not supported here), got {beta!r}")
+        if gamma <= 0:
+            raise ValueError(f"gamma must be > 0, got {gamma!r}")
+        self.alpha, self.beta, self.gamma = float(alpha), float(beta), float(gamma)
+        self.newton_opts = newton_options(type(self).__name__, newton_opts)
+        self._lu = CachedLU()
+
+    def _setup(self):
+        self._lu = CachedLU()  # a new system or dt invalidates the factorisation
+
+    def _kinematics(self, u1):
+        """(v_{n+1}, a_{n+1}) from the candidate u_{n+1}."""
+        dt, b, g = self.dt, self.beta, self.gamma
+        a1 = (u1 - self.u - dt * self.v) / (b * dt * dt) - (0.5 / b - 1.0) * self.a
+        v1 = self.v + dt * ((1.0 - g) * self.a + g * a1)
+        return v1, a1
+
+    def _advance(self):
+        sys, dt, al = self.system, self.dt, self.alpha
+        t1 = self.t + dt
+        old = sys.damping_force(self.v) + self.f_int - self.f_ext
+        cache = {}
+
+        def residual(u1):
+            v1, a1 = self._kinematics(u1)
+            cache["f_ext"], cache["f_int"] = sys.f_ext(t1, u1), sys.f_int(u1)
+            new = sys.damping_force(v1) + cache["f_int"] - cache["f_ext"]
+            return sys.M_ff @ a1 + (1.0 + al) * new - al * old
+
+        def jacobian(u1):
+            J = sys.M_ff / (self.beta * dt * dt) + (1.0 + al) * sys.K_t(u1, t1)
+            if sys.C_ff is not None:
+                J = J + (1.0 + al) * self.gamma / (self.beta * dt) * sys.C_ff
+            return J
+
+        # predictor: constant acceleration over the step
+        u_pred = self.u + dt * self.v + 0.5 * dt * dt * self.a
+        r_ref = max(np.linalg.norm(self.f_ext), np.linalg.norm(self.f_int),
+                    np.linalg.norm(sys.M_ff @ self.a), 1e-300)
+        u1, rep = newton(u_pred, residual, jacobian, r_ref, self.newton_opts, sys.linear, self._lu)
+        if not rep.converged:
+            rep.message = f"t={t1:.6g}: {rep.message}"
+            return rep
+        if sys.linear:  # the residual cache holds the predictor's forces; refresh them
+            cache["f_ext"], cache["f_int"] = sys.f_ext(t1, u1), sys.f_int(u1)
+        v1, a1 = self._kinematics(u1)
+        return rep, (t1, u1, v1, a1, cache["f_ext"], cache["f_int"])
+
+
+class HHT(NewmarkFamily):
+    """HHT-alpha: alpha in [-1/3, 0], beta = (1 - alpha)^2 / 4, gamma = 1/2 - alpha.
+
+    Second order, unconditionally stable on linear problems, spectral radius at
+    infinity (1 + alpha) / (1 - alpha). ``alpha = 0`` is the trapezoidal rule.
+    Newton options: ``newton_rtol``, ``newton_atol``, ``newton_utol``, ``newton_max_iter``.
+    """
+
+    name = "hht"
+
+    def __init__(self, alpha=-0.05, **newton_opts):
+        alpha = float(alpha)
+        if not (-1.0 / 3.0 - 1e-15 <= alpha <= 0.0):
+            raise ValueError(f"alpha must lie in [-1/3, 0], got {alpha!r}")
+        super().__init__(alpha, (1.0 - alpha) ** 2 / 4.0, 0.5 - alpha, **newton_opts)
+
+
+class Newmark(NewmarkFamily):
+    """Newmark average acceleration (trapezoidal rule, beta = 1/4, gamma = 1/2) by default.
+
+    Energy conserving on linear undamped problems; other (beta, gamma) are accepted.
+    """
+
+    name = "newmark"
+
+    def __init__(self, beta=0.25, gamma=0.5, **newton_opts):
+        super().__init__(0.0, beta, gamma, **newton_opts)
+
+
+class Bathe(Integrator):
+    """Bathe's composite scheme (gamma = 1/2): trapezoidal rule over [t, t + dt/2],
+    then the 3-point backward Euler formula over [t + dt/2, t + dt]::
+
+        v_{n+1} = (u_n - 4 u_{n+1/2} + 3 u_{n+1}) / dt
+        a_{n+1} = (v_n - 4 v_{n+1/2} + 3 v_{n+1}) / dt
+
+    Second order, spectral radius 0 at infinity. Newton in each sub-step.
+    """
+
+    name = "bathe"
+    implicit = True
+
+    def __init__(self, **newton_opts):
+        super().__init__()
+        self.newton_opts = newton_options("Bathe", newton_opts)
+        self._lu1, self._lu2 = CachedLU(), CachedLU()
+
+    def _setup(self):
+        self._lu1, self._lu2 = CachedLU(), CachedLU()
+
+    def _solve(self, t1, u_pred, kin, c_m, c_c, lu, r_ref):
+        """One sub-step: Newton on M a(u) + C v(u) + f_int(u) - f_ext(t1, u) = 0."""
+        sys, cache = self.system, {}
+
+        def residual(u1):
+            v1, a1 = kin(u1)
+            cache["f_ext"], cache["f_int"] = sys.f_ext(t1, u1), sys.f_int(u1)
+            return sys.M_ff @ a1 + sys.damping_force(v1) + cache["f_int"] - cache["f_ext"]
+
+        def jacobian(u1):
+            J = c_m * sys.M_ff + sys.K_t(u1, t1)
+            return J if sys.C_ff is None else J + c_c * sys.C_ff
+
+        u1, rep = newton(u_pred, residual, jacobian, r_ref, self.newton_opts, sys.linear, lu)
+        if rep.converged and sys.linear:
+            cache["f_ext"], cache["f_int"] = sys.f_ext(t1, u1), sys.f_int(u1)
+        v1, a1 = kin(u1)
+        return rep, u1, v1, a1, cache.get("f_ext"), cache.get("f_int")
+
+    def _advance(self):
+        dt, h = self.dt, 0.5 * self.dt
+        u0, v0, a0 = self.u, self.v, self.a
+        r_ref = max(np.linalg.norm(self.f_ext), np.linalg.norm(self.f_int),
+                    np.linalg.norm(self.system.M_ff @ a0), 1e-300)
+
+        def kin1(u):  # trapezoidal rule over h
+            v = 2.0 / h * (u - u0) - v0
+            return v, 2.0 / h * (v - v0) - a0
+
+        rep1, uh, vh, ah, _, _ = self._solve(self.t + h, u0 + h * v0 + 0.5 * h * h * a0, kin1,
+                                             4.0 / (h * h), 2.0 / h, self._lu1, r_ref)
+        if not rep1.converged:
+            rep1.message = f"t={self.t + h:.6g} (first sub-step): {rep1.message}"
+            return rep1
+
+        def kin2(u):  # 3-point backward Euler over [t, t + dt]
+            v = (u0 - 4.0 * uh + 3.0 * u) / dt
+            return v, (v0 - 4.0 * vh + 3.0 * v) / dt
+
+        rep2, u1, v1, a1, fe, fi = self._solve(self.t + dt, uh + h * vh + 0.5 * h * h * ah, kin2,
+                                               9.0 / (dt * dt), 3.0 / dt, self._lu2, r_ref)
+        rep = StepReport(rep2.converged, rep1.iterations + rep2.iterations, rep2.message,
+                         rep1.residuals + rep2.residuals)
+        if not rep2.converged:
+            rep.message = f"t={self.t + dt:.6g} (second sub-step): {rep2.message}"
+            return rep
+        return rep, (self.t + dt, u1, v1, a1, fe, fi)

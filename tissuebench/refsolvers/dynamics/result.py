@@ -1,0 +1,207 @@
+"""Structured output of a time integration and the per-step energy bookkeeping.
+
+Energy balance (all in J, free dofs only)::
+
+    KE_n + IE_n + D_n - W_n - (KE_0 + IE_0) = energy_error_n
+
+with KE = 1/2 v.M v, IE the stored (strain) energy, W the external work and D the
+damping dissipation, both accumulated by the trapezoidal rule over each step
+(W += 1/2 (f_n + f_{n+1}).(u_{n+1} - u_n), D likewise with C v). For the trapezoidal
+rule on a linear system with a load constant in time this balance is exact to
+round-off; other schemes show their numerical dissipation (HHT, Bathe: negative
+error) or growth (forward Euler: positive error) in it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+STATUSES = ("success", "newton_failed", "blow_up", "energy_growth")
+
+
+@dataclass
+class DynamicsResult:
+    """Per-step record of one integration (arrays truncated to the completed steps).
+
+    Attributes
+    ----------
+    method : str
+        Integrator name.
+    dt : float
+        Time step [s].
+    t : (n_steps + 1,) array
+        Times [s] of every completed step, ``t[0] = t0``.
+    stored_steps : (n_stored,) int array
+        Step indices whose states are stored in ``u``, ``v``, ``a``.
+    dofs : (n_out,) int array
+        Full-vector dof indices of the stored columns (all dofs by default).
+    u, v, a : (n_stored, n_out) arrays
+        Displacement [m], velocity [m/s], acceleration [m/s^2] at the stored steps.
+    newton_iterations : (n_steps + 1,) int array
+        Newton iterations (linear solves) per step; 0 at step 0 and for explicit schemes.
+    converged : (n_steps + 1,) bool array
+    kinetic_energy, strain_energy, external_work, damping_dissipation, energy_error :
+        (n_steps + 1,) arrays [J], see the module docstring.
+    wall_time : (n_steps + 1,) array
+        Wall-clock seconds spent in each step (0 at step 0).
+    status : str
+        One of ``"success"``, ``"newton_failed"``, ``"blow_up"``, ``"energy_growth"``.
+    message : str
+        Human-readable account of the status.
+    failed_step : int or None
+        Index of the step that failed (blow-up, Newton failure) or None.
+    energy_growth_ratio : float
+        ``max_n (KE + IE + D)_n / max_n (KE_0 + IE_0 + W_n)``: 1 for an exactly
+        energy-consistent scheme, < 1 with numerical dissipation, > 1 with growth.
+    """
+
+    method: str
+    dt: float
+    t: np.ndarray
+    stored_steps: np.ndarray
+    dofs: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    newton_iterations: np.ndarray
+    converged: np.ndarray
+    kinetic_energy: np.ndarray
+    strain_energy: np.ndarray
+    external_work: np.ndarray
+    damping_dissipation: np.ndarray
+    energy_error: np.ndarray
+    wall_time: np.ndarray
+    status: str = "success"
+    message: str = ""
+    failed_step: int | None = None
+    energy_growth_ratio: float = 1.0
+    options: dict = field(default_factory=dict)
+
+    @property
+    def success(self) -> bool:
+        return self.status == "success"
+
+    @property
+    def n_steps(self) -> int:
+        """Number of completed steps."""
+        return len(self.t) - 1
+
+    @property
+    def t_stored(self) -> np.ndarray:
+        return self.t[self.stored_steps]
+
+    @property
+    def total_energy(self) -> np.ndarray:
+        """KE + IE [J] per step."""
+        return self.kinetic_energy + self.strain_energy
+
+    @property
+    def relative_energy_error(self) -> np.ndarray:
+        """energy_error divided by the largest energy or work seen in the run."""
+        scale = max(np.max(np.abs(self.total_energy)), np.max(np.abs(self.external_work)), 1e-300)
+        return self.energy_error / scale
+
+
+class Recorder:
+    """Accumulates states and energies step by step for a :class:`DynamicsResult`.
+
+    Parameters
+    ----------
+    system : SecondOrderSystem
+    mass_ff : sparse (n_free, n_free)
+        The mass the integrator really uses (lumped for central difference), so the
+        kinetic energy is the scheme's own.
+    n_steps : int
+        Steps planned (arrays are preallocated, then truncated).
+    dofs : int array, optional
+        Full-vector dofs to store (default all).
+    store_every : int
+        Store the state every this many steps (and always the last one).
+    damping_force : callable ``v -> (n_free,)``, optional
+        The scheme's C v [N] (default the system's).
+    """
+
+    def __init__(self, system, mass_ff, n_steps, dofs=None, store_every=1, damping_force=None):
+        self.system, self.M = system, mass_ff
+        self.damping_force = system.damping_force if damping_force is None else damping_force
+        n = system.n
+        self.dofs = np.arange(n) if dofs is None else np.asarray(dofs, dtype=np.int64).ravel()
+        if self.dofs.size and (self.dofs.min() < 0 or self.dofs.max() >= n):
+            raise ValueError(f"dofs: index out of range 0..{n - 1}")
+        if int(store_every) != store_every or store_every < 1:
+            raise ValueError(f"store_every must be an integer >= 1, got {store_every!r}")
+        self.store_every = int(store_every)
+        size = n_steps + 1
+        self.t = np.zeros(size)
+        self.iters = np.zeros(size, dtype=np.int64)
+        self.conv = np.ones(size, dtype=bool)
+        self.ke, self.ie, self.w, self.d, self.wall = (np.zeros(size) for _ in range(5))
+        self.states, self.steps = [], []
+        self.k = -1
+        self._prev = None  # (u, v, f_ext, f_int) of the last recorded step
+
+    def _full_cols(self, x_f):
+        return self.system.expand(x_f)[self.dofs]
+
+    def record(self, t, u, v, a, f_ext, f_int=None, iterations=0, converged=True, wall=0.0,
+               force_store=False):
+        """Record step ``k + 1``: free-dof state (u, v, a), external and internal force [N].
+
+        ``f_int`` is only used (and recomputed when None) if the system has no
+        strain-energy function.
+        """
+        self.k += 1
+        k = self.k
+        self.t[k], self.iters[k], self.conv[k], self.wall[k] = t, iterations, converged, wall
+        self.ke[k] = 0.5 * float(v @ (self.M @ v))
+        energy = self.system.energy(u)
+        if energy is None and f_int is None:
+            f_int = self.system.f_int(u)
+        if self._prev is None:
+            self.ie[k] = 0.0 if energy is None else energy
+        else:
+            u0, v0, f0, fi0 = self._prev
+            du = u - u0
+            self.w[k] = self.w[k - 1] + 0.5 * float((f0 + f_ext) @ du)
+            cv = self.damping_force(v0) + self.damping_force(v)
+            self.d[k] = self.d[k - 1] + 0.5 * float(cv @ du)
+            # without a strain-energy function the internal work is accumulated instead
+            self.ie[k] = energy if energy is not None else self.ie[k - 1] + 0.5 * float((fi0 + f_int) @ du)
+        self._prev = (u.copy(), v.copy(), np.array(f_ext, dtype=float), f_int)
+        if force_store or k % self.store_every == 0:
+            self.store(k, u, v, a)
+
+    def store(self, k, u, v, a):
+        if self.steps and self.steps[-1] == k:
+            return
+        self.steps.append(k)
+        self.states.append((self._full_cols(u), self._full_cols(v), self._full_cols(a)))
+
+    def mechanical(self):
+        """(KE + IE + D) and (KE_0 + IE_0 + W) up to the current step."""
+        k = self.k + 1
+        return (self.ke[:k] + self.ie[:k] + self.d[:k],
+                self.ke[0] + self.ie[0] + self.w[:k])
+
+    def growth_ratio(self) -> float:
+        mech, supplied = self.mechanical()
+        top = np.max(mech)
+        ref = np.max(supplied)
+        if ref <= 0:
+            return 1.0 if top <= 0 else np.inf
+        return float(top / ref)
+
+    def finish(self, method, dt, status, message, failed_step, options) -> DynamicsResult:
+        k = self.k + 1
+        mech, supplied = self.mechanical()
+        u, v, a = (np.array([s[i] for s in self.states]).reshape(len(self.states), len(self.dofs))
+                   for i in range(3))
+        return DynamicsResult(
+            method=method, dt=dt, t=self.t[:k].copy(), stored_steps=np.array(self.steps, dtype=np.int64),
+            dofs=self.dofs, u=u, v=v, a=a, newton_iterations=self.iters[:k].copy(),
+            converged=self.conv[:k].copy(), kinetic_energy=self.ke[:k].copy(),
+            strain_energy=self.ie[:k].copy(), external_work=self.w[:k].copy(),
+            damping_dissipation=self.d[:k].copy(), energy_error=mech - supplied,
+            wall_time=self.wall[:k].copy(), status=status, message=message, failed_step=failed_step,
+            energy_growth_ratio=self.growth_ratio(), options=dict(options))

@@ -1,0 +1,254 @@
+"""The semi-discrete system ``M a + C v + f_int(u) = f_ext(t, u)`` the integrators march.
+
+A :class:`SecondOrderSystem` is all an integrator sees: it never imports a backend.
+Operators act on the full dof vector (length ``n``); dofs outside ``free`` are held
+at zero (homogeneous Dirichlet conditions; prescribed motion is not supported yet).
+The ``*_ff`` helpers restrict everything to the free dofs, which is where the
+integrators work.
+
+Units are whatever the caller uses consistently (SI in the cases: m, kg, s, N).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Callable
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+# Dense checks (Cholesky, eigvalsh) are exact and cheap below this many free dofs.
+DENSE_LIMIT = 1500
+
+
+def check_vector(name: str, value, n: int) -> np.ndarray:
+    """Return ``value`` as a float array of shape (n,), or raise ValueError naming it."""
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {arr.shape}")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{name} contains a non-finite value {float(arr[i])!r} at index {i}")
+    return arr
+
+
+def check_spd_mass(M: sp.csr_matrix) -> None:
+    """Raise ValueError unless ``M`` (free-dof block) is symmetric positive definite.
+
+    Cheap checks first (finite, diagonal > 0, symmetric); then a Cholesky factorisation
+    for small systems, a sparse LU with a positive-pivot check for large ones (a
+    singular mass fails the LU).
+    """
+    if M.shape[0] == 0:
+        raise ValueError("M has no free dofs")
+    if not np.all(np.isfinite(M.data)):
+        raise ValueError("M contains non-finite entries")
+    diag = M.diagonal()
+    if np.any(diag <= 0):
+        i = int(np.flatnonzero(diag <= 0)[0])
+        raise ValueError(f"M is not positive definite: diagonal entry M[{i},{i}] = {float(diag[i])!r} <= 0")
+    asym = abs(M - M.T).max() if M.nnz else 0.0
+    if asym > 1e-10 * abs(M).max():
+        raise ValueError(f"M is not symmetric: max |M - M^T| = {asym:.3e}")
+    if M.shape[0] <= DENSE_LIMIT:
+        try:
+            np.linalg.cholesky(M.toarray())
+        except np.linalg.LinAlgError:
+            lam = sla.eigvalsh(M.toarray(), subset_by_index=[0, 0])[0]
+            raise ValueError(f"M is not positive definite: smallest eigenvalue {lam:.3e}") from None
+        return
+    try:
+        lu = spla.splu(M.tocsc())
+    except RuntimeError as exc:  # "Factor is exactly singular"
+        raise ValueError(f"M is singular: {exc}") from None
+    piv = lu.U.diagonal()
+    if np.any(piv <= 0) or np.min(np.abs(piv)) < 1e-14 * np.max(np.abs(piv)):
+        raise ValueError("M is not positive definite: LU pivots not all clearly positive")
+
+
+def _constant_load(f):
+    f = np.asarray(f, dtype=float).copy()
+    return lambda t: f
+
+
+@dataclass
+class SecondOrderSystem:
+    """``M a + C v + f_int(u) = f_ext(t, u)`` with ``C = alpha_m M + beta_k K0``.
+
+    Parameters
+    ----------
+    M : scipy.sparse matrix, (n, n)
+        Mass matrix [kg]; symmetric positive definite on the free dofs.
+    internal_force : callable ``u -> (n,)``
+        Internal force [N] at displacement ``u`` [m], shape (n,).
+    tangent : callable ``u -> sparse (n, n)``
+        d internal_force / du [N/m].
+    load : callable
+        ``load(t) -> (n,)`` external force [N] at time ``t`` [s]; with
+        ``load_depends_on_u=True`` it is called as ``load(t, u)`` (follower loads).
+    free : int array, optional
+        Free dof indices; the others are held at zero. Default: all dofs.
+    alpha_m, beta_k : float
+        Rayleigh coefficients [1/s] and [s]; K0 is the tangent at ``u = 0``.
+    linear : bool
+        True when ``f_int = K u`` with constant K: effective matrices are factorised
+        once and each step is one linear solve.
+    strain_energy : callable ``u -> float``, optional
+        Stored energy [J]; for linear systems 0.5 u^T K u is used when omitted, for
+        nonlinear ones the internal work is accumulated by the trapezoidal rule.
+    load_tangent : callable ``(t, u) -> sparse (n, n) | None``, optional
+        d load / du for follower loads.
+    """
+
+    M: sp.spmatrix
+    internal_force: Callable
+    tangent: Callable
+    load: Callable
+    free: np.ndarray | None = None
+    alpha_m: float = 0.0
+    beta_k: float = 0.0
+    linear: bool = False
+    strain_energy: Callable | None = None
+    load_depends_on_u: bool = False
+    load_tangent: Callable | None = None
+
+    def __post_init__(self):
+        if not sp.issparse(self.M):
+            self.M = sp.csr_matrix(np.atleast_2d(np.asarray(self.M, dtype=float)))
+        self.M = sp.csr_matrix(self.M, dtype=float)
+        if self.M.ndim != 2 or self.M.shape[0] != self.M.shape[1]:
+            raise ValueError(f"M must be square, got shape {self.M.shape}")
+        n = self.M.shape[0]
+        free = np.arange(n) if self.free is None else np.unique(np.asarray(self.free, dtype=np.int64))
+        if free.size and (free.min() < 0 or free.max() >= n):
+            raise ValueError(f"free: dof index out of range 0..{n - 1}")
+        self.free = free
+        for name in ("alpha_m", "beta_k"):
+            val = float(getattr(self, name))
+            setattr(self, name, val)
+            if not np.isfinite(val) or val < 0:
+                raise ValueError(f"{name} must be finite and >= 0, got {val!r}")
+        if not callable(self.load):
+            self.load = _constant_load(check_vector("load", self.load, n))
+        check_spd_mass(self.M_ff)
+
+    # ---------------------------------------------------------------- constructors
+    @classmethod
+    def linear_system(cls, M, K, load, free=None, alpha_m=0.0, beta_k=0.0):
+        """``M a + C v + K u = load(t)``; ``load`` is a callable of t or a constant (n,) vector."""
+        K = sp.csr_matrix(K, dtype=float)
+        n = sp.csr_matrix(M).shape[0]
+        if K.shape != (n, n):
+            raise ValueError(f"K must have shape ({n}, {n}) like M, got {K.shape}")
+        return cls(M=M, internal_force=lambda u: K @ u, tangent=lambda u: K, load=load, free=free,
+                   alpha_m=alpha_m, beta_k=beta_k, linear=True,
+                   strain_energy=lambda u: 0.5 * float(u @ (K @ u)))
+
+    @classmethod
+    def from_backend(cls, backend, load_history: Callable[[float], float], lumped=False,
+                     alpha_m=0.0, beta_k=0.0, linear=False):
+        """A system from a finite-element backend (any object with the Backend interface).
+
+        The force at time t is ``backend.external_force(u, load_history(t))`` (follower
+        loads allowed); ``problem.fixed_dofs`` are held at zero.
+        """
+        problem = backend.problem
+        lam0 = float(load_history(0.0))
+        presc = np.asarray(problem.prescribed_values(lam0), dtype=float)
+        if np.any(presc != 0):
+            raise ValueError("from_backend: non-zero prescribed displacements are not supported "
+                             f"by the dynamics integrators (max |value| = {np.abs(presc).max():.3e})")
+
+        if linear and backend.external_tangent(np.zeros(problem.ndof), lam0) is not None:
+            raise ValueError("from_backend: linear=True needs dead loads (external_tangent is not None, "
+                             "the effective matrix would not be constant)")
+
+        def ext_tangent(t, u):
+            return backend.external_tangent(u, float(load_history(t)))
+
+        return cls(M=backend.mass(lumped=lumped), internal_force=backend.internal_force,
+                   tangent=backend.tangent, load=lambda t, u: backend.external_force(u, float(load_history(t))),
+                   free=problem.free_dofs, alpha_m=alpha_m, beta_k=beta_k, linear=linear,
+                   strain_energy=backend.strain_energy, load_depends_on_u=True,
+                   load_tangent=ext_tangent)
+
+    # ---------------------------------------------------------------- free-dof operators
+    @property
+    def n(self) -> int:
+        """Number of dofs of the full vector."""
+        return self.M.shape[0]
+
+    @property
+    def damped(self) -> bool:
+        return self.alpha_m != 0.0 or self.beta_k != 0.0
+
+    def _ff(self, A) -> sp.csr_matrix:
+        return sp.csr_matrix(A)[self.free][:, self.free]
+
+    @cached_property
+    def M_ff(self) -> sp.csr_matrix:
+        return self._ff(self.M)
+
+    @cached_property
+    def K0_ff(self) -> sp.csr_matrix:
+        """Tangent at u = 0 on the free dofs (Rayleigh damping, critical step)."""
+        return self._ff(self.tangent(np.zeros(self.n)))
+
+    @cached_property
+    def C_ff(self) -> sp.csr_matrix | None:
+        if not self.damped:
+            return None
+        return sp.csr_matrix(self.alpha_m * self.M_ff + self.beta_k * self.K0_ff)
+
+    def expand(self, x_f: np.ndarray) -> np.ndarray:
+        """Full vector (n,) with ``x_f`` on the free dofs and zero elsewhere."""
+        x = np.zeros(self.n)
+        x[self.free] = x_f
+        return x
+
+    def f_int(self, u_f):
+        return np.asarray(self.internal_force(self.expand(u_f)), dtype=float)[self.free]
+
+    def K_t(self, u_f, t=None) -> sp.csr_matrix:
+        """Tangent of ``f_int - f_ext`` on the free dofs (includes follower loads at ``t``)."""
+        K = self._ff(self.tangent(self.expand(u_f)))
+        if self.load_tangent is not None and t is not None:
+            Ke = self.load_tangent(t, self.expand(u_f))
+            if Ke is not None:
+                K = sp.csr_matrix(K - self._ff(Ke))
+        return K
+
+    def f_ext(self, t: float, u_f) -> np.ndarray:
+        """External force on the free dofs; raises ValueError on a wrong shape or non-finite value."""
+        f = self.load(t, self.expand(u_f)) if self.load_depends_on_u else self.load(t)
+        return check_vector(f"load(t) at t={t!r}", f, self.n)[self.free]
+
+    def damping_force(self, v_f):
+        return np.zeros_like(v_f) if self.C_ff is None else self.C_ff @ v_f
+
+    def energy(self, u_f) -> float | None:
+        """Stored energy [J], or None when the system cannot supply it."""
+        if self.strain_energy is None:
+            return None
+        return float(self.strain_energy(self.expand(u_f)))
+
+
+class _LinearFlagOrCtor:
+    """``SecondOrderSystem.linear(M, K, load, ...)`` on the class builds a linear system
+    (alias of :meth:`SecondOrderSystem.linear_system`); ``system.linear`` on an instance
+    is the bool field. A data descriptor installed after the dataclass has read the
+    field's default, so both spellings of the contract hold."""
+
+    def __get__(self, obj, owner):
+        if obj is None:
+            return owner.linear_system
+        return obj.__dict__.get("linear", False)
+
+    def __set__(self, obj, value):
+        obj.__dict__["linear"] = bool(value)
+
+
+SecondOrderSystem.linear = _LinearFlagOrCtor()

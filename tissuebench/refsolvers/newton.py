@@ -1,0 +1,279 @@
+"""Backend-neutral Newton-Raphson for quasi-static equilibrium with load stepping.
+
+Solves ``f_int(u) = f_ext(u, lam)`` on the free dofs for ``lam`` going from 0 to
+``load_factor``, with prescribed displacements scaled by ``lam``. A load increment whose
+Newton iteration fails (divergence, too many iterations, inverted element, failed linear
+solve) is cut in half and retried; when the increment gets below ``min_increment`` the
+run stops and returns the last converged load factor as data (the Newton convergence
+radius), unless ``strict=True``, which raises :class:`NewtonError`.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from .linear_solvers import LinearSolverError
+
+
+class NewtonError(RuntimeError):
+    """Raised in strict mode when the requested load factor is not reached."""
+
+    def __init__(self, result):
+        super().__init__(result.message)
+        self.result = result
+
+
+@dataclass(frozen=True)
+class NewtonOptions:
+    """Tolerances and stepping controls.
+
+    Converged when ``||r_free|| <= rtol * f_ref + atol`` and ``||du|| <= utol * ||u||``,
+    with ``f_ref`` the larger of the external-load norm and the reaction norm.
+    """
+
+    rtol: float = 1e-9
+    atol: float = 1e-14
+    utol: float = 1e-4
+    max_iterations: int = 25
+    n_increments: int = 1
+    min_increment: float = 1.0 / 4096
+    max_increment: float | None = None
+    growth: float = 1.5
+    easy_iterations: int = 6
+    line_search: bool = False
+    strict: bool = False
+    linear_solver: str = "direct"
+    linear_solver_options: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        for name in ("rtol", "utol", "min_increment", "growth"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+        if self.atol < 0 or not math.isfinite(self.atol):
+            raise ValueError(f"atol must be a finite number >= 0, got {self.atol!r}")
+        if int(self.max_iterations) < 1:
+            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations!r}")
+        if int(self.n_increments) < 1:
+            raise ValueError(f"n_increments must be >= 1, got {self.n_increments!r}")
+
+
+@dataclass
+class Increment:
+    """One attempted load increment."""
+
+    load_factor: float
+    converged: bool
+    iterations: int
+    residual_norms: list
+    increment_norms: list
+    assembly_s: float = 0.0
+    solve_s: float = 0.0
+    wall_s: float = 0.0
+    linear_iterations: int = 0
+    message: str = ""
+
+
+@dataclass
+class StaticResult:
+    """Outcome of :func:`newton_solve`.
+
+    ``u`` is the last converged displacement (ndof,), never NaN; ``load_factor`` the last
+    converged load factor; ``states`` the converged displacement after each accepted
+    increment (if stored); ``increments`` every attempt, accepted or cut.
+    """
+
+    status: str
+    message: str
+    u: np.ndarray
+    load_factor: float
+    target_load_factor: float
+    increments: list
+    states: list = field(default_factory=list)
+
+    @property
+    def success(self) -> bool:
+        return self.status == "success"
+
+    @property
+    def converged_increments(self):
+        return [inc for inc in self.increments if inc.converged]
+
+    def table(self) -> pd.DataFrame:
+        """One row per attempted increment."""
+        rows = [{"load_factor": i.load_factor, "converged": i.converged, "newton_iterations": i.iterations,
+                 "final_residual": i.residual_norms[-1] if i.residual_norms else np.nan,
+                 "assembly_s": i.assembly_s, "solve_s": i.solve_s, "wall_s": i.wall_s,
+                 "linear_iterations": i.linear_iterations, "message": i.message} for i in self.increments]
+        return pd.DataFrame(rows)
+
+
+def _norm(x):
+    return float(np.linalg.norm(x))
+
+
+class _Equilibrium:
+    """Residual and tangent at a fixed load factor (free/fixed partition of the dofs)."""
+
+    def __init__(self, backend, lam):
+        self.b, self.lam = backend, lam
+        pb = backend.problem
+        self.free, self.fixed = pb.free_dofs, pb.fixed_dofs
+
+    def residual(self, u):
+        """(free residual, reference force norm): f_ref = max(|f_ext|, |reactions|)."""
+        r, f_ext = self._residual(u, self.b.internal_force(u))
+        return r[self.free], max(_norm(f_ext), _norm(r[self.fixed]))
+
+    def _residual(self, u, f_int):
+        f_ext = self.b.external_force(u, self.lam)
+        return f_int - f_ext, f_ext
+
+    def residual_and_tangent(self, u):
+        """(free residual, f_ref, K_ff, K_fc) with K = K_t - d f_ext / du."""
+        f_int, K = self.b.internal_force_and_tangent(u)
+        r, f_ext = self._residual(u, f_int)
+        K_ext = self.b.external_tangent(u, self.lam)
+        if K_ext is not None:
+            K = K - K_ext
+        K_f = K[self.free]
+        return r[self.free], max(_norm(f_ext), _norm(r[self.fixed])), K_f[:, self.free], K_f[:, self.fixed]
+
+
+def _newton_increment(backend, solver, u_start, lam, opts):
+    """Newton iterations at load factor ``lam`` from the converged state ``u_start``.
+
+    The change of the prescribed values enters the first iteration through the
+    tangent (``-K_fc du_c`` on the right-hand side), so the interior follows the
+    boundary instead of a boundary layer of cells being inverted by a jump.
+    """
+    eq = _Equilibrium(backend, lam)
+    pb = backend.problem
+    u = u_start.copy()
+    du_c = pb.prescribed_values(lam) - u[eq.fixed]
+    inc = Increment(lam, False, 0, [], [])
+    t_start = time.perf_counter()
+    for it in range(1, opts.max_iterations + 1):
+        t0 = time.perf_counter()
+        r, f_ref, K_ff, K_fc = eq.residual_and_tangent(u)
+        t1 = time.perf_counter()
+        inc.assembly_s += t1 - t0
+        res = _norm(r)
+        if it == 1:
+            inc.residual_norms.append(res)
+        if not math.isfinite(res):
+            inc.message = "non-finite residual"
+            break
+        tol = opts.rtol * f_ref + opts.atol
+        if it > 1 and res <= tol and inc.increment_norms[-1] <= opts.utol * max(_norm(u), 1e-300):
+            inc.converged = True
+            break
+        rhs = -r - K_fc @ du_c if du_c.any() else -r
+        try:
+            du, info = solver.solve(K_ff, rhs)
+        except LinearSolverError as exc:
+            inc.message = str(exc)
+            break
+        inc.solve_s += time.perf_counter() - t1
+        inc.linear_iterations += int(info.get("iterations", 1))
+        inc.iterations = it
+        u_new, res_new, step = _update(backend, eq, u, du, du_c, res, opts)
+        if u_new is None:
+            inc.message = ("inverted element (det F <= 0)" if res_new is None
+                           else f"line search failed (residual {res_new:.3e} >= {res:.3e})")
+            break
+        inc.increment_norms.append(step * math.hypot(_norm(du), _norm(du_c)))
+        u, du_c = u_new, np.zeros_like(du_c)
+        inc.residual_norms.append(res_new)
+        # the first update absorbs the jump of the prescribed values: measure growth after it
+        if not math.isfinite(res_new) or res_new > 1e8 * max(max(inc.residual_norms[:2]), tol):
+            inc.message = f"diverged (residual {res_new:.3e})"
+            break
+        if res_new <= tol and inc.increment_norms[-1] <= opts.utol * max(_norm(u), 1e-300):
+            inc.converged = True
+            break
+    else:
+        inc.message = f"no convergence in {opts.max_iterations} iterations (residual {inc.residual_norms[-1]:.3e})"
+    inc.wall_s = time.perf_counter() - t_start
+    return inc, u
+
+
+def _update(backend, eq, u, du, du_c, res, opts):
+    """Apply the Newton step, halving it (line search) or refusing an inverted state.
+
+    Returns (new state or None, its residual norm or None, step length).
+    """
+    step, res_new = 1.0, None
+    for _ in range(6 if opts.line_search else 1):
+        trial = u.copy()
+        trial[eq.free] += step * du
+        trial[eq.fixed] += step * du_c
+        if backend.min_jacobian(trial) > 0:
+            res_new = _norm(eq.residual(trial)[0])
+            if not opts.line_search or res_new <= (1 - 1e-4 * step) * res or du_c.any():
+                return trial, res_new, step
+        step *= 0.5
+    return None, res_new, step
+
+
+def newton_solve(backend, load_factor: float = 1.0, options: NewtonOptions | None = None,
+                 u0=None, store_states: bool = True, progress=None, **kwargs) -> StaticResult:
+    """Load-stepped Newton-Raphson from ``u0`` (zero by default) up to ``load_factor``.
+
+    Parameters
+    ----------
+    backend : Backend
+        Supplies f_int, K_t, loads and the problem's Dirichlet data.
+    load_factor : float
+        Target load factor (prescribed displacements and loads scale with it).
+    options : NewtonOptions, optional
+        Tolerances and stepping; keyword arguments override its fields.
+    progress : callable, optional
+        Called as ``progress(load_factor, target)`` after each accepted increment.
+    """
+    if not (isinstance(load_factor, (int, float)) and math.isfinite(load_factor)):
+        raise ValueError(f"load_factor must be finite, got {load_factor!r}")
+    opts = options or NewtonOptions()
+    if kwargs:
+        opts = NewtonOptions(**{**opts.__dict__, **kwargs})
+    u = np.zeros(backend.ndof) if u0 is None else np.array(backend._check_u(u0), dtype=float)
+    if not np.all(np.isfinite(u)):
+        raise ValueError("u0 contains a non-finite value")
+    solver_opts = dict(opts.linear_solver_options)
+    if opts.linear_solver == "amg-cg":
+        solver_opts.setdefault("coords", backend.problem.nodes)
+        solver_opts.setdefault("free_dofs", backend.problem.free_dofs)
+    solver = backend.make_linear_solver(opts.linear_solver, **solver_opts)
+    lam, target = 0.0, float(load_factor)
+    d_lam = target / opts.n_increments
+    d_max = abs(opts.max_increment * target) if opts.max_increment else abs(target)
+    increments, states = [], []
+    status, message = "success", "converged"
+    while abs(target - lam) > 1e-14 * max(1.0, abs(target)):
+        lam_try = lam + d_lam if abs(target - lam - d_lam) > 1e-12 * abs(target) else target
+        inc, u_try = _newton_increment(backend, solver, u, lam_try, opts)
+        increments.append(inc)
+        if inc.converged:
+            lam, u = lam_try, u_try
+            if store_states:
+                states.append(u.copy())
+            if progress:
+                progress(lam, target)
+            if inc.iterations <= opts.easy_iterations:
+                d_lam = math.copysign(min(abs(d_lam) * opts.growth, d_max), d_lam)
+            d_lam = math.copysign(min(abs(d_lam), abs(target - lam)), d_lam) if lam != target else d_lam
+            continue
+        d_lam *= 0.5
+        if abs(d_lam) < opts.min_increment * abs(target):
+            status = "stalled"
+            message = (f"Newton stopped converging at load factor {lam_try:.6g} ({inc.message}); "
+                       f"last converged load factor {lam:.6g} of {target:.6g}")
+            break
+    result = StaticResult(status, message, u, lam, target, increments, states)
+    if opts.strict and not result.success:
+        raise NewtonError(result)
+    return result
