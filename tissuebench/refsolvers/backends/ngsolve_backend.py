@@ -24,6 +24,7 @@ NGSolve conventions met here (checked by ``tests/test_ngsolve_backend.py``):
 """
 from __future__ import annotations
 
+import contextlib
 import time
 from functools import cached_property
 
@@ -210,11 +211,12 @@ class NgsolveDirectSolver:
         A = ngs.la.SparseMatrixd.CreateFromCOO(coo.row.astype(np.int64), coo.col.astype(np.int64),
                                                coo.data.astype(float), n, n)
         kind = self._inverse_type(K)
-        try:
-            Ainv = A.Inverse(inverse=kind)
-        except Exception:  # umfpack missing in this build
-            kind = "sparsecholesky"
-            Ainv = A.Inverse(inverse=kind)
+        with ngs.TaskManager():
+            try:
+                Ainv = A.Inverse(inverse=kind)
+            except Exception:  # umfpack missing in this build
+                kind = "sparsecholesky"
+                Ainv = A.Inverse(inverse=kind)
         factor_s = time.perf_counter() - t0
         bb = np.asarray(b, dtype=float)
         cols = bb.reshape(n, -1)
@@ -231,13 +233,24 @@ class NgsolveDirectSolver:
 
 # ---------------------------------------------------------------- the backend
 class NgsolveBackend(Backend):
-    """Operators of a :class:`~tissuebench.refsolvers.problem.Problem` assembled by NGSolve."""
+    """Operators of a :class:`~tissuebench.refsolvers.problem.Problem` assembled by NGSolve.
+
+    Parameters
+    ----------
+    problem : Problem
+    threads : int or None
+        Assemble inside NGSolve's TaskManager (None: NGSolve's default thread count;
+        1: no TaskManager; n > 1: ``SetNumThreads(n)``, a process-wide setting).
+    """
 
     name = "ngsolve"
 
-    def __init__(self, problem):
+    def __init__(self, problem, threads=None):
         super().__init__(problem)
         pb = problem
+        self._threads = threads
+        if threads and threads > 1:
+            ngs.SetNumThreads(int(threads))
         self._order = pb.quadrature_order or default_order(pb.element)
         self._surface_loads = [ld for ld in pb.loads if isinstance(ld, (SurfaceTraction, FollowerPressure))]
         self.ngmesh = build_ngsolve_mesh(pb.mesh, [pb.facets_of(ld) for ld in self._surface_loads])
@@ -316,23 +329,31 @@ class NgsolveBackend(Backend):
     def _energy(self, u):
         return energy_cf(self.problem.material, ngs.Id(3) + ngs.Grad(u), self._fibre).Compile()
 
+    def _tm(self):
+        """TaskManager context for assembly (a no-op with ``threads=1``)."""
+        return contextlib.nullcontext() if self._threads == 1 else ngs.TaskManager()
+
     # ------------------------------------------------------------ internal
     def internal_force(self, u):
         gfu = self._set_u(u)
         r = gfu.vec.CreateVector()
-        self._a_int.Apply(gfu.vec, r)
+        with self._tm():
+            self._a_int.Apply(gfu.vec, r)
         return self._to_tb(r)
 
     def tangent(self, u):
         gfu = self._set_u(u)
-        self._a_int.AssembleLinearization(gfu.vec)
+        with self._tm():
+            self._a_int.AssembleLinearization(gfu.vec)
         return self._K_int(self._a_int.mat)
 
     def internal_force_and_tangent(self, u):
         return self.internal_force(u), self.tangent(u)
 
     def strain_energy(self, u):
-        return float(self._a_int.Energy(self._set_u(u).vec))
+        gfu = self._set_u(u)
+        with self._tm():
+            return float(self._a_int.Energy(gfu.vec))
 
     @cached_property
     def _element_energy_form(self):
@@ -341,7 +362,8 @@ class NgsolveBackend(Backend):
 
     def element_strain_energies(self, u):
         self._set_u(u)
-        return self._element_energy_form.Assemble().vec.FV().NumPy().copy()
+        with self._tm():
+            return self._element_energy_form.Assemble().vec.FV().NumPy().copy()
 
     @cached_property
     def _dc(self):
@@ -356,9 +378,11 @@ class NgsolveBackend(Backend):
         gf = ngs.GridFunction(fes_dc)
         a = ngs.BilinearForm(fes_dc, symmetric=True)
         a += ngs.Variation(self._energy(fes_dc.TrialFunction()) * self._dx)
-        els = list(self.ngmesh.Elements(ngs.VOL))
-        cd = np.array([self.fes.GetDofNrs(el) for el in els], dtype=np.int64)
-        dd = np.array([fes_dc.GetDofNrs(el) for el in els], dtype=np.int64)
+        ids = [ngs.ElementId(ngs.VOL, i) for i in range(self.ngmesh.ne)]
+        cd = np.array([self.fes.GetDofNrs(el) for el in ids], dtype=np.int64)
+        dd = np.arange(fes_dc.ndof).reshape(cd.shape)  # blocks per element; spot-checked
+        if any(fes_dc.GetDofNrs(ids[i]) != tuple(dd[i]) for i in {0, len(ids) // 2, len(ids) - 1}):
+            dd = np.array([fes_dc.GetDofNrs(el) for el in ids], dtype=np.int64)
         edofs = self.element_dofs()
         n, mloc = edofs.shape
         order = np.argsort(edofs, axis=1)
@@ -375,7 +399,8 @@ class NgsolveBackend(Backend):
         gf, a, cd, dd, flat, w = self._dc
         gf.vec.FV().NumPy()[dd] = d[cd]
         r = gf.vec.CreateVector()
-        a.Apply(gf.vec, r)
+        with self._tm():
+            a.Apply(gf.vec, r)
         fe = w * r.FV().NumPy()[dd][..., None]
         return np.bincount(flat.ravel(), weights=fe.ravel(), minlength=flat.shape[0] * flat.shape[1]).reshape(
             flat.shape[0], -1)
@@ -430,14 +455,16 @@ class NgsolveBackend(Backend):
             return f
         gfu = self._set_u(u)
         r = gfu.vec.CreateVector()
-        self._pressure_form.Apply(gfu.vec, r)
+        with self._tm():
+            self._pressure_form.Apply(gfu.vec, r)
         return f + load_factor * self._to_tb(r)
 
     def external_tangent(self, u, load_factor):
         if self._pressure_form is None:
             return None
         gfu = self._set_u(u)
-        self._pressure_form.AssembleLinearization(gfu.vec)
+        with self._tm():
+            self._pressure_form.AssembleLinearization(gfu.vec)
         return load_factor * self._K_ext(self._pressure_form.mat)
 
     # ------------------------------------------------------------ mass, solver

@@ -1,0 +1,138 @@
+"""Reading volume meshes from files, and locating the shared data folder.
+
+:func:`read_mesh` reads any volume mesh meshio understands (VTU, VTK, Gmsh, Medit,
+XDMF, ...) into a :class:`~tissuebench.refsolvers.mesh.Mesh`. Only linear tetrahedra
+and trilinear hexahedra are volume cells here; other cell blocks (triangles, lines,
+vertices of boundary tags) are ignored. Cells with negative signed volume are
+reoriented by :class:`Mesh` (the shared liver mesh has all of them negative);
+degenerate cells are refused, with the path in the message.
+
+Coordinates are returned as stored in the file, with no unit conversion: the shared
+liver mesh ``liver/liver_tet.vtu`` is in millimetres.
+
+:func:`shared_data_dir` finds the shared data folder: ``$TISSUEBENCH_DATA`` when set,
+else ``<repository root>/../shared/data``.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..refsolvers.mesh import CELL_TYPES, Mesh
+
+__all__ = ["read_mesh", "shared_data_dir", "liver_mesh_path", "DATA_ENV"]
+
+#: Environment variable that overrides the shared data folder.
+DATA_ENV = "TISSUEBENCH_DATA"
+
+#: Unit of length of the shared liver mesh.
+LIVER_MESH_UNIT = "mm"
+
+
+def _repo_root() -> Path:
+    """The repository root: the folder that holds the ``tissuebench`` package."""
+    return Path(__file__).resolve().parents[2]
+
+
+def shared_data_dir(must_exist: bool = False) -> Path:
+    """The shared data folder (``liver/`` etc.).
+
+    ``$TISSUEBENCH_DATA`` when set and non-empty, else ``<repo root>.parent / "shared" / "data"``
+    (for a checkout at ``/work/main`` that is ``/work/shared/data``).
+
+    Parameters
+    ----------
+    must_exist : bool
+        Raise FileNotFoundError (naming the path and how it was chosen) when the folder
+        does not exist; by default the path is returned unchecked, so callers can fall
+        back to a built-in shape.
+    """
+    env = os.environ.get(DATA_ENV, "").strip()
+    if env:
+        path, how = Path(env).expanduser(), f"from ${DATA_ENV}"
+    else:
+        path, how = _repo_root().parent / "shared" / "data", f"default; set ${DATA_ENV} to override"
+    if must_exist and not path.is_dir():
+        raise FileNotFoundError(f"shared data folder {path} ({how}) does not exist")
+    return path
+
+
+def liver_mesh_path(must_exist: bool = False) -> Path:
+    """Path of the shared liver tetrahedral mesh (``<shared data>/liver/liver_tet.vtu``, mm)."""
+    path = shared_data_dir() / "liver" / "liver_tet.vtu"
+    if must_exist and not path.is_file():
+        raise FileNotFoundError(f"liver mesh {path} does not exist (shared data folder: set ${DATA_ENV})")
+    return path
+
+
+def read_mesh(path, cell_type: str | None = None, reorient: bool = True) -> Mesh:
+    """Read a volume mesh file into a :class:`Mesh`.
+
+    Parameters
+    ----------
+    path : str or Path
+        Any volume mesh meshio reads.
+    cell_type : {"tetra", "hexahedron"}, optional
+        Which volume cells to take when the file holds both (default: the only kind
+        present; a file with both kinds needs an explicit choice).
+    reorient : bool
+        Passed to :class:`Mesh`: reorient negatively oriented cells (default).
+
+    Returns
+    -------
+    Mesh
+        All blocks of the chosen cell type concatenated. Vertices not used by any volume
+        cell are dropped and the rest renumbered in their file order (so surface-only
+        points of a mixed file do not become free, massless nodes).
+
+    Raises
+    ------
+    FileNotFoundError
+        The file does not exist.
+    ValueError
+        meshio cannot read it, it has no tetrahedra/hexahedra, both kinds without
+        ``cell_type``, or a degenerate (zero-volume, tangled) cell; the message names ``path``.
+    """
+    import meshio
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"mesh file {path} does not exist")
+    try:
+        m = meshio.read(path)
+    except Exception as exc:  # meshio raises ReadError, KeyError, ValueError ... by format
+        raise ValueError(f"{path}: meshio cannot read it: {type(exc).__name__}: {exc}") from exc
+    blocks: dict[str, list[np.ndarray]] = {}
+    for block in m.cells:
+        if block.type in CELL_TYPES and len(block.data):
+            blocks.setdefault(block.type, []).append(np.asarray(block.data, dtype=np.int64))
+    if not blocks:
+        found = sorted({b.type for b in m.cells}) or ["none"]
+        raise ValueError(f"{path}: no volume cells (tetra or hexahedron); cell blocks found: {found}")
+    if cell_type is None:
+        if len(blocks) > 1:
+            raise ValueError(f"{path}: holds both tetra and hexahedron cells; pass cell_type=")
+        cell_type = next(iter(blocks))
+    elif cell_type not in CELL_TYPES:
+        raise ValueError(f"cell_type={cell_type!r} is not one of {sorted(CELL_TYPES)}")
+    elif cell_type not in blocks:
+        raise ValueError(f"{path}: no {cell_type!r} cells (found {sorted(blocks)})")
+    cells = np.vstack(blocks[cell_type])
+    points = np.asarray(m.points, dtype=float)
+    if points.ndim != 2 or points.shape[1] not in (2, 3):
+        raise ValueError(f"{path}: points have shape {points.shape}, expected (n, 3)")
+    if points.shape[1] == 2:
+        raise ValueError(f"{path}: 2D points; a volume mesh needs 3D coordinates")
+    if cells.min() < 0 or cells.max() >= len(points):
+        raise ValueError(f"{path}: cells reference vertex indices outside 0..{len(points) - 1}")
+    used = np.unique(cells)
+    if len(used) != len(points):
+        renumber = np.full(len(points), -1, dtype=np.int64)
+        renumber[used] = np.arange(len(used))
+        points, cells = points[used], renumber[cells]
+    try:
+        return Mesh(points, cells, cell_type, reorient=reorient)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from exc

@@ -1,0 +1,1 @@
+"""Report builders and plots (written to an output folder, never into git)."""

@@ -1,0 +1,1 @@
+"""Studies: runs, sweeps, timing protocol, the results store and the command line."""
