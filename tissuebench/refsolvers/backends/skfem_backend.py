@@ -43,12 +43,13 @@ class _Pattern:
 class _CellKernel:
     """Shape-function values/gradients of one scalar basis, in tissuebench node numbering."""
 
-    def __init__(self, basis, nodes_of_dof):
-        n_loc = len(basis.basis)
-        self.nodes = nodes_of_dof[basis.element_dofs].T  # (n_cells, n_loc)
-        self.grad = np.stack([basis.basis[a][0].grad for a in range(n_loc)])  # (a, J, e, q)
+    def __init__(self, basis, nodes_of_dof, local_order=None):
+        # local_order[a] = skfem local index of tissuebench local node a (VTK order)
+        order = np.arange(len(basis.basis)) if local_order is None else np.asarray(local_order)
+        self.nodes = nodes_of_dof[basis.element_dofs].T[:, order]  # (n_cells, n_loc)
+        self.grad = np.stack([basis.basis[a][0].grad for a in order])  # (a, J, e, q)
         self.grad = np.ascontiguousarray(self.grad.transpose(2, 3, 0, 1))  # (e, q, a, J)
-        self.value = np.stack([basis.basis[a][0].value for a in range(n_loc)])  # (a, e, q)
+        self.value = np.stack([basis.basis[a][0].value for a in order])  # (a, e, q)
         self.value = np.ascontiguousarray(self.value.transpose(1, 2, 0))  # (e, q, a)
         self.dx = np.asarray(basis.dx)  # (e, q) = |det J| * weight
         self.dofs = (3 * self.nodes[:, :, None] + np.arange(3)).reshape(len(self.nodes), -1)
@@ -75,7 +76,10 @@ class SkfemBackend(Backend):
         order = problem.quadrature_order or default_order(element)
         basis = skfem.Basis(self._skmesh, self._elem, quadrature=volume_rule(element, order))
         self._nodes_of_dof = self._node_map(basis)
-        self._k = _CellKernel(basis, self._nodes_of_dof)
+        self._local_order = np.argsort(_VTK_TO_SKFEM_HEX) if element == "Q1" else None
+        self._k = _CellKernel(basis, self._nodes_of_dof, self._local_order)
+        # element quantities are reported in the node order of problem.layout[1]
+        assert np.array_equal(self._k.nodes, problem.layout[1])
         self._pattern = None
         self._order = order
 
@@ -146,7 +150,7 @@ class SkfemBackend(Backend):
     def mass(self, lumped=False):
         basis = skfem.Basis(self._skmesh, self._elem,
                             quadrature=volume_rule(self.problem.element, mass_order(self.problem.element)))
-        k = _CellKernel(basis, self._nodes_of_dof)
+        k = _CellKernel(basis, self._nodes_of_dof, self._local_order)
         Me = self.problem.density * np.einsum("eq,eqa,eqb->eab", k.dx, k.value, k.value)
         Me = np.einsum("eab,ik->eaibk", Me, np.eye(3)).reshape(len(Me), k.dofs.shape[1], -1)
         M = self.pattern.assemble(Me)
