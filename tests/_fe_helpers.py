@@ -103,7 +103,7 @@ def material_set(fibres=None):
         "svk": SaintVenantKirchhoff(E=1.0, nu=0.3),
         "neo_hookean": NeoHookean(E=1.0, nu=0.3),
         "mooney_rivlin": MooneyRivlin(mu1=0.2, mu2=0.15, kappa=2.0),
-        "guccione": Guccione(C=0.1, bf=8.0, bt=2.0, bfs=4.0, kappa=2.0, fibres=f),
+        "guccione": Guccione(C=0.2, bf=8.0, bt=2.0, bfs=4.0, kappa=2.0, fibres=f),
     }
 
 

@@ -102,7 +102,7 @@ def read_mesh(path, cell_type: str | None = None, reorient: bool = True) -> Mesh
         raise FileNotFoundError(f"mesh file {path} does not exist")
     try:
         m = meshio.read(path)
-    except Exception as exc:  # meshio raises ReadError, KeyError, ValueError ... by format
+    except (Exception, SystemExit) as exc:  # ReadError, KeyError, ...; meshio 5 even calls sys.exit
         raise ValueError(f"{path}: meshio cannot read it: {type(exc).__name__}: {exc}") from exc
     blocks: dict[str, list[np.ndarray]] = {}
     for block in m.cells:

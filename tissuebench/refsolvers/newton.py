@@ -126,7 +126,9 @@ class _Equilibrium:
 
     def residual(self, u):
         """(free residual, reference force norm): f_ref = max(|f_ext|, |reactions|)."""
-        r, f_ext = self._residual(u, self.b.internal_force(u))
+        f_int = self.b.internal_force(u)
+        self._last = (u, f_int)  # the next tangent is taken at this state: keep f_int
+        r, f_ext = self._residual(u, f_int)
         return r[self.free], max(_norm(f_ext), _norm(r[self.fixed]))
 
     def _residual(self, u, f_int):
@@ -135,7 +137,11 @@ class _Equilibrium:
 
     def residual_and_tangent(self, u):
         """(free residual, f_ref, K_ff, K_fc) with K = K_t - d f_ext / du."""
-        f_int, K = self.b.internal_force_and_tangent(u)
+        last = getattr(self, "_last", (None, None))
+        if last[0] is u:
+            f_int, K = last[1], self.b.tangent(u)
+        else:
+            f_int, K = self.b.internal_force_and_tangent(u)
         r, f_ext = self._residual(u, f_int)
         K_ext = self.b.external_tangent(u, self.lam)
         if K_ext is not None:

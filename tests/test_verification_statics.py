@@ -1,0 +1,426 @@
+"""Verification of the static reference solvers against analytical and independent references.
+
+Every test asserts a number with its tolerance stated next to it:
+
+1. linear patch tests on distorted meshes (Dirichlet and traction versions), P1/P2/Q1;
+2. L2 convergence orders for a manufactured (harmonic-gradient) linear-elastic solution;
+3. homogeneous uniaxial stretch against closed forms (SVK, neo-Hookean, Mooney-Rivlin);
+4. cross-verification scikit-fem vs NGSolve on the same mesh for every material/element;
+5. consistent tangents against central finite differences (f_int and follower pressure);
+6. quadratic convergence of Newton on a large-rotation SVK cantilever;
+7. Cook's membrane (compressible neo-Hookean, plane strain) under refinement.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+from _fe_helpers import (BACKEND_PARAMS, CELL_OF, ELEMENTS, MATERIAL_NAMES, element_mesh, fitted_order,
+                         l2_error, material_set, on_box_boundary, on_plane, solve)
+from tissuebench.cases.meshes import box_mesh
+from tissuebench.refsolvers.backends import make_backend
+from tissuebench.refsolvers.materials import LinearElastic, MooneyRivlin, NeoHookean, SaintVenantKirchhoff
+from tissuebench.refsolvers.mesh import Mesh
+from tissuebench.refsolvers.newton import newton_solve
+from tissuebench.refsolvers.problem import Dirichlet, FollowerPressure, PointLoad, Problem, SurfaceTraction
+
+ALL = lambda x: np.ones(len(x), dtype=bool)  # noqa: E731
+
+# A fixed non-symmetric displacement gradient of size ~1e-3 and a translation.
+A_PATCH = 1e-3 * np.array([[1.0, 0.4, -0.3],
+                           [-0.7, 0.5, 0.2],
+                           [0.6, -0.9, -0.8]])
+B_PATCH = 1e-3 * np.array([0.3, -0.2, 0.5])
+
+
+def u_affine(x):
+    return x @ A_PATCH.T + B_PATCH
+
+
+# =========================================================================== 1. patch tests
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+@pytest.mark.parametrize("element", ELEMENTS)
+def test_patch_test_dirichlet(backend, element):
+    """u = A x + b on all boundary nodes of a distorted mesh is reproduced to 1e-10 (relative)."""
+    mesh = element_mesh(element, divisions=(3, 3, 3), jitter=0.25, seed=3)
+    pb = Problem(mesh, LinearElastic(E=1.0, nu=0.3), element,
+                 [Dirichlet(on_box_boundary(), value=u_affine)])
+    # the mesh really is distorted: some interior vertex moved off the lattice
+    assert np.abs(mesh.points * 3 - np.round(mesh.points * 3)).max() > 0.1
+    _, res = solve(pb, backend)
+    ue = u_affine(pb.nodes).ravel()
+    err = np.abs(res.u - ue).max() / np.abs(ue).max()
+    assert err <= 1e-10, err
+
+
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+@pytest.mark.parametrize("element", ELEMENTS)
+def test_patch_test_traction(backend, element):
+    """Constant stress sigma(A) imposed by tractions on the six faces, six Dirichlet dofs
+    consistent with u = A x + b: the exact affine field is reproduced to 1e-10."""
+    mesh = element_mesh(element, divisions=(3, 3, 3), jitter=0.25, seed=4)
+    mat = LinearElastic(E=2.0, nu=0.3)
+    lam, mu = mat.lame
+    eps = 0.5 * (A_PATCH + A_PATCH.T)
+    sigma = lam * np.trace(eps) * np.eye(3) + 2 * mu * eps
+    loads = []
+    for axis in range(3):
+        for value, sign in ((0.0, -1.0), (1.0, 1.0)):
+            n = sign * np.eye(3)[axis]
+            loads.append(SurfaceTraction(on_plane(axis, value), sigma @ n))
+    nodes = element_mesh(element, divisions=(3, 3, 3), jitter=0.25, seed=4).points
+    i0 = int(np.flatnonzero(np.all(np.abs(nodes - [0, 0, 0]) < 1e-12, axis=1))[0])
+    ix = int(np.flatnonzero(np.all(np.abs(nodes - [1, 0, 0]) < 1e-12, axis=1))[0])
+    iy = int(np.flatnonzero(np.all(np.abs(nodes - [0, 1, 0]) < 1e-12, axis=1))[0])
+    val = lambda comps: (lambda x: u_affine(x)[:, comps])  # noqa: E731
+    bcs = [Dirichlet([i0], (0, 1, 2), val([0, 1, 2])),
+           Dirichlet([ix], (1, 2), val([1, 2])),
+           Dirichlet([iy], (2,), val([2]))]
+    pb = Problem(mesh, mat, element, bcs, loads)
+    assert len(pb.fixed_dofs) == 6
+    _, res = solve(pb, backend)
+    ue = u_affine(pb.nodes).ravel()
+    err = np.abs(res.u - ue).max() / np.abs(ue).max()
+    assert err <= 1e-10, err
+
+
+# =========================================================================== 2. convergence
+def u_harmonic(x):
+    """u = grad(phi), phi = exp(x) sin(y) + exp(z) cos(y): div u = 0 and lap u = 0, so u
+    solves Navier's equation with zero body force for any lambda, mu."""
+    X, Y, Z = x[:, 0], x[:, 1], x[:, 2]
+    return 1e-2 * np.stack([np.exp(X) * np.sin(Y),
+                            np.exp(X) * np.cos(Y) - np.exp(Z) * np.sin(Y),
+                            np.exp(Z) * np.cos(Y)], axis=1)
+
+
+# element: (divisions per side, expected order, cap on the relative L2 error at the finest mesh)
+CONVERGENCE = {"P1": ((2, 4, 8, 16), 2.0, 8e-4),
+               "Q1": ((2, 4, 8, 16), 2.0, 3e-4),
+               "P2": ((1, 2, 4, 8), 3.0, 4e-5)}
+_convergence_cache: dict = {}
+
+
+def _convergence_run(element, backend):
+    key = (element, backend)
+    if key not in _convergence_cache:
+        errs, sols = [], []
+        for n in CONVERGENCE[element][0]:
+            mesh = element_mesh(element, divisions=(n, n, n))
+            pb = Problem(mesh, LinearElastic(E=1.0, nu=0.3), element, [Dirichlet(on_box_boundary(), value=u_harmonic)])
+            _, res = solve(pb, backend)
+            e, ref = l2_error(mesh, element, res.u, u_harmonic, order=6)
+            errs.append(e / ref)
+            sols.append(res.u)
+        _convergence_cache[key] = (np.array(errs), sols)
+    return _convergence_cache[key]
+
+
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+@pytest.mark.parametrize("element", ["P1", "Q1", "P2"])
+def test_l2_convergence_order(element, backend):
+    ns, order, cap = CONVERGENCE[element]
+    errs, _ = _convergence_run(element, backend)
+    h = 1.0 / np.asarray(ns, float)
+    slope = fitted_order(h, errs)
+    assert abs(slope - order) <= 0.2, (slope, errs)
+    # the asymptotic rate on the last refinement too
+    assert abs(math.log(errs[-2] / errs[-1]) / math.log(2.0) - order) <= 0.2, errs
+    assert errs[-1] <= cap, errs
+
+
+@pytest.mark.ngsolve
+@pytest.mark.parametrize("element", ["P1", "Q1", "P2"])
+def test_l2_convergence_same_nodal_solution_on_both_backends(element):
+    _, a = _convergence_run(element, "skfem")
+    _, b = _convergence_run(element, "ngsolve")
+    for ua, ub in zip(a, b):
+        assert np.abs(ua - ub).max() <= 1e-8 * np.abs(ua).max()
+
+
+# =========================================================================== 3. uniaxial stretch
+def _principal_stress(material, l1, l2):
+    """P11 and P22 of F = diag(l1, l2, l2) from W(l1, l2, l3) written by hand."""
+    if isinstance(material, SaintVenantKirchhoff):
+        lam, mu = material.lame
+        e = 0.5 * (np.array([l1, l2, l2]) ** 2 - 1)
+        S = lam * e.sum() + 2 * mu * e
+        return l1 * S[0], l2 * S[1]
+    if isinstance(material, NeoHookean):
+        lam, mu = material.lame
+        lnJ = math.log(l1 * l2 * l2)
+        return mu * (l1 - 1 / l1) + lam * lnJ / l1, mu * (l2 - 1 / l2) + lam * lnJ / l2
+    if isinstance(material, MooneyRivlin):
+        m1, m2, k = material.mu1, material.mu2, material.kappa
+        l = np.array([l1, l2, l2])
+        J = l.prod()
+        I1 = (l ** 2).sum()
+        I2 = l1**2 * l2**2 * 2 + l2**4
+        # dW/dl_i = m1 J^-2/3 (l_i - I1/(3 l_i)) + m2 J^-4/3 (l_i (I1 - l_i^2) - 2 I2/(3 l_i)) + k (J-1) J / l_i
+        dW = (m1 * J ** (-2 / 3) * (l - I1 / (3 * l)) + m2 * J ** (-4 / 3) * (l * (I1 - l**2) - 2 * I2 / (3 * l))
+              + k * (J - 1) * J / l)
+        return dW[0], dW[1]
+    raise TypeError(material)
+
+
+def _uniaxial_closed_form(material, l1):
+    """(lateral stretch, P11) with traction-free sides, by brentq on P22(l2) = 0."""
+    l2 = brentq(lambda s: _principal_stress(material, l1, s)[1], 0.3, 1.5, xtol=1e-15, rtol=1e-15)
+    return l2, _principal_stress(material, l1, l2)[0]
+
+
+def test_uniaxial_closed_forms_independent_numbers():
+    """The hand-written stresses agree with the materials' strain energies (central FD of W)
+    and with the published neo-Hookean numbers (E=1, nu=0.3, lambda1=1.5)."""
+    nh = NeoHookean(E=1.0, nu=0.3)
+    l2, P11 = _uniaxial_closed_form(nh, 1.5)
+    assert round(l2, 6) == 0.880175 and round(P11, 6) == 0.378280
+    # SVK: P11 = E l (l^2 - 1)/2 and E22 = -nu E11
+    svk = SaintVenantKirchhoff(E=1.0, nu=0.3)
+    l2, P11 = _uniaxial_closed_form(svk, 1.2)
+    assert P11 == pytest.approx(1.2 * (1.2**2 - 1) / 2, rel=1e-12)
+    assert 0.5 * (l2**2 - 1) == pytest.approx(-0.3 * 0.5 * (1.2**2 - 1), rel=1e-12)
+    # d W(diag(l1, l2, l3)) / d l_i from the package's energy vs the hand derivation
+    for mat in (svk, nh, MooneyRivlin(mu1=0.5, mu2=0.6, kappa=10.0)):
+        l1, s, h = 1.3, 0.9, 1e-6
+        W = lambda a, b, c: float(mat.energy(np.diag([a, b, c])[None, None])[0, 0])  # noqa: E731
+        dW1 = (W(l1 + h, s, s) - W(l1 - h, s, s)) / (2 * h)
+        dW2 = (W(l1, s + h, s) - W(l1, s - h, s)) / (2 * h)
+        P11, P22 = _principal_stress(mat, l1, s)
+        assert dW1 == pytest.approx(P11, rel=1e-8) and dW2 == pytest.approx(P22, rel=1e-8)
+
+
+UNIAXIAL = [("svk", SaintVenantKirchhoff(E=1.0, nu=0.3), 1.2),
+            ("neo_hookean", NeoHookean(E=1.0, nu=0.3), 1.5),
+            ("mooney_rivlin", MooneyRivlin(mu1=0.5, mu2=0.6, kappa=10.0), 1.3)]
+
+
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+@pytest.mark.parametrize("element,divisions", [("Q1", (1, 1, 1)), ("P1", (2, 2, 2))])
+@pytest.mark.parametrize("name,material,l1", UNIAXIAL, ids=[u[0] for u in UNIAXIAL])
+def test_uniaxial_stretch(name, material, l1, element, divisions, backend):
+    """Unit cube, symmetry planes x=0, y=0, z=0, u_x = l1 - 1 on x=1: the homogeneous state
+    is in the FE space, so lateral stretch and P11 (reaction / area) match to 1e-8."""
+    mesh = element_mesh(element, divisions=divisions)
+    bcs = [Dirichlet(on_plane(0, 0.0), (0,)), Dirichlet(on_plane(1, 0.0), (1,)),
+           Dirichlet(on_plane(2, 0.0), (2,)), Dirichlet(on_plane(0, 1.0), (0,), l1 - 1.0)]
+    pb = Problem(mesh, material, element, bcs)
+    b, res = solve(pb, backend, n_increments=4, rtol=1e-12)
+    l2, P11 = _uniaxial_closed_form(material, l1)
+    x = pb.nodes
+    u = res.u.reshape(-1, 3)
+    # the displacement field is the homogeneous one everywhere
+    expected = x * (np.array([l1, l2, l2]) - 1)
+    assert np.abs(u - expected).max() <= 1e-8 * (l1 - 1)
+    f = b.internal_force(res.u).reshape(-1, 3)
+    face = on_plane(0, 1.0)(x)
+    assert f[face, 0].sum() / 1.0 == pytest.approx(P11, rel=1e-8)
+    assert f[on_plane(0, 0.0)(x), 0].sum() == pytest.approx(-P11, rel=1e-8)
+
+
+# =========================================================================== 4. cross-verification
+def _cross_problem(material_name, element):
+    div = (2, 1, 1) if element == "P2" else (4, 2, 2)
+    mesh = element_mesh(element, lengths=(2.0, 1.0, 1.0), divisions=div)
+    mat = material_set()[material_name]
+    loads = [SurfaceTraction(on_plane(0, 2.0), np.array([0.0, 0.004, -0.008]))]
+    if material_name != "linear":
+        loads.append(FollowerPressure(on_plane(2, 1.0), 0.004))
+    return Problem(mesh, mat, element, [Dirichlet(on_plane(0, 0.0))], loads)
+
+
+_cross_cache: dict = {}
+
+
+def _cross_solution(material_name, element, backend):
+    key = (material_name, element, backend)
+    if key not in _cross_cache:
+        pb = _cross_problem(material_name, element)
+        _, res = solve(pb, backend, n_increments=2, rtol=1e-12)
+        _cross_cache[key] = res.u
+    return _cross_cache[key]
+
+
+@pytest.mark.parametrize("element", ELEMENTS)
+@pytest.mark.parametrize("material_name", MATERIAL_NAMES)
+def test_cross_problem_is_nonlinear(material_name, element):
+    """The load makes the response clearly nonlinear: max |u| between 5 % and 25 % of the length 2."""
+    u = _cross_solution(material_name, element, "skfem")
+    umax = np.abs(u).max()
+    assert 0.1 <= umax <= 0.5, umax
+
+
+@pytest.mark.ngsolve
+@pytest.mark.parametrize("element", ELEMENTS)
+@pytest.mark.parametrize("material_name", MATERIAL_NAMES)
+def test_backends_agree(material_name, element):
+    """scikit-fem and NGSolve on the same mesh and loads: <= 1e-8 (linear) / 1e-6 (nonlinear)."""
+    ua = _cross_solution(material_name, element, "skfem")
+    ub = _cross_solution(material_name, element, "ngsolve")
+    tol = 1e-8 if material_name == "linear" else 1e-6
+    diff = np.abs(ua - ub).max() / np.abs(ua).max()
+    assert diff <= tol, diff
+
+
+# =========================================================================== 5. tangents
+def _fd_jacobian(fun, u, h):
+    cols = []
+    for j in range(len(u)):
+        e = np.zeros_like(u)
+        e[j] = h
+        cols.append((fun(u + e) - fun(u - e)) / (2 * h))
+    return np.array(cols).T
+
+
+def _tangent_problem(material_name, element, loads=()):
+    div = (1, 1, 1) if element == "P2" else (2, 1, 1)
+    mesh = element_mesh(element, lengths=(1.5, 1.0, 1.0), divisions=div)
+    return Problem(mesh, material_set()[material_name], element, [Dirichlet(on_plane(0, 0.0))], loads)
+
+
+def _random_u(pb, element, seed=0):
+    scale = 0.01 if element == "P2" else 0.05
+    return scale * np.random.default_rng(seed).standard_normal(pb.ndof)
+
+
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+@pytest.mark.parametrize("element", ELEMENTS)
+@pytest.mark.parametrize("material_name", MATERIAL_NAMES)
+def test_tangent_matches_finite_differences(material_name, element, backend):
+    pb = _tangent_problem(material_name, element)
+    b = make_backend(backend, pb)
+    u = _random_u(pb, element)
+    assert b.min_jacobian(u) > 0.5
+    K = b.tangent(u).toarray()
+    K_fd = _fd_jacobian(b.internal_force, u, 1e-6)
+    err = np.abs(K - K_fd).max() / np.abs(K_fd).max()
+    assert err <= 1e-6, err
+    # and the combined call returns the same operators
+    f2, K2 = b.internal_force_and_tangent(u)
+    assert np.allclose(f2, b.internal_force(u), rtol=0, atol=1e-13 * np.abs(f2).max())
+    assert np.abs(K2.toarray() - K).max() <= 1e-12 * np.abs(K).max()
+
+
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+@pytest.mark.parametrize("element", ELEMENTS)
+def test_follower_pressure_tangent_matches_finite_differences(element, backend):
+    loads = [FollowerPressure(on_plane(2, 1.0), 0.3), FollowerPressure(on_plane(0, 1.5), 0.2)]
+    pb = _tangent_problem("neo_hookean", element, loads)
+    b = make_backend(backend, pb)
+    u = _random_u(pb, element, seed=1)
+    lam = 0.7
+    K = b.external_tangent(u, lam).toarray()
+    K_fd = _fd_jacobian(lambda v: b.external_force(v, lam), u, 1e-6)
+    err = np.abs(K - K_fd).max() / np.abs(K_fd).max()
+    assert err <= 1e-6, err
+    # dead loads only: no external tangent
+    pb_dead = _tangent_problem("neo_hookean", element, [SurfaceTraction(on_plane(2, 1.0), np.ones(3))])
+    assert make_backend(backend, pb_dead).external_tangent(u, lam) is None
+
+
+# =========================================================================== 6. Newton order
+def _observed_orders(r):
+    r = np.asarray(r, float)
+    return np.array([math.log(r[k + 1] / r[k]) / math.log(r[k] / r[k - 1]) for k in range(1, len(r) - 1)])
+
+
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+def test_newton_converges_quadratically(backend):
+    """SVK cantilever 4x1x1 with an end load giving a large rotation, one increment."""
+    mesh = box_mesh((4.0, 1.0, 1.0), (8, 2, 2), "hexahedron")
+    mat = SaintVenantKirchhoff(E=1.0, nu=0.3)
+    pb = Problem(mesh, mat, "Q1", [Dirichlet(on_plane(0, 0.0))],
+                 [SurfaceTraction(on_plane(0, 4.0), np.array([0.0, 0.0, -0.02]))])
+    b, res = solve(pb, backend, n_increments=1, rtol=1e-13, max_iterations=30)
+    assert len(res.increments) == 1
+    # large rotation: tip deflection above 50 % of the length
+    tip = res.u.reshape(-1, 3)[on_plane(0, 4.0)(pb.nodes), 2].mean()
+    assert tip < -2.0, tip
+    r = np.asarray(res.increments[-1].residual_norms)
+    # iterated into round-off (rtol=1e-13); keep the iterates clearly above that floor
+    assert r[-1] <= 1e-13 * r.max(), r
+    r = r[r > 10 * r[-1]]
+    orders = _observed_orders(r)
+    assert len(orders) >= 2, r
+    assert orders[-1] >= 1.8, (orders, r)
+
+
+# =========================================================================== 7. Cook's membrane
+COOK_MU, COOK_NU = 0.4225, 0.3  # MPa (N/mm^2); lengths in mm, forces in N
+COOK_REFERENCE = 14.33  # mm, vertical tip displacement quoted in the brief
+
+
+def cook_problem(n, element, material=None, traction=1.0 / 16.0):
+    """Trapezoid (0,0),(48,44),(48,60),(0,44) mm, one element 1 mm thick, plane strain
+    (u_z = 0 everywhere), left edge clamped, dead shear traction 1/16 MPa on the right
+    edge (height 16 mm): 1 N per mm of thickness, i.e. 1 N total for the 1 mm slab."""
+    m = box_mesh((1.0, 1.0, 1.0), (n, n, 1), CELL_OF[element])
+    xi, eta, z = m.points.T
+    pts = np.stack([48 * xi, 44 * xi + 44 * eta - 28 * xi * eta, z], axis=1)
+    mesh = Mesh(pts, m.cells, m.cell_type)
+    mat = material or NeoHookean(E=2 * COOK_MU * (1 + COOK_NU), nu=COOK_NU)
+    return Problem(mesh, mat, element, [Dirichlet(on_plane(0, 0.0)), Dirichlet(ALL, (2,))],
+                   [SurfaceTraction(on_plane(0, 48.0), np.array([0.0, traction, 0.0]))])
+
+
+def cook_tip(pb, backend):
+    _, res = solve(pb, backend)
+    i = int(np.flatnonzero(np.all(np.abs(pb.nodes - [48.0, 60.0, 0.0]) < 1e-9, axis=1))[0])
+    return float(res.u[3 * i + 1])
+
+
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+@pytest.mark.parametrize("n,rel", [(8, 0.025), pytest.param(16, 0.01, marks=pytest.mark.slow)])
+def test_cook_linear_plane_strain_matches_published_codes(n, rel, backend):
+    """Setup check (geometry, load, clamping, plane strain): linear Cook, E = 70 MPa,
+    nu = 1/3, traction 6.25 MPa; CalculiX / Code_Aster / Elmer very fine quadratic
+    meshes give 32.20-32.28 mm (solids4foam tutorial). P2 8x8 within 2.5 %, 16x16 within 1 %."""
+    pb = cook_problem(n, "P2", LinearElastic(E=70.0, nu=1 / 3), traction=6.25)
+    tip = cook_tip(pb, backend)
+    assert tip == pytest.approx(32.25, rel=rel), tip
+    assert tip < 32.25  # P2 converges from below (stiffer than the limit)
+
+
+_cook_cache: dict = {}
+
+
+def _cook(n, element, backend):
+    key = (n, element, backend)
+    if key not in _cook_cache:
+        _cook_cache[key] = cook_tip(cook_problem(n, element), backend)
+    return _cook_cache[key]
+
+
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+def test_cook_neo_hookean_converges(backend):
+    """P2 2x2, 4x4, 8x8: monotone increase, last two within 2 %."""
+    tips = [_cook(n, "P2", backend) for n in (2, 4, 8)]
+    assert all(b > a for a, b in zip(tips, tips[1:])), tips
+    assert abs(tips[-1] - tips[-2]) <= 0.02 * tips[-1], tips
+    assert 13.0 <= tips[-1] <= 14.0, tips
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+def test_cook_neo_hookean_converges_fine(backend):
+    """P2 up to 16x16 and Q1 up to 32x32: monotone from below, last two within 0.5 %,
+    P2 and Q1 finest meshes within 0.5 % of each other."""
+    p2 = [_cook(n, "P2", backend) for n in (2, 4, 8, 16)]
+    q1 = [_cook(n, "Q1", backend) for n in (4, 8, 16, 32)]
+    for seq in (p2, q1):
+        assert all(b > a for a, b in zip(seq, seq[1:])), seq
+        assert abs(seq[-1] - seq[-2]) <= 0.005 * seq[-1], seq
+    assert abs(p2[-1] - q1[-1]) <= 0.005 * p2[-1], (p2, q1)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="the plane-strain compressible neo-Hookean Cook membrane of the SPEC "
+                   "converges to ~13.57 mm on both backends (P2 16x16: 13.568, Q1 32x32: 13.538), 5.3 % "
+                   "below the quoted 14.33 mm; the plane-stress slab gives ~14.15 mm. The reference number "
+                   "does not belong to this model; see the report.")
+def test_cook_neo_hookean_reference_value():
+    tip = _cook(16, "P2", "skfem")
+    assert tip == pytest.approx(COOK_REFERENCE, rel=0.01), tip
