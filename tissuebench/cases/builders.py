@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -216,18 +217,23 @@ def lv_ellipsoid(endo=(7.0, 17.0), epi=(10.0, 20.0), z_base=5.0, maxh=2.0) -> Bu
     Endocardium x^2/r_s^2 + y^2/r_s^2 + z^2/r_l^2 = 1 with (r_s, r_l) = ``endo``,
     epicardium likewise with ``epi``, base plane z = ``z_base``, apex at z = -r_l.
     """
-    (a0, c0), (a1, c1) = endo, epi
+    (a0, c0), (a1, c1) = (float(v) for v in endo), (float(v) for v in epi)
     if not (0 < a0 < a1 and 0 < c0 < c1 and -c0 < z_base < c0):
         raise ValueError(f"inconsistent LV dimensions: endo={endo}, epi={epi}, z_base={z_base}")
+    mesh = _lv_mesh(a0, c0, a1, c1, float(z_base), float(maxh))
+    exact = truncated_spheroid_volume(a1, c1, z_base) - truncated_spheroid_volume(a0, c0, z_base)
+    return BuiltMesh(mesh, {"builder": "lv_ellipsoid", "maxh": maxh, "wall_volume_exact": exact})
+
+
+@lru_cache(maxsize=8)
+def _lv_mesh(a0, c0, a1, c1, z_base, maxh) -> Mesh:  # meshes are immutable: safe to share
     from netgen.csg import CSGeometry, Ellipsoid, Plane, Pnt, Vec
 
     geo = CSGeometry()
     outer = Ellipsoid(Pnt(0, 0, 0), Vec(a1, 0, 0), Vec(0, a1, 0), Vec(0, 0, c1))
     inner = Ellipsoid(Pnt(0, 0, 0), Vec(a0, 0, 0), Vec(0, a0, 0), Vec(0, 0, c0))
     geo.Add(outer * Plane(Pnt(0, 0, z_base), Vec(0, 0, 1)) - inner)
-    mesh = _ngmesh_to_mesh(geo.GenerateMesh(maxh=float(maxh)))
-    exact = truncated_spheroid_volume(a1, c1, z_base) - truncated_spheroid_volume(a0, c0, z_base)
-    return BuiltMesh(mesh, {"builder": "lv_ellipsoid", "maxh": maxh, "wall_volume_exact": exact})
+    return _ngmesh_to_mesh(geo.GenerateMesh(maxh=maxh))
 
 
 # ----------------------------------------------------------------------------- liver
@@ -265,6 +271,7 @@ def _tetrahedralise_stl(path: Path, maxh: float, grading: float) -> Mesh:
     return _ngmesh_to_mesh(geo.GenerateMesh(MeshingParameters(maxh=maxh, grading=grading)))
 
 
+@lru_cache(maxsize=4)
 def _fallback_organ(maxh: float) -> Mesh:
     """A liver-sized organ-like shape (mm): a flattened ellipsoid, bent and tapered."""
     from netgen.csg import CSGeometry, Ellipsoid, Pnt, Vec
