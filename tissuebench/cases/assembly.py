@@ -1,0 +1,111 @@
+"""From a validated scene to a solvable model: node sets, prescribed values, loads.
+
+:func:`fe_problem` builds the :class:`~tissuebench.refsolvers.Problem` of a
+finite-element scene; :func:`line_model` the :class:`LineModel` of a 1D scene. Both
+resolve the region selectors of the scene on the node coordinates.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .histories import History
+from .monitors import unit_vector
+
+__all__ = ["LineModel", "fe_problem", "line_model"]
+
+
+@dataclass(frozen=True)
+class LineModel:
+    """A 1D discrete model: its mesh, parameters, fixed (node, component) pairs, loads."""
+
+    model: str
+    mesh: Any
+    params: dict
+    fixed: list          # [(node indices, component index)]
+    loads: list          # [(node indices, value per node, History)]
+
+
+def _per_node(ld, value, idx):
+    # "total" spreads the value evenly over the selected nodes; "per_node" applies it to each
+    return value / len(idx) if ld["distribute"] == "total" else value
+
+
+def _dirichlet_value(d, factor):
+    """The prescribed value of ``d``: a constant vector, or for a rotation a function
+    ``x -> displacement`` at ``factor`` times the rotation angle."""
+    m = d.get("motion")
+    if m is None:
+        return np.asarray(d["value"], float)
+    axis = unit_vector(m["axis"])
+    angle = math.radians(m["angle_deg"]) * factor
+    c = np.asarray(m["center"], float)
+    # Rodrigues' rotation formula
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    R = np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
+
+    def value(x):
+        return (x - c) @ R.T + c - x
+    return value
+
+
+def _plane_normal(scene, path, facets):
+    p = scene.mesh.points
+    n = np.cross(p[facets[:, 1]] - p[facets[:, 0]], p[facets[:, 2]] - p[facets[:, 0]])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    # a dead pressure has one direction; on a curved surface it would not be a pressure
+    if np.max(np.linalg.norm(n - n[0], axis=1)) > 1e-6:
+        raise ValueError(f"{scene.name}: {path}: a dead 'pressure' needs a plane region; "
+                         f"use follower_pressure or traction")
+    return n[0]
+
+
+def _fe_load(scene, i, ld, nodes):
+    from ..refsolvers import BodyForce, FollowerPressure, PointLoad, SurfaceTraction
+
+    kind, path = ld["type"], f"load[{i}]"
+    if kind == "body":
+        return BodyForce(np.asarray(ld["value"], float))
+    if kind == "point":
+        idx = scene.select(path, ld["region"], nodes)
+        return PointLoad(idx, _per_node(ld, np.asarray(ld["value"], float), idx))
+    facets = scene.mesh.select_facets(scene.region(ld["region"]))
+    if len(facets) == 0:
+        raise ValueError(f"{scene.name}: {path}.region {ld['region']} selects no boundary facet")
+    if kind == "follower_pressure":
+        return FollowerPressure(facets, float(ld["value"]))
+    if kind == "traction":
+        return SurfaceTraction(facets, np.asarray(ld["value"], float))
+    # dead pressure on a plane region: a traction -p N
+    return SurfaceTraction(facets, -float(ld["value"]) * _plane_normal(scene, path, facets))
+
+
+def fe_problem(scene, load_factor: float = 1.0, element: str | None = None):
+    """The :class:`~tissuebench.refsolvers.Problem` of a finite-element ``scene``
+    (see :meth:`tissuebench.cases.scene.Scene.to_problem`)."""
+    from ..refsolvers import Dirichlet, Problem
+    from ..refsolvers.mesh import node_layout
+
+    element = element or scene.element
+    nodes = node_layout(scene.mesh, element)[0]
+    dirichlet = [Dirichlet(scene.select(f"dirichlet[{i}]", d["region"], nodes), tuple(d["components"]),
+                           _dirichlet_value(d, load_factor), d["scaled"])
+                 for i, d in enumerate(scene.dirichlet)]
+    loads = [_fe_load(scene, i, ld, nodes) for i, ld in enumerate(scene.loads)]
+    return Problem(scene.mesh, scene.make_material(), element, dirichlet=dirichlet, loads=loads,
+                   density=scene.density or 1.0)
+
+
+def line_model(scene) -> LineModel:
+    """The 1D discrete model of ``scene`` with resolved node sets."""
+    x = scene.mesh.points
+    fixed = [(scene.select(f"dirichlet[{i}]", d["region"], x), c)
+             for i, d in enumerate(scene.dirichlet) for c in d["components"]]
+    loads = []
+    for i, ld in enumerate(scene.loads):
+        idx = scene.select(f"load[{i}]", ld["region"], x)
+        loads.append((idx, _per_node(ld, ld["value"], idx), History(ld["history"])))
+    return LineModel(scene.model, scene.mesh, dict(scene.model_params), fixed, loads)

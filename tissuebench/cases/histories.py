@@ -1,0 +1,72 @@
+"""Load histories of the scene files: a scalar load factor versus (pseudo-)time.
+
+In dynamics the argument is time; in statics it is the pseudo-time, equal to the
+load factor. Types: constant; ramp (t0, t1); step (t0); sine (amplitude, frequency,
+phase); ramp_hold_release (t_ramp, t_hold, t_release); tabulated (t, values).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .schema import c_nonneg, c_num, c_numlist, c_pos, c_str, c_table, check_table, fail
+
+__all__ = ["DEFAULT_HISTORY", "History", "check_history"]
+
+# a load without a history is ramped from 0 at t = 0 to full at t = 1
+DEFAULT_HISTORY = {"type": "ramp", "t1": 1.0}
+
+_HISTORY_SCHEMAS = {
+    "constant": ({}, ()),
+    "ramp": ({"t0": c_num, "t1": c_num}, ("t1",)),
+    "step": ({"t0": c_num}, ()),
+    "sine": ({"amplitude": c_num, "frequency": c_pos, "phase": c_num}, ("frequency",)),
+    "ramp_hold_release": ({"t_ramp": c_pos, "t_hold": c_nonneg, "t_release": c_pos}, ("t_ramp", "t_release")),
+    "tabulated": ({"t": c_numlist, "values": c_numlist}, ("t", "values")),
+}
+
+
+def check_history(path, h):
+    """Validate a history table; returns the checked table."""
+    c_table(path, h)
+    kind = h.get("type")
+    if kind not in _HISTORY_SCHEMAS:
+        fail(f"{path}.type", kind, f"unknown history; valid: {sorted(_HISTORY_SCHEMAS)}")
+    schema, req = _HISTORY_SCHEMAS[kind]
+    out = check_table(path, h, dict(schema, type=c_str), required=req)
+    if kind == "ramp" and not out["t1"] > out.get("t0", 0.0):
+        fail(f"{path}.t1", out["t1"], "must be > t0")
+    if kind == "tabulated":
+        t, v = out["t"], out["values"]
+        if len(t) != len(v) or len(t) < 2 or np.any(np.diff(t) <= 0):
+            fail(f"{path}.t", t, "needs >= 2 strictly increasing times, as many as values")
+    return out
+
+
+@dataclass(frozen=True)
+class History:
+    """A scalar load factor as a function of (pseudo-)time: ``h(t)``."""
+
+    spec: dict = field(default_factory=lambda: dict(DEFAULT_HISTORY))
+
+    def __call__(self, t):
+        s, t = self.spec, np.asarray(t, float)
+        kind = s["type"]
+        if kind == "constant":
+            out = np.ones_like(t)
+        elif kind == "ramp":
+            t0 = s.get("t0", 0.0)
+            out = np.clip((t - t0) / (s["t1"] - t0), 0.0, 1.0)
+        elif kind == "step":
+            out = (t >= s.get("t0", 0.0)).astype(float)
+        elif kind == "sine":
+            out = s.get("amplitude", 1.0) * np.sin(2 * np.pi * s["frequency"] * t + s.get("phase", 0.0))
+        elif kind == "ramp_hold_release":
+            a, b = s["t_ramp"], s["t_ramp"] + s.get("t_hold", 0.0)
+            c = b + s["t_release"]
+            out = np.interp(t, [0.0, a, b, c], [0.0, 1.0, 1.0, 0.0], left=0.0, right=0.0)
+        else:  # tabulated
+            out = np.interp(t, s["t"], s["values"])
+        # scalar in, scalar out: callers use h(t) both on one time and on a time grid
+        return float(out) if out.ndim == 0 else out

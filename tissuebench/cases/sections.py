@@ -1,0 +1,131 @@
+"""Validation of the physical sections of a scene: material, model, dirichlet, load, analysis.
+
+``[material]`` (FE only): name (linear | svk | neo_hookean | mooney_rivlin | guccione),
+its parameters, density (optional, > 0), fibres (Guccione, optional 3-vector).
+``[model]`` (1D models only): the discrete model's parameters.
+``[[dirichlet]]``: region, components ("xyz" or list), value (number or one per
+component) or motion (``{type = "rotation", axis, center, angle_deg}``), scaled (bool).
+``[[load]]``: type (point | traction | pressure | follower_pressure | body), region,
+value, distribute ("total" | "per_node", point loads), history.
+``[analysis]``: type static (load_steps, max_load_factor, stop_at_divergence) or
+dynamic (dt, t_end, integrator, integrator_options, lumped, dt_sweep).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .histories import DEFAULT_HISTORY, check_history
+from .regions import check_region
+from .schema import (COMPONENTS_1D, c_any, c_bool, c_enum, c_int1, c_nonneg, c_num, c_numlist, c_nu, c_pos,
+                     c_str, c_table, c_vec3, check_components, check_table, fail, is_num, require)
+
+__all__ = ["MATERIAL_SCHEMAS", "MODEL_SCHEMAS", "LOAD_TYPES", "INTEGRATOR_NAMES", "check_material",
+           "check_model", "check_dirichlet", "check_load", "check_analysis"]
+
+_ENU = {"E": c_pos, "nu": c_nu}
+MATERIAL_SCHEMAS = {
+    "linear": _ENU, "svk": _ENU, "neo_hookean": _ENU,
+    "mooney_rivlin": {"mu1": c_pos, "mu2": c_nonneg, "kappa": c_pos},
+    "guccione": {"C": c_pos, "bf": c_pos, "bt": c_pos, "bfs": c_pos, "kappa": c_pos, "fibres": c_vec3},
+}
+MODEL_SCHEMAS = {  # model: (schema, required keys)
+    "poisson1d": ({"q": c_num, "conductivity": c_pos, "source_range": c_numlist}, ("q",)),
+    "frame2dof": ({"masses": c_numlist, "storey_stiffness": c_pos}, ("masses", "storey_stiffness")),
+    "hermite_beam": ({"E": c_pos, "A": c_pos, "I": c_pos, "rho": c_pos}, ("E", "A", "I", "rho")),
+}
+LOAD_TYPES = ("point", "traction", "pressure", "follower_pressure", "body")
+INTEGRATOR_NAMES = ("hht", "bathe", "newmark", "central_difference", "forward_euler")
+
+_MOTION_SCHEMA = {"type": c_enum("rotation"), "axis": c_vec3, "center": c_vec3, "angle_deg": c_num}
+_STATIC = {"type": c_str, "load_steps": c_int1, "max_load_factor": c_pos, "stop_at_divergence": c_bool,
+           "solver": c_str, "note": c_str}
+_DYNAMIC = {"type": c_str, "dt": c_pos, "t_end": c_pos, "integrator": c_str, "integrator_options": c_table,
+            "lumped": c_bool, "dt_sweep": c_numlist, "store_every": c_int1, "note": c_str}
+
+
+def check_material(path, m):
+    """Validate ``[material]``: the parameters required depend on its ``name``."""
+    c_table(path, m)
+    # the name selects the schema, so it is checked before the rest of the table
+    require(path, m, ("name",), f"(in {path})")
+    name = m["name"]
+    if name not in MATERIAL_SCHEMAS:
+        fail(f"{path}.name", name, f"unknown material; valid: {sorted(MATERIAL_SCHEMAS)}")
+    schema = dict(MATERIAL_SCHEMAS[name], name=c_str, density=c_pos)
+    req = [k for k in MATERIAL_SCHEMAS[name] if k != "fibres"]  # Guccione fibres default to x
+    return check_table(path, m, schema, required=req)
+
+
+def check_model(path, m, model):
+    """Validate ``[model]``, the parameters of the 1D discrete ``model``."""
+    schema, req = MODEL_SCHEMAS[model]
+    return check_table(path, m, schema, required=req)
+
+
+def check_dirichlet(path, d, model):
+    """Validate a ``[[dirichlet]]`` entry; ``value`` becomes one float per component."""
+    schema = {"region": check_region, "components": c_any, "value": c_any, "motion": c_any,
+              "scaled": c_bool, "name": c_str}
+    d = check_table(path, d, schema, required=("region",))
+    default = "xyz" if model == "fe" else list(COMPONENTS_1D[model])
+    d["components"] = check_components(f"{path}.components", d.get("components", default), model)
+    if "value" in d and "motion" in d:
+        fail(f"{path}.motion", d["motion"], "give either value or motion, not both")
+    if "motion" in d:
+        d["motion"] = _check_motion(path, d)
+    d["value"] = _check_dirichlet_value(f"{path}.value", d.get("value", 0.0), len(d["components"]))
+    d.setdefault("scaled", True)
+    return d
+
+
+def _check_motion(path, d):
+    motion = check_table(f"{path}.motion", d["motion"], _MOTION_SCHEMA, required=tuple(_MOTION_SCHEMA))
+    if d["components"] != [0, 1, 2]:
+        fail(f"{path}.components", d["components"], "a rotation prescribes all of x, y, z")
+    if np.linalg.norm(motion["axis"]) == 0:
+        fail(f"{path}.motion.axis", motion["axis"], "zero axis")
+    return motion
+
+
+def _check_dirichlet_value(path, v, n):
+    if is_num(v):
+        return [float(v)] * n
+    if isinstance(v, list) and len(v) == n and all(is_num(x) for x in v):
+        return [float(x) for x in v]
+    fail(path, v, f"expected a number or {n} numbers (one per component)")
+
+
+def check_load(path, ld, model):
+    """Validate a ``[[load]]`` entry; fills the default history and distribution."""
+    schema = {"type": c_enum(*LOAD_TYPES), "region": check_region, "value": c_any, "history": check_history,
+              "distribute": c_enum("total", "per_node"), "name": c_str}
+    ld = check_table(path, ld, schema, required=("type", "value"))
+    kind = ld["type"]
+    if model != "fe" and kind != "point":
+        fail(f"{path}.type", kind, f"a {model} model takes point loads only")
+    if kind != "body":
+        require(path, ld, ("region",), f"for a {kind!r} load")
+    vector = kind in ("point", "traction", "body") and model == "fe"
+    ld["value"] = (c_vec3 if vector else c_num)(f"{path}.value", ld["value"])
+    ld.setdefault("history", dict(DEFAULT_HISTORY))
+    ld.setdefault("distribute", "total")
+    return ld
+
+
+def check_analysis(path, a):
+    """Validate ``[analysis]``, static or dynamic."""
+    c_table(path, a)
+    kind = a.get("type")
+    if kind not in ("static", "dynamic"):
+        fail(f"{path}.type", kind, "expected 'static' or 'dynamic'")
+    if kind == "static":
+        return check_table(path, a, _STATIC, required=("load_steps",))
+    a = check_table(path, a, _DYNAMIC, required=("dt", "t_end", "integrator"))
+    if a["integrator"] not in INTEGRATOR_NAMES:
+        fail(f"{path}.integrator", a["integrator"], f"unknown integrator; valid: {list(INTEGRATOR_NAMES)}")
+    if a["t_end"] < a["dt"]:
+        fail(f"{path}.t_end", a["t_end"], f"must be >= dt = {a['dt']}")
+    for i, dt in enumerate(a.get("dt_sweep", [])):
+        if dt <= 0:
+            fail(f"{path}.dt_sweep[{i}]", dt, "expected a time step > 0")
+    return a
