@@ -167,12 +167,14 @@ def test_block_3d_tets_follow_the_column():
 @pytest.mark.parametrize("element", ["P1", "Q1"])
 @pytest.mark.parametrize("method", ["hht", "bathe"])
 def test_backends_give_the_same_trajectory(element, material, tol, method):
+    """skfem and NGSolve on the same 2 x 2 x 4 block, 24 steps: same u, v and energies
+    (SPEC: 1e-8 linear, 1e-6 nonlinear; measured ~1e-12 and ~1e-15)."""
     problem = wb.wave_block_problem(material, (2, 2, 4), element)
     opts = {"alpha": wb.HHT_ALPHA} if method == "hht" else {}
     runs = {}
-    for name in ("skfem", "ngsolve"):
-        _, system = wb.wave_block_system(problem, name)
-        runs[name] = integrate(system, None, None, wb.DT, 0.05, method=method, **opts)
+    for name, bopts in (("skfem", {}), ("ngsolve", {"threads": 1})):
+        _, system = wb.wave_block_system(problem, name, **bopts)
+        runs[name] = integrate(system, None, None, wb.DT, 0.03, method=method, **opts)
         assert runs[name].success, runs[name].message
     a, b = runs["skfem"], runs["ngsolve"]
     assert np.linalg.norm(a.u - b.u) <= tol * np.linalg.norm(a.u)

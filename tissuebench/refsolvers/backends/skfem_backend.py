@@ -49,7 +49,7 @@ class _CellKernel:
         self.nodes = nodes_of_dof[basis.element_dofs].T[:, order]  # (n_cells, n_loc)
         self.grad = np.stack([basis.basis[a][0].grad for a in order])  # (a, J, e, q)
         self.grad = np.ascontiguousarray(self.grad.transpose(2, 3, 0, 1))  # (e, q, a, J)
-        self.value = np.stack([basis.basis[a][0].value for a in order])  # (a, e, q)
+        self.value = np.stack([np.asarray(basis.basis[a][0]) for a in order])  # (a, e, q)
         self.value = np.ascontiguousarray(self.value.transpose(1, 2, 0))  # (e, q, a)
         self.dx = np.asarray(basis.dx)  # (e, q) = |det J| * weight
         self.dofs = (3 * self.nodes[:, :, None] + np.arange(3)).reshape(len(self.nodes), -1)
