@@ -4,7 +4,9 @@ A solver is an object with ``solve(K, b) -> (x, info)`` where ``K`` is a square 
 CSR matrix (free dofs only), ``b`` a vector and ``info`` a dict with at least
 ``solver``, ``iterations`` and ``factor_s`` (seconds spent factorising/setting up).
 
-* ``"direct"``: sparse LU (SciPy SuperLU). Backends may override it with their own
+* ``"direct"``: sparse LU (SciPy SuperLU) with a minimum-degree ordering of K + K^T
+  (FE tangents are structurally symmetric: on the 22k-dof bar this factorises in 0.76 s
+  against 1.9 s with SuperLU's default COLAMD). Backends may override it with their own
   (the NGSolve backend uses NGSolve's sparse direct solvers).
 * ``"amg-cg"``: conjugate gradients (GMRES when ``K`` is not symmetric) preconditioned by
   pyamg smoothed aggregation with the rigid-body modes as near-null space: for meshes
@@ -26,7 +28,7 @@ class LinearSolverError(RuntimeError):
 class DirectSolver:
     name = "direct"
 
-    def __init__(self, permc_spec: str = "COLAMD"):
+    def __init__(self, permc_spec: str = "MMD_AT_PLUS_A"):
         self.permc_spec = permc_spec
 
     def solve(self, K, b):

@@ -112,7 +112,7 @@ class Integrator(ABC):
     def solve_mass(self, rhs):
         """M_ff^{-1} rhs with a factorisation computed once."""
         if getattr(self, "_mass_lu", None) is None or self._mass_lu[0] is not self.system:
-            self._mass_lu = (self.system, spla.splu(sp.csc_matrix(self.mass_ff)))
+            self._mass_lu = (self.system, spla.splu(sp.csc_matrix(self.mass_ff), permc_spec="MMD_AT_PLUS_A"))
         return self._mass_lu[1].solve(rhs)
 
     def set_state(self, t, u, v, a=None):

@@ -12,7 +12,12 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..linear_solvers import DirectSolver, LinearSolverError
 from .base import StepReport
+
+# FE effective matrices are structurally symmetric: order K + K^T (see linear_solvers)
+PERMC_SPEC = "MMD_AT_PLUS_A"
+_DIRECT = DirectSolver(PERMC_SPEC)
 
 
 @dataclass
@@ -58,7 +63,7 @@ class CachedLU:
     def solve(self, key, build, rhs):
         """Solve ``build() x = rhs``, refactorising only when ``key`` changed."""
         if self.lu is None or key != self.key:
-            self.lu = spla.splu(sp.csc_matrix(build()))
+            self.lu = spla.splu(sp.csc_matrix(build()), permc_spec=PERMC_SPEC)
             self.key = key
         return self.lu.solve(rhs)
 
@@ -92,8 +97,8 @@ def newton(u, residual, jacobian, r_ref, opts: NewtonOptions, linear=False, lu=N
         return u, StepReport(True, 1, "", norms)
     for it in range(1, opts.max_iter + 1):
         try:
-            du = spla.spsolve(sp.csc_matrix(jacobian(u)), -r)
-        except RuntimeError as exc:  # singular effective matrix
+            du = _DIRECT.solve(jacobian(u), -r)[0]
+        except LinearSolverError as exc:  # singular effective matrix
             return u, StepReport(False, it, f"singular Newton matrix: {exc}", norms)
         u += du
         r = residual(u)
