@@ -39,19 +39,22 @@ def _tet_signed_volumes(points, cells):
     return np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) / 6.0
 
 
+def _hex_jacobians(points, cells, ref_points):
+    """det of the trilinear map's Jacobian at reference points in [-1, 1]^3, shape (n_cells, n_points)."""
+    x = points[cells]  # (n, 8, 3)
+    c = _HEX_CORNERS
+    dets = np.empty((len(cells), len(ref_points)))
+    for k, (xi, eta, zeta) in enumerate(ref_points):
+        dN = np.stack([c[:, 0] * (1 + c[:, 1] * eta) * (1 + c[:, 2] * zeta),
+                       c[:, 1] * (1 + c[:, 0] * xi) * (1 + c[:, 2] * zeta),
+                       c[:, 2] * (1 + c[:, 0] * xi) * (1 + c[:, 1] * eta)]) / 8.0  # (3, 8)
+        dets[:, k] = np.linalg.det(np.einsum("nai,da->nid", x, dN))
+    return dets
+
+
 def _hex_corner_jacobians(points, cells):
     """Jacobian determinants of the trilinear map at the 8 corners, shape (n_cells, 8)."""
-    x = points[cells]  # (n, 8, 3)
-    dets = np.empty((len(cells), 8))
-    for k, (xi, eta, zeta) in enumerate(_HEX_CORNERS):
-        dN = np.stack([
-            _HEX_CORNERS[:, 0] * (1 + _HEX_CORNERS[:, 1] * eta) * (1 + _HEX_CORNERS[:, 2] * zeta),
-            _HEX_CORNERS[:, 1] * (1 + _HEX_CORNERS[:, 0] * xi) * (1 + _HEX_CORNERS[:, 2] * zeta),
-            _HEX_CORNERS[:, 2] * (1 + _HEX_CORNERS[:, 0] * xi) * (1 + _HEX_CORNERS[:, 1] * eta),
-        ]) / 8.0  # (3, 8)
-        J = np.einsum("nai,da->nid", x, dN)
-        dets[:, k] = np.linalg.det(J)
-    return dets
+    return _hex_jacobians(points, cells, _HEX_CORNERS)
 
 
 @dataclass(frozen=True, eq=False)
@@ -140,18 +143,9 @@ class Mesh:
         """Cell volumes, shape (n_cells,) (hexahedra: 2x2x2 Gauss)."""
         if self.cell_type == "tetra":
             return _tet_signed_volumes(self.points, self.cells)
-        g = 1 / np.sqrt(3.0)
-        x = self.points[self.cells]
-        vol = np.zeros(self.n_cells)
-        for xi in (-g, g):
-            for eta in (-g, g):
-                for zeta in (-g, g):
-                    c = _HEX_CORNERS
-                    dN = np.stack([c[:, 0] * (1 + c[:, 1] * eta) * (1 + c[:, 2] * zeta),
-                                   c[:, 1] * (1 + c[:, 0] * xi) * (1 + c[:, 2] * zeta),
-                                   c[:, 2] * (1 + c[:, 0] * xi) * (1 + c[:, 1] * eta)]) / 8.0
-                    vol += np.linalg.det(np.einsum("nai,da->nid", x, dN))
-        return vol
+        # 2x2x2 Gauss (weights 1) integrates the trilinear Jacobian exactly
+        gauss = _HEX_CORNERS / np.sqrt(3.0)
+        return _hex_jacobians(self.points, self.cells, gauss).sum(axis=1)
 
     @cached_property
     def edges(self) -> np.ndarray:

@@ -123,6 +123,7 @@ class _Equilibrium:
         self.b, self.lam = backend, lam
         pb = backend.problem
         self.free, self.fixed = pb.free_dofs, pb.fixed_dofs
+        self._last = (None, None)  # (state, f_int) of the last residual evaluation
 
     def residual(self, u):
         """(free residual, reference force norm): f_ref = max(|f_ext|, |reactions|)."""
@@ -137,9 +138,8 @@ class _Equilibrium:
 
     def residual_and_tangent(self, u):
         """(free residual, f_ref, K_ff, K_fc) with K = K_t - d f_ext / du."""
-        last = getattr(self, "_last", (None, None))
-        if last[0] is u:
-            f_int, K = last[1], self.b.tangent(u)
+        if self._last[0] is u:
+            f_int, K = self._last[1], self.b.tangent(u)
         else:
             f_int, K = self.b.internal_force_and_tangent(u)
         r, f_ext = self._residual(u, f_int)
