@@ -88,23 +88,30 @@ def test_newton_options_are_validated():
 
 def test_run_command_writes_results_atomically(tmp_path, capsys):
     out = tmp_path / "bar"
-    assert main(["run", "bar_tension", "--out", str(out)]) == 0
+    assert main(["run", "cube_tension_twist", "--variant", "tension", "--out", str(out), "--quiet"]) == 0
     table = pd.read_parquet(out / "results.parquet")
     for col in ("case", "backend", "step", "load_factor", "newton_iterations", "converged", "wall_s",
                 "nominal_stress_kPa", "volume_ratio"):
         assert col in table
     assert table["load_factor"].iloc[-1] == pytest.approx(1.0)
     fields = np.load(out / "fields.npz")
-    assert fields["displacement"].shape[0] == len(table)
+    # the initial state and one state per converged increment
+    assert fields["displacement"].shape[0] == table["converged"].sum() + 1
+    assert fields["steps"][0] == 0.0 and fields["steps"][-1] == pytest.approx(1.0)
     # the pulled end moved by 30 % of 8 cm
     assert fields["displacement"][-1][:, 0].max() == pytest.approx(0.024, rel=1e-12)
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["status"] == "success" and manifest["versions"]["numpy"]
+    assert manifest["case"] == "cube_tension_twist" and manifest["variant"] == "tension"
+    assert len(manifest["scene_hash"]) == 64 and manifest["plan"]
     assert (out / "deformed.png").stat().st_size > 10_000 and (out / "deformed.vtu").exists()
+    assert (out / "monitors.png").stat().st_size > 10_000
     # an existing folder is not overwritten unless asked
-    assert main(["run", "bar_tension", "--out", str(out)]) == 2
+    assert main(["run", "cube_tension_twist", "--out", str(out), "--quiet"]) == 2
     assert "exists" in capsys.readouterr().err
-    # an unknown case leaves nothing behind
+    # an unknown case lists the valid ones and leaves nothing behind
     assert main(["run", "no_such_case", "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert "unknown case 'no_such_case'" in err and "liver_palpation" in err
     assert not (tmp_path / "x").exists()
     assert [p.name for p in tmp_path.iterdir()] == ["bar"]

@@ -1,4 +1,12 @@
-"""Command line: ``tissuebench run CASE [--backend] [--resolution] [--out] [--force]``."""
+"""Command line of tissuebench.
+
+``tissuebench cases``                       the catalogue (name, paper, analysis, sizes)
+``tissuebench describe CASE``               what a run models and why
+``tissuebench run CASE [--variant V] [--backend skfem|ngsolve] [--resolution ci|paper]
+[--out DIR] [--force]``                     reference solve, stored in DIR
+
+Exit codes: 0 success, 1 the run finished with a numerical failure (stored), 2 bad input.
+"""
 from __future__ import annotations
 
 import argparse
@@ -7,38 +15,71 @@ from pathlib import Path
 
 
 def _parser():
-    p = argparse.ArgumentParser(prog="tissuebench", description=__doc__)
+    p = argparse.ArgumentParser(prog="tissuebench", description="Verification and benchmarking of "
+                                "reduced-order models of soft tissue.")
     sub = p.add_subparsers(dest="command", required=True)
-    run = sub.add_parser("run", help="reference solve of a built-in case")
-    run.add_argument("case", help="case name (built-in: bar_tension)")
+    run = sub.add_parser("run", help="reference solve of a catalogue case")
+    run.add_argument("case", help="case name (see `tissuebench cases`) or a scene file")
+    run.add_argument("--variant", default=None, help="scene variant (default: the scene's default)")
     run.add_argument("--backend", default="skfem", choices=["skfem", "ngsolve"])
     run.add_argument("--resolution", default="ci", choices=["ci", "paper"])
-    run.add_argument("--out", type=Path, default=None, help="result folder (default: out/CASE-BACKEND-RESOLUTION)")
+    run.add_argument("--out", type=Path, default=None, help="result folder (default: out/CASE[-VARIANT]-BACKEND-RES)")
     run.add_argument("--force", action="store_true", help="replace an existing result folder")
-    run.add_argument("--increments", type=int, default=3, help="initial number of load increments")
-    sub.add_parser("cases", help="list the built-in cases")
+    run.add_argument("--linear-solver", default="direct", choices=["direct", "amg-cg"])
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    cases = sub.add_parser("cases", help="list the catalogue")
+    cases.add_argument("--no-mesh", action="store_true", help="do not build meshes to count nodes")
+    cases.add_argument("--paper", action="store_true", help="also build the paper-resolution meshes (slow)")
+    desc = sub.add_parser("describe", help="what a run of CASE models, and why")
+    desc.add_argument("case")
+    desc.add_argument("--variant", default=None)
+    desc.add_argument("--resolution", default="ci", choices=["ci", "paper"])
     return p
+
+
+def _error(exc) -> int:
+    print(f"tissuebench: error: {exc}", file=sys.stderr)
+    return 2
+
+
+def _run(args) -> int:
+    from .cases.scene import load
+    from .studies.run import run_case
+
+    scene = load(args.case, resolution=args.resolution, variant=args.variant)
+    tag = scene.name + (f"-{scene.variant}" if scene.variant else "")
+    out = args.out or Path("out") / f"{tag}-{args.backend}-{args.resolution}"
+    result = run_case(args.case, args.backend, args.resolution, args.variant, out, args.force,
+                      progress=not args.quiet, linear_solver=args.linear_solver)
+    t = result.table
+    monitors = [m["name"] for m in scene.monitors if m["name"] in t]
+    cols = [c for c in ("step", "load_factor", "time", "newton_iterations", "converged", "wall_s") if c in t]
+    shown = t[cols + monitors]
+    print((shown if len(shown) <= 25 else shown.iloc[:: max(1, len(shown) // 20)]).to_string(index=False))
+    from .cases.describe import paper_comparison
+
+    for row in paper_comparison(scene, t).itertuples():
+        print(f"{row.monitor}: ours {row.ours:.4g}, paper {row.paper:.4g} (ratio {row.ratio:.3f}); {row.note}")
+    print(f"{result.status}: {result.message}; results in {out}")
+    return 0 if result.ok else 1
 
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
-    from .studies.run import CASES, run_case
-
-    if args.command == "cases":
-        for name in sorted(CASES):
-            print(name)
-        return 0
-    out = args.out or Path("out") / f"{args.case}-{args.backend}-{args.resolution}"
     try:
-        table, result = run_case(args.case, args.backend, args.resolution, out, args.force, args.increments)
-    except (ValueError, FileExistsError) as exc:
-        print(f"tissuebench: error: {exc}", file=sys.stderr)
-        return 2
-    cols = [c for c in ("step", "load_factor", "newton_iterations", "wall_s", "nominal_stress_kPa", "volume_ratio")
-            if c in table]
-    print(table[cols].to_string(index=False))
-    print(f"{result.status}: {result.message}; results in {out}")
-    return 0 if result.success else 1
+        if args.command == "cases":
+            from .cases.describe import catalogue_table
+
+            print(catalogue_table(build_meshes=not args.no_mesh, paper=args.paper).to_string(index=False))
+            return 0
+        if args.command == "describe":
+            from .cases.describe import describe
+
+            print(describe(args.case, resolution=args.resolution, variant=args.variant))
+            return 0
+        return _run(args)
+    except (ValueError, TypeError, FileExistsError, FileNotFoundError) as exc:
+        return _error(exc)
 
 
 if __name__ == "__main__":

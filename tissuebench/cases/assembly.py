@@ -34,22 +34,21 @@ def _per_node(ld, value, idx):
     return value / len(idx) if ld["distribute"] == "total" else value
 
 
-def _dirichlet_value(d, factor):
-    """The prescribed value of ``d``: a constant vector, or for a rotation a function
-    ``x -> displacement`` at ``factor`` times the rotation angle."""
-    m = d.get("motion")
-    if m is None:
-        return np.asarray(d["value"], float)
+def rotation_motion(m):
+    """The prescribed motion of a ``{type = "rotation"}`` table: ``(x, lam) -> displacement``
+    of the points ``x`` (n, 3) rotated by ``lam`` times ``angle_deg`` about ``axis``
+    through ``center``."""
     axis = unit_vector(m["axis"])
-    angle = math.radians(m["angle_deg"]) * factor
+    theta = math.radians(m["angle_deg"])
     c = np.asarray(m["center"], float)
-    # Rodrigues' rotation formula
     K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    R = np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
 
-    def value(x):
+    def motion(x, lam):
+        # Rodrigues' rotation formula
+        angle = theta * lam
+        R = np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
         return (x - c) @ R.T + c - x
-    return value
+    return motion
 
 
 def _plane_normal(scene, path, facets):
@@ -83,7 +82,7 @@ def _fe_load(scene, i, ld, nodes):
     return SurfaceTraction(facets, -float(ld["value"]) * _plane_normal(scene, path, facets))
 
 
-def fe_problem(scene, load_factor: float = 1.0, element: str | None = None):
+def fe_problem(scene, element: str | None = None):
     """The :class:`~tissuebench.refsolvers.Problem` of a finite-element ``scene``
     (see :meth:`tissuebench.cases.scene.Scene.to_problem`)."""
     from ..refsolvers import Dirichlet, Problem
@@ -92,7 +91,8 @@ def fe_problem(scene, load_factor: float = 1.0, element: str | None = None):
     element = element or scene.element
     nodes = node_layout(scene.mesh, element)[0]
     dirichlet = [Dirichlet(scene.select(f"dirichlet[{i}]", d["region"], nodes), tuple(d["components"]),
-                           _dirichlet_value(d, load_factor), d["scaled"])
+                           np.asarray(d["value"], float), d["scaled"],
+                           motion=rotation_motion(d["motion"]) if "motion" in d else None)
                  for i, d in enumerate(scene.dirichlet)]
     loads = [_fe_load(scene, i, ld, nodes) for i, ld in enumerate(scene.loads)]
     return Problem(scene.mesh, scene.make_material(), element, dirichlet=dirichlet, loads=loads,

@@ -54,6 +54,7 @@ import numpy as np
 
 from . import assembly
 from .assembly import LineModel
+from .cutting import check_cut
 from .histories import DEFAULT_HISTORY, History
 from .monitors import check_monitor, evaluate_monitors
 from .regions import MeshGeometry, compile_region
@@ -91,6 +92,7 @@ class Scene:
     monitors: list
     paper: dict
     methods: dict
+    cut: dict | None = None  # validated [cut] table (see .cutting); the mesh is then cut
 
     # ------------------------------------------------------------------ basics
     @property
@@ -114,7 +116,12 @@ class Scene:
         # built on first use: validating a scene must not mesh it (netgen is slow)
         from .builders import build_mesh
 
-        return build_mesh(self.mesh_spec["builder"], **self.mesh_spec["params"])
+        built = build_mesh(self.mesh_spec["builder"], **self.mesh_spec["params"])
+        if self.cut is None:
+            return built
+        from .cutting import apply_cut
+
+        return apply_cut(built, self.cut)
 
     @property
     def mesh(self):
@@ -161,19 +168,17 @@ class Scene:
             params["fibres"] = np.asarray(params["fibres"], float)
         return make_material(self.material["name"], **params)
 
-    def to_problem(self, load_factor: float = 1.0, element: str | None = None):
+    def to_problem(self, element: str | None = None):
         """The :class:`~tissuebench.refsolvers.Problem` of this scene.
 
         Region selectors are resolved to node indices and facets on the mesh. Loads and
-        prescribed values are those of load factor 1 (the Problem scales them linearly).
-        Prescribed *motions* (rotations) are not linear in the factor: they are evaluated
-        at the scene's ``load_factor`` (rotation angle times it), so a twist history is
-        followed exactly by building one problem per factor (the intermediate states of a
-        single problem follow the chord).
+        prescribed values are those of load factor 1 (the Problem scales them linearly);
+        prescribed *motions* (rotations) are not linear in the factor and are passed as
+        ``Dirichlet.motion``, evaluated at each load factor (angle times the factor).
         """
         if not self.is_fe:
             raise ValueError(f"{self.name}: model {self.model!r} is not a finite-element scene; use line_model()")
-        return assembly.fe_problem(self, load_factor, element)
+        return assembly.fe_problem(self, element)
 
     def line_model(self) -> LineModel:
         """The 1D discrete model (poisson1d, frame2dof, hermite_beam) with resolved node sets."""
@@ -189,7 +194,7 @@ class Scene:
 
 # =============================================================================== loading
 _TOP = {"case", "units", "mesh", "material", "model", "dirichlet", "load", "analysis", "monitor", "paper",
-        "methods", "variants"}
+        "methods", "variants", "cut"}
 _CASE_SCHEMA = {"name": c_str, "paper": c_str, "description": c_str, "model": c_enum(*MODELS),
                 "default_variant": c_str}
 _UNITS_SCHEMA = {k: c_str for k in ("length", "force", "stress", "mass", "time", "note")}
@@ -260,6 +265,17 @@ def _check_entries(raw, model, path):
             [check_monitor(f"monitor[{i}]", d, model) for i, d in enumerate(raw.get("monitor", []))])
 
 
+def _check_paper(paper, monitors):
+    """``[paper]`` is free, except ``[paper.compare.<monitor>]``: ``value`` (number) and ``note``."""
+    paper = c_table("paper", paper)
+    names = {m["name"] for m in monitors}
+    for name, ref in c_table("paper.compare", paper.get("compare", {})).items():
+        if name not in names:
+            fail(f"paper.compare.{name}", ref, f"not a monitor of the scene; monitors: {sorted(names)}")
+        check_table(f"paper.compare.{name}", ref, {"value": c_num, "note": c_str}, required=("value",))
+    return paper
+
+
 def load(name_or_path, resolution: str = "ci", variant: str | None = None) -> Scene:
     """Read, merge (variant, resolution) and validate a scene.
 
@@ -293,4 +309,5 @@ def load(name_or_path, resolution: str = "ci", variant: str | None = None) -> Sc
     return Scene(name=case["name"], path=path, resolution=resolution, variant=variant, variants=all_variants,
                  case=case, units=units, mesh_spec=mesh, material=material, model_params=model_params,
                  dirichlet=dirichlet, loads=loads, analysis=analysis, monitors=monitors,
-                 paper=c_table("paper", raw.get("paper", {})), methods=c_table("methods", raw.get("methods", {})))
+                 paper=_check_paper(raw.get("paper", {}), monitors), methods=c_table("methods", raw.get("methods", {})),
+                 cut=check_cut("cut", raw["cut"]) if "cut" in raw else None)

@@ -54,12 +54,18 @@ class Dirichlet:
     ``value`` is the displacement at load factor 1: a scalar or ``(len(components),)``
     array applied to every node, or a callable ``value(x) -> (n, len(components))``.
     With ``scaled=False`` the value is imposed at every load factor.
+
+    ``motion``, when given, replaces ``value`` for motions that are not linear in the
+    load factor (a rigid rotation): ``motion(x, load_factor) -> (n, len(components))``
+    displacement of the reference positions ``x`` (n, 3), zero at load factor 0. Newton's
+    step cutting then follows the motion itself instead of its chord.
     """
 
     nodes: np.ndarray | Callable
     components: Sequence[int] = (0, 1, 2)
     value: float | np.ndarray | Callable = 0.0
     scaled: bool = True
+    motion: Callable | None = None
 
     def __post_init__(self):
         comps = tuple(int(c) for c in self.components)
@@ -68,12 +74,21 @@ class Dirichlet:
         object.__setattr__(self, "components", comps)
         if not callable(self.value):
             _finite_array("Dirichlet.value", self.value)
+        if self.motion is not None and not callable(self.motion):
+            raise TypeError(f"Dirichlet.motion must be callable (x, load_factor), got {type(self.motion).__name__}")
+
+    def motion_values(self, coords, idx, load_factor: float) -> np.ndarray:
+        """Displacements (flattened like :meth:`resolve`) of the motion at ``load_factor``."""
+        vals = self.motion(coords[idx], float(load_factor))
+        return _finite_array("Dirichlet.motion(x, load_factor)", vals, (len(idx), len(self.components))).ravel()
 
     def resolve(self, coords):
         """Return (dofs, values at load factor 1, scaled flags) for node coordinates ``coords``."""
         idx = _resolve_nodes("Dirichlet.nodes", self.nodes, coords)
         comps = np.array(self.components)
-        if callable(self.value):
+        if self.motion is not None:
+            vals = self.motion_values(coords, idx, 1.0).reshape(len(idx), len(comps))
+        elif callable(self.value):
             vals = _finite_array("Dirichlet.value(x)", self.value(coords[idx]), (len(idx), len(comps)))
         else:
             vals = np.broadcast_to(_finite_array("Dirichlet.value", self.value), (len(idx), len(comps)))
@@ -190,14 +205,29 @@ class Problem:
     @cached_property
     def constraints(self):
         """(dofs, values at load factor 1, scaled) of all Dirichlet sets, dofs unique."""
+        return self._constraint_table[:3]
+
+    @cached_property
+    def _constraint_table(self):
         parts = [d.resolve(self.nodes) for d in self.dirichlet]
         dofs = np.concatenate([p[0] for p in parts])
         vals = np.concatenate([p[1] for p in parts])
         scaled = np.concatenate([p[2] for p in parts])
+        owner = np.concatenate([np.full(len(p[0]), k) for k, p in enumerate(parts)])
         # later sets win on duplicated dofs
         _, first_rev = np.unique(dofs[::-1], return_index=True)
         keep = len(dofs) - 1 - first_rev
-        return dofs[keep], vals[keep], scaled[keep]
+        # motions are re-evaluated per load factor on the dofs they still own
+        motions = []
+        for k, d in enumerate(self.dirichlet):
+            if d.motion is None:
+                continue
+            idx = _resolve_nodes("Dirichlet.nodes", d.nodes, self.nodes)
+            all_dofs = (3 * idx[:, None] + np.array(d.components)[None, :]).ravel()
+            pos = np.searchsorted(dofs[keep], all_dofs)
+            won = owner[keep][pos] == k
+            motions.append((d, idx, won, pos[won]))
+        return dofs[keep], vals[keep], scaled[keep], motions
 
     @property
     def fixed_dofs(self) -> np.ndarray:
@@ -209,8 +239,11 @@ class Problem:
 
     def prescribed_values(self, load_factor: float) -> np.ndarray:
         """Values of the fixed dofs at ``load_factor``, aligned with :attr:`fixed_dofs`."""
-        _, vals, scaled = self.constraints
-        return np.where(scaled, load_factor * vals, vals)
+        _, vals, scaled, motions = self._constraint_table
+        out = np.where(scaled, load_factor * vals, vals)
+        for d, idx, won, pos in motions:
+            out[pos] = d.motion_values(self.nodes, idx, load_factor)[won]
+        return out
 
     def point_load_vector(self) -> np.ndarray:
         """Nodal point loads at load factor 1, shape (ndof,)."""

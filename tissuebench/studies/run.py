@@ -1,78 +1,138 @@
-"""Reference runs of built-in cases: solve, tabulate, plot and store with provenance."""
+"""Reference runs of catalogue cases, stored with provenance (``tissuebench run``).
+
+:func:`run_case` solves a scene with :func:`tissuebench.refsolvers.solve` and writes,
+atomically (a failed run leaves nothing behind), into one folder:
+
+- ``results.parquet``: one row per load increment or time step (case, backend, step,
+  load_factor or time, newton_iterations, converged, wall_s, one column per monitor);
+- ``fields.npz``: points, cells, steps, displacement per stored step;
+- ``deformed.vtu`` and ``deformed.png`` (final state; pyvista off-screen, or a line
+  plot for the 1D models) and ``monitors.png`` (each monitor against the load path);
+- ``manifest.json``: versions, git commit, machine, date, the scene's hash, status.
+"""
 from __future__ import annotations
 
-import time
+import hashlib
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
-from ..cases.bar import bar_tension
-from ..refsolvers import make_backend
-from ..refsolvers.newton import NewtonOptions, newton_solve
-from .store import atomic_directory, hash_json, provenance, write_json_atomic
+from ..cases.scene import load
+from ..refsolvers.reference import ReferenceResult, solve
+from .store import atomic_directory, provenance, write_json_atomic
 
-CASES = {"bar_tension": bar_tension}
+__all__ = ["run_case", "scene_hash", "write_result"]
 
 
-def _progress_bar(total_label):
+def scene_hash(scene) -> str:
+    """SHA-256 of the scene file's bytes, its variant and resolution."""
+    h = hashlib.sha256(Path(scene.path).read_bytes())
+    h.update(f"\0{scene.variant}\0{scene.resolution}".encode())
+    return h.hexdigest()
+
+
+def _progress_bar(label):
     from tqdm import tqdm
 
-    bar = tqdm(total=100, desc=total_label, unit="%", bar_format="{l_bar}{bar}| {n:.0f}/{total_fmt}% [{elapsed}]")
+    bar = tqdm(total=100, desc=label, unit="%", bar_format="{l_bar}{bar}| {n:.0f}/{total_fmt}% [{elapsed}]")
 
-    def update(lam, target):
-        bar.n = 100.0 * lam / target
+    def update(done, total):
+        bar.n = 100.0 * done / total
         bar.refresh()
-
     return bar, update
 
 
-def run_case(case: str, backend: str = "skfem", resolution: str = "ci", out: Path | None = None,
-             overwrite: bool = False, n_increments: int = 3, progress: bool = True):
-    """Run a built-in static case; write results.parquet, fields.npz, deformed.vtu/.png, manifest.json.
+def run_case(case, backend: str = "skfem", resolution: str = "ci", variant: str | None = None,
+             out: Path | None = None, overwrite: bool = False, progress: bool = True,
+             linear_solver: str = "direct") -> ReferenceResult:
+    """Solve catalogue ``case`` (name or scene file) and, with ``out``, store it.
 
-    Returns the results table (one row per converged load increment).
+    Raises ``FileExistsError`` before any work when ``out`` exists and ``overwrite`` is
+    False; a numerical failure is the result's ``status``, still written.
     """
-    if case not in CASES:
-        raise ValueError(f"unknown case {case!r}; valid: {sorted(CASES)}")
-    t0 = time.perf_counter()
-    spec = CASES[case](resolution=resolution)
-    pb = spec.problem
-    be = make_backend(backend, pb)
-    bar, update = _progress_bar(f"{case} [{backend}]") if progress else (None, None)
+    scene = load(case, resolution=resolution, variant=variant)
+    if out is not None and Path(out).exists() and not overwrite:
+        raise FileExistsError(f"output folder {out} exists; pass overwrite (--force) to replace it")
+    bar, update = _progress_bar(f"{scene.name} [{backend}, {resolution}]") if progress else (None, None)
     try:
-        result = newton_solve(be, 1.0, NewtonOptions(n_increments=n_increments), progress=update)
+        result = solve(scene, backend=backend, progress=update, linear_solver=linear_solver)
     finally:
         if bar is not None:
             bar.close()
-    rows = []
-    converged = [inc for inc in result.increments if inc.converged]
-    for step, (inc, u) in enumerate(zip(converged, result.states), start=1):
-        rows.append({"case": case, "backend": backend, "step": step, "load_factor": inc.load_factor,
-                     "newton_iterations": inc.iterations, "converged": True, "wall_s": inc.wall_s,
-                     "assembly_s": inc.assembly_s, "solve_s": inc.solve_s,
-                     "final_residual": inc.residual_norms[-1], **spec.monitors(u, be.internal_force(u))})
-    table = pd.DataFrame(rows)
     if out is not None:
-        _write(Path(out), overwrite, case, backend, resolution, spec, result, table, time.perf_counter() - t0)
-    return table, result
+        write_result(result, scene, Path(out), overwrite)
+    return result
 
 
-def _write(out, overwrite, case, backend, resolution, spec, result, table, wall):
+def _plot_monitors(result, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = result.table
+    x = "load_factor" if "load_factor" in t else "time"
+    skip = {"case", "backend", "step", "load_factor", "time", "newton_iterations", "converged", "wall_s",
+            "assembly_s", "solve_s", "final_residual", "message", "kinetic_energy", "strain_energy",
+            "external_work", "energy_error"}
+    cols = [c for c in t.columns if c not in skip]
+    fig, axes = plt.subplots(len(cols) or 1, 1, figsize=(7, 2.4 * max(len(cols), 1)), squeeze=False)
+    for ax, c in zip(axes[:, 0], cols):
+        ok = t["converged"].to_numpy(bool)
+        ax.plot(t[x][ok], t[c][ok], ".-")
+        ax.set_ylabel(c)
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel(x)
+    fig.suptitle(f"{result.case} ({result.backend}, {result.resolution}): {result.status}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _write_line(result, tmp):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import meshio
+
+    x = result.points[:, 0]
+    U = result.final_displacement
+    meshio.Mesh(result.points, [("line", result.cells)],
+                point_data={c: U[:, i] for i, c in enumerate(result.components)}).write(tmp / "deformed.vtu")
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    for i, c in enumerate(result.components):
+        ax.plot(x, U[:, i], "o-", label=c)
+    ax.set_xlabel("x")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    ax.set_title(f"{result.case}: final state ({result.status})")
+    fig.tight_layout()
+    fig.savefig(tmp / "deformed.png", dpi=110)
+    plt.close(fig)
+
+
+def write_result(result: ReferenceResult, scene, out: Path, overwrite: bool = False) -> Path:
+    """Write the files of a run into ``out`` atomically (see the module docstring)."""
+    from ..cases.describe import paper_comparison
     from ..reports.plots import plot_deformed, write_vtu
 
-    pb = spec.problem
-    scene = {"case": case, "resolution": resolution, "element": pb.element,
-             "material": type(pb.material).__name__, "material_params": pb.material.__dict__,
-             "n_nodes": len(pb.nodes), "n_cells": pb.mesh.n_cells}
     with atomic_directory(out, overwrite) as tmp:
-        table.to_parquet(tmp / "results.parquet", index=False)
-        np.savez_compressed(tmp / "fields.npz", points=pb.nodes, cells=pb.layout[1],
-                            load_factor=table["load_factor"].to_numpy() if len(table) else np.zeros(0),
-                            displacement=np.array(result.states).reshape(len(result.states), -1, 3))
-        write_vtu(pb.mesh, result.u, tmp / "deformed.vtu")
-        plot_deformed(pb.mesh, result.u, tmp / "deformed.png",
-                      title=f"{case} ({backend}, {resolution}), load factor {result.load_factor:.3g}")
+        result.table.to_parquet(tmp / "results.parquet", index=False)
+        np.savez_compressed(tmp / "fields.npz", points=result.points, cells=result.cells,
+                            steps=result.steps, displacement=result.displacement,
+                            components=np.array(result.components))
+        if result.cell_type == "line":
+            _write_line(result, tmp)
+        else:
+            mesh, u = result.problem.mesh, result.final_displacement.ravel()
+            write_vtu(mesh, u, tmp / "deformed.vtu")
+            plot_deformed(mesh, u, tmp / "deformed.png",
+                          title=f"{result.case} ({result.backend}, {result.resolution}): {result.status}")
+        _plot_monitors(result, tmp / "monitors.png")
         write_json_atomic(tmp / "manifest.json", provenance(
-            scene=scene, scene_hash=hash_json(scene), backend=backend, status=result.status,
-            message=result.message, wall_s=wall))
+            case=result.case, variant=result.variant, resolution=result.resolution, backend=result.backend,
+            scene_file=str(scene.path), scene_hash=scene_hash(scene), status=result.status, ok=result.ok,
+            message=result.message, wall_s=result.wall_s, plan=result.plan.reasons, info=result.info,
+            paper_comparison=paper_comparison(scene, result.table).to_dict("records")))
+    return out

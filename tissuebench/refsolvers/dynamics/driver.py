@@ -20,7 +20,7 @@ def _n_steps(dt, t0, t_end) -> int:
 
 
 def integrate(system, u0, v0, dt, t_end, method="newmark", t0=0.0, store_every=1, dofs=None,
-              blowup_factor=1e8, growth_tol=None, **opts) -> DynamicsResult:
+              blowup_factor=1e8, growth_tol=None, observe=None, **opts) -> DynamicsResult:
     """Integrate ``system`` from (u0, v0) at ``t0`` to ``t_end`` with fixed step ``dt``.
 
     Parameters
@@ -43,6 +43,10 @@ def integrate(system, u0, v0, dt, t_end, method="newmark", t0=0.0, store_every=1
     growth_tol : float, optional
         Report ``"energy_growth"`` when ``energy_growth_ratio > 1 + growth_tol``;
         default: the integrator's own (forward Euler: 1e-3; others: not checked).
+    observe : callable ``(t, u) -> dict``, optional
+        Called at every completed step (and step 0) with the time and the full
+        displacement vector; its dicts are returned in ``observations`` (monitored
+        quantities per step without storing every state).
     **opts
         Integrator options (``alpha``, ``force``, ``newton_rtol``, ...).
 
@@ -60,6 +64,7 @@ def integrate(system, u0, v0, dt, t_end, method="newmark", t0=0.0, store_every=1
     integ.start(system, u0, v0, dt, t0)
     rec = Recorder(system, integ.mass_ff, n, dofs, store_every, integ.damping_force)
     rec.record(integ.t, integ.u, integ.v, integ.a, integ.f_ext, integ.f_int)
+    observations = [] if observe is None else [observe(integ.t, system.expand(integ.u))]
     status, message, failed = "success", f"{n} steps completed", None
     for k in range(1, n + 1):
         tic = time.perf_counter()
@@ -71,6 +76,8 @@ def integrate(system, u0, v0, dt, t_end, method="newmark", t0=0.0, store_every=1
             break
         rec.record(integ.t, integ.u, integ.v, integ.a, integ.f_ext, integ.f_int, rep.iterations, True, wall,
                    force_store=(k == n))
+        if observe is not None:
+            observations.append(observe(integ.t, system.expand(integ.u)))
         mech, supplied = rec.mechanical()
         scale = max(np.max(np.abs(supplied)), 0.0)
         if not np.isfinite(mech[-1]) or (scale > 0 and mech[-1] > blowup_factor * scale):
@@ -81,6 +88,7 @@ def integrate(system, u0, v0, dt, t_end, method="newmark", t0=0.0, store_every=1
     rec.store(rec.k, integ.u, integ.v, integ.a)  # always keep the last completed state
     name = getattr(integ, "name", type(integ).__name__)
     res = rec.finish(name, dt, status, message, failed, opts)
+    res.observations = observations
     tol = integ.growth_tol if growth_tol is None else float(growth_tol)
     if status == "success" and tol is not None and res.energy_growth_ratio > 1.0 + tol:
         res.status = "energy_growth"

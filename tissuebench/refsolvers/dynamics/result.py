@@ -51,6 +51,8 @@ class DynamicsResult:
         Human-readable account of the status.
     failed_step : int or None
         Index of the step that failed (blow-up, Newton failure) or None.
+    observations : list of dict
+        What ``integrate(observe=...)`` returned at every completed step (empty without it).
     energy_growth_ratio : float
         ``max_n (KE + IE + D)_n / max_n (KE_0 + IE_0 + W_n)``: 1 for an exactly
         energy-consistent scheme, < 1 with numerical dissipation, > 1 with growth.
@@ -77,6 +79,7 @@ class DynamicsResult:
     failed_step: int | None = None
     energy_growth_ratio: float = 1.0
     options: dict = field(default_factory=dict)
+    observations: list = field(default_factory=list)
 
     @property
     def success(self) -> bool:

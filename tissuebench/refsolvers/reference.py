@@ -1,0 +1,251 @@
+"""Reference runs of catalogue scenes: ``solve(case, backend=...)``.
+
+One entry point for every case of :mod:`tissuebench.cases`: the scene's
+:class:`~.plan.ModelPlan` picks the algorithm (linear static, Newton-Raphson with load
+stepping, or a time integrator; the 1D models in :mod:`.reference_line`), and the
+result carries one table row per load increment or time step (with the scene's
+monitored quantities as columns) and the displacement fields. A numerical failure is a
+status of the result, never an exception; bad input raises ``ValueError``.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from .plan import ModelPlan, plan_for
+
+__all__ = ["ReferenceResult", "solve"]
+
+# statuses where the run did what the scene asked (a stall is the measurement for
+# scenes run "until Newton stops converging")
+_OK = {"success"}
+
+
+@dataclass
+class ReferenceResult:
+    """Outcome of :func:`solve`.
+
+    Attributes
+    ----------
+    case, variant, resolution, backend : str
+    plan : ModelPlan
+    status : str
+        ``success``; ``stalled`` (Newton stopped before the target load factor);
+        ``newton_failed``, ``blow_up``, ``energy_growth`` (dynamics).
+    message : str
+    table : pandas.DataFrame
+        One row per load increment (static: ``load_factor``) or time step (``time``).
+    points : (n_nodes, 3) array
+        Reference coordinates of the discretisation nodes (P2: vertices then edges).
+    cells : (n_cells, k) int array
+    cell_type : str
+        ``tetra``, ``hexahedron`` or ``line``.
+    components : tuple of str
+        Names of the nodal displacement components.
+    steps : (n_states,) array
+        Load factor or time of each stored state (the first is the initial state).
+    displacement : (n_states, n_nodes, n_components) array
+    wall_s : float
+    info : dict
+        Counters and settings (mesh metadata, Newton increments, integrator).
+    """
+
+    case: str
+    variant: str | None
+    resolution: str
+    backend: str
+    plan: ModelPlan
+    status: str
+    message: str
+    table: pd.DataFrame
+    points: np.ndarray
+    cells: np.ndarray
+    cell_type: str
+    components: tuple
+    steps: np.ndarray
+    displacement: np.ndarray
+    wall_s: float = 0.0
+    info: dict = field(default_factory=dict)
+    problem: object = None
+
+    @property
+    def ok(self) -> bool:
+        """The run did what the scene asks (a stall counts when the scene runs to divergence)."""
+        return self.status in _OK or (self.status == "stalled" and self.info.get("stop_at_divergence", False))
+
+    @property
+    def final_displacement(self) -> np.ndarray:
+        return self.displacement[-1]
+
+
+def _scene_of(case, resolution, variant):
+    if hasattr(case, "analysis") and hasattr(case, "monitors"):
+        return case
+    from ..cases.scene import load
+
+    return load(case, resolution=resolution, variant=variant)
+
+
+def solve(case, backend: str = "skfem", resolution: str = "ci", variant: str | None = None,
+          progress=None, linear_solver: str = "direct") -> ReferenceResult:
+    """Reference solution of a catalogue scene.
+
+    Parameters
+    ----------
+    case : str, path or Scene
+        A case name, a scene file, or a scene from :func:`tissuebench.cases.load`.
+    backend : {"skfem", "ngsolve"}
+        Finite-element backend (ignored by the 1D models, which assemble their own matrices).
+    resolution, variant : str
+        Used when ``case`` is a name or path.
+    progress : callable, optional
+        ``progress(done, total)`` with the load factor or time reached.
+    linear_solver : {"direct", "amg-cg"}
+        Linear solver of the Newton iterations (FE statics).
+    """
+    scene = _scene_of(case, resolution, variant)
+    plan = plan_for(scene)
+    t0 = time.perf_counter()
+    if not scene.is_fe:
+        from .reference_line import solve_line
+
+        out = solve_line(scene, plan, progress)
+        backend_name = "line"
+    else:
+        from .backends import make_backend
+
+        pb = scene.to_problem()
+        be = make_backend(backend, pb)
+        backend_name = backend if isinstance(backend, str) else backend.__name__
+        runner = _static if plan.analysis == "static" else _dynamic
+        out = runner(scene, plan, be, progress, linear_solver)
+        out["problem"] = pb
+    out["table"].insert(0, "backend", backend_name)
+    out["table"].insert(0, "case", scene.name)
+    info = {"mesh": scene.mesh_info, "stop_at_divergence": bool(scene.analysis.get("stop_at_divergence")),
+            **out.pop("info", {})}
+    return ReferenceResult(case=scene.name, variant=scene.variant, resolution=scene.resolution,
+                           backend=backend_name, plan=plan, wall_s=time.perf_counter() - t0, info=info, **out)
+
+
+# ============================================================================ FE statics
+def _fields(pb):
+    nodes, cell_nodes = pb.layout
+    return dict(points=nodes, cells=cell_nodes, cell_type=pb.mesh.cell_type, components=("x", "y", "z"))
+
+
+def _monitor_fn(scene, pb, be):
+    needs_force = any(m["quantity"] in ("reaction_force", "nominal_stress", "moment") for m in scene.monitors)
+
+    def monitors(u):
+        return scene.evaluate_monitors(pb, u, be.internal_force(u) if needs_force else None)
+    return monitors
+
+
+def _static(scene, plan, be, progress, linear_solver):
+    a = scene.analysis
+    n_steps, target = int(a.get("load_steps", 1)), float(a.get("max_load_factor", 1.0))
+    monitors = _monitor_fn(scene, be.problem, be)
+    if plan.linear:
+        states, rows, status, message = _linear_static(be, n_steps, target, monitors, progress)
+    else:
+        states, rows, status, message = _newton_static(be, n_steps, target, monitors, progress, linear_solver,
+                                                       bool(a.get("stop_at_divergence")))
+    disp = np.array(states).reshape(len(states), -1, 3)
+    steps = np.array([0.0] + [r["load_factor"] for r in rows if r["converged"]])
+    return dict(status=status, message=message, table=pd.DataFrame(rows), steps=steps, displacement=disp,
+                **_fields(be.problem))
+
+
+def _linear_static(be, n_steps, target, monitors, progress):
+    from .linear_solvers import DirectSolver
+
+    pb = be.problem
+    free, fixed = pb.free_dofs, pb.fixed_dofs
+    u0 = np.zeros(pb.ndof)
+    tic = time.perf_counter()
+    K = be.tangent(u0)
+    lu = DirectSolver().factorize(K[free][:, free])
+    K_fc = K[free][:, fixed]
+    assembly_s = time.perf_counter() - tic
+    states, rows = [u0], []
+    for k in range(1, n_steps + 1):
+        tic = time.perf_counter()
+        lam = target * k / n_steps
+        u = np.zeros(pb.ndof)
+        u[fixed] = pb.prescribed_values(lam)
+        u[free] = lu.solve(be.external_force(u0, lam)[free] - K_fc @ u[fixed])
+        wall = time.perf_counter() - tic + (assembly_s if k == 1 else 0.0)
+        states.append(u)
+        rows.append({"step": k, "load_factor": lam, "newton_iterations": 1, "converged": True, "wall_s": wall,
+                     **monitors(u)})
+        if progress:
+            progress(lam, target)
+    return states, rows, "success", f"linear static solution at {n_steps} load factors up to {target:g}"
+
+
+def _newton_static(be, n_steps, target, monitors, progress, linear_solver, to_divergence):
+    from .newton import NewtonOptions, newton_solve
+
+    # run to divergence: the first increment that fails ends the run (no cutting), so
+    # the reported radius is that of the scene's fixed increment
+    opts = NewtonOptions(n_increments=n_steps, max_increment=1.0 / n_steps, linear_solver=linear_solver,
+                         min_increment=1.0 / n_steps if to_divergence else 1.0 / 4096)
+    res = newton_solve(be, target, opts, progress=progress)
+    states, rows, k = [np.zeros(be.ndof)], [], 0
+    for inc in res.increments:
+        row = {"step": len(rows) + 1, "load_factor": inc.load_factor, "newton_iterations": inc.iterations,
+               "converged": inc.converged, "wall_s": inc.wall_s, "assembly_s": inc.assembly_s,
+               "solve_s": inc.solve_s, "final_residual": inc.residual_norms[-1] if inc.residual_norms else np.nan,
+               "message": inc.message}
+        if inc.converged:
+            u = res.states[k]
+            k += 1
+            states.append(u)
+            row.update(monitors(u))
+        rows.append(row)
+    return states, rows, res.status, res.message
+
+
+# ============================================================================ FE dynamics
+def _dynamic(scene, plan, be, progress, linear_solver):
+    from .dynamics import SecondOrderSystem, integrate
+
+    a = scene.analysis
+    pb = be.problem
+    history = scene.history
+    system = SecondOrderSystem.from_backend(be, history, lumped=plan.mass == "lumped", linear=plan.linear)
+    dt, t_end = float(a["dt"]), float(a["t_end"])
+    n_steps = int(np.ceil(t_end / dt - 1e-9))
+    store_every = int(a.get("store_every", max(1, n_steps // 200)))
+    monitors = _monitor_fn(scene, pb, be)
+
+    def observe(t, u):
+        if progress:
+            progress(t, t_end)
+        return monitors(u)
+
+    name = a.get("integrator", "hht")
+    res = integrate(system, None, None, dt, t_end, method=name, store_every=store_every, observe=observe,
+                    **a.get("integrator_options", {}))
+    return _dynamics_output(res, monitors_per_step=res.observations, fields=_fields(pb), n_comp=3)
+
+
+def _dynamics_output(res, monitors_per_step, fields, n_comp):
+    """Table and fields of a :class:`~.dynamics.DynamicsResult` (shared with the 1D models)."""
+    n = len(res.t)
+    table = pd.DataFrame({
+        "step": np.arange(n), "time": res.t, "newton_iterations": res.newton_iterations,
+        "converged": res.converged, "wall_s": res.wall_time, "kinetic_energy": res.kinetic_energy,
+        "strain_energy": res.strain_energy, "external_work": res.external_work,
+        "energy_error": res.energy_error})
+    mon = pd.DataFrame(monitors_per_step[:n])
+    table = pd.concat([table, mon], axis=1)
+    disp = res.u.reshape(len(res.stored_steps), -1, n_comp)
+    info = {"integrator": res.method, "dt": res.dt, "energy_growth_ratio": res.energy_growth_ratio,
+            "failed_step": res.failed_step, "options": res.options}
+    return dict(status=res.status, message=res.message, table=table, steps=res.t[res.stored_steps],
+                displacement=disp, info=info, **fields)
