@@ -1,0 +1,66 @@
+"""The ROM contract: registry, step results, parameter checks, training data."""
+import numpy as np
+import pytest
+
+from tissuebench.rom import METHODS, RomMethod, StepResult, Training, check_parameters, make_method, register
+
+
+def test_unknown_method_lists_the_valid_ones():
+    with pytest.raises(ValueError, match=r"unknown ROM method 'nope'; valid: \["):
+        make_method("nope")
+
+
+def test_register_refuses_what_is_not_a_named_method():
+    with pytest.raises(TypeError):
+        register(int)
+
+    class Unnamed(RomMethod):
+        def build(self, training):
+            return None
+    with pytest.raises(TypeError):
+        register(Unnamed)
+
+
+def test_a_class_is_accepted_as_well_as_a_name():
+    class Toy(RomMethod):
+        name = "toy_for_test"
+
+        def __init__(self, k=1):
+            self.k = k
+
+        def build(self, training):
+            return None
+    assert make_method(Toy, k=3).k == 3
+    register(Toy)
+    try:
+        assert isinstance(make_method("toy_for_test"), Toy)
+    finally:
+        METHODS.pop("toy_for_test")
+
+
+def test_step_result_statuses():
+    assert StepResult(np.zeros(2)).ok
+    assert not StepResult(np.zeros(2), "extrapolation").ok
+    with pytest.raises(ValueError, match="status = 'weird'"):
+        StepResult(np.zeros(2), "weird")
+    with pytest.raises(ValueError, match="no state"):
+        StepResult(np.zeros(2), "failed")
+
+
+def test_parameters_are_checked_by_name():
+    assert check_parameters({"load_factor": 0.5}, ("load_factor",), "m") == {"load_factor": 0.5}
+    with pytest.raises(ValueError, match="'load_factor' missing"):
+        check_parameters({}, ("load_factor",), "m")
+    with pytest.raises(ValueError, match=r"mu\['load_factor'\] = nan"):
+        check_parameters({"load_factor": float("nan")}, ("load_factor",), "m")
+    with pytest.raises(TypeError):
+        check_parameters(0.5, ("load_factor",), "m")
+
+
+def test_training_data_is_validated():
+    with pytest.raises(ValueError, match="2D array"):
+        Training(snapshots=np.zeros(3))
+    with pytest.raises(ValueError, match="non-finite"):
+        Training(snapshots=np.array([[np.nan]]))
+    with pytest.raises(ValueError, match="2 entries for 3 snapshots"):
+        Training(snapshots=np.zeros((4, 3)), parameters=[{}, {}])

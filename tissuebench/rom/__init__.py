@@ -1,0 +1,6 @@
+"""Reduced-order models: one module per method family, one offline/online contract (:mod:`.base`)."""
+from .base import (METHODS, STEP_STATUSES, OnlineModel, RomMethod, StepResult, Training, check_parameters,
+                   make_method, register)
+
+__all__ = ["METHODS", "STEP_STATUSES", "OnlineModel", "RomMethod", "StepResult", "Training", "check_parameters",
+           "make_method", "register"]
