@@ -119,3 +119,15 @@ def test_numerical_failure_is_stored_with_its_status(tmp_path):
     assert m["status"] == "stalled" and not m["ok"] and "last converged load factor" in m["message"]
     t = pd.read_parquet(out / "results.parquet")
     assert not t["converged"].iloc[-1] and t["apex_endo_z"].iloc[-1] != t["apex_endo_z"].iloc[-1]  # NaN, flagged
+
+
+def test_liver_without_the_shared_folder_runs_on_the_fallback_shape_and_says_so(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("TISSUEBENCH_DATA", str(tmp_path / "empty"))
+    (tmp_path / "empty").mkdir()
+    out = tmp_path / "liver"
+    with pytest.warns(UserWarning, match="fallback"):
+        code = main(["run", "liver_palpation", "--out", str(out), "--quiet"])
+    assert code == 0
+    assert "fallback" in capsys.readouterr().err
+    m = json.loads((out / "manifest.json").read_text())
+    assert m["info"]["mesh"]["fallback"] is True and m["ok"]

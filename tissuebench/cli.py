@@ -47,6 +47,9 @@ def _run(args) -> int:
     from .studies.run import run_case
 
     scene = load(args.case, resolution=args.resolution, variant=args.variant)
+    if scene.is_fe and scene.mesh_info.get("fallback"):
+        print(f"tissuebench: note: {scene.mesh_info.get('reason', 'built-in fallback shape used')}",
+              file=sys.stderr)
     tag = scene.name + (f"-{scene.variant}" if scene.variant else "")
     out = args.out or Path("out") / f"{tag}-{args.backend}-{args.resolution}"
     result = run_case(args.case, args.backend, args.resolution, args.variant, out, args.force,

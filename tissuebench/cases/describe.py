@@ -71,7 +71,7 @@ def describe(case, resolution: str = "ci", variant: str | None = None) -> str:
              f"mesh: builder {s.mesh_spec['builder']} {s.mesh_spec['params']} -> "
              f"{s.mesh.n_vertices} vertices, {s.mesh.n_cells} cells ({resolution})"]
     if s.mesh_info.get("fallback"):
-        lines.append(f"  NOTE: {s.mesh_info.get('fallback_reason', 'built-in fallback shape used')}")
+        lines.append(f"  NOTE: {s.mesh_info.get('reason', 'built-in fallback shape used')}")
     if s.is_fe:
         lines.append(f"element {s.element}; material {s.material}")
     else:
