@@ -2,6 +2,7 @@
 
 ``tissuebench cases``                       the catalogue (name, paper, analysis, sizes)
 ``tissuebench describe CASE``               what a run models and why
+``tissuebench study anm_pod [--resolution ci|paper] [--out DIR]``   ANM-POD study
 ``tissuebench run CASE [--variant V] [--backend skfem|ngsolve] [--resolution ci|paper]
 [--out DIR] [--force]``                     reference solve, stored in DIR
 
@@ -30,6 +31,13 @@ def _parser():
     cases = sub.add_parser("cases", help="list the catalogue")
     cases.add_argument("--no-mesh", action="store_true", help="do not build meshes to count nodes")
     cases.add_argument("--paper", action="store_true", help="also build the paper-resolution meshes (slow)")
+    study = sub.add_parser("study", help="run a study (anm_pod)")
+    study.add_argument("name", help="study name: anm_pod")
+    study.add_argument("--resolution", default="ci", choices=["ci", "paper"],
+                       help="ci: small sweep on the ci meshes; paper: the full sweep (modes 1-15, orders 1-10)")
+    study.add_argument("--out", type=Path, default=None, help="result folder (default: out/study-NAME-RES)")
+    study.add_argument("--force", action="store_true", help="replace an existing result folder")
+    study.add_argument("--quiet", action="store_true", help="no progress bars")
     desc = sub.add_parser("describe", help="what a run of CASE models, and why")
     desc.add_argument("case")
     desc.add_argument("--variant", default=None)
@@ -67,6 +75,20 @@ def _run(args) -> int:
     return 0 if result.ok else 1
 
 
+def _study(args) -> int:
+    from .studies.study import run_study
+
+    out = args.out or Path("out") / f"study-{args.name}-{args.resolution}"
+    table, _, interp = run_study(args.name, out, args.resolution, args.force, progress=not args.quiet)
+    cols = ["case", "modes", "order", "max_rel_l2", "validity_1pct", "validity_5pct", "step_median_s",
+            "step_p99_s", "step_recon_median_s", "reference_step_s", "speedup_per_step", "newton_radius"]
+    print(table[cols].to_string(index=False))
+    if len(interp):
+        print(interp.groupby(["case", "method"])["projection_error"].agg(["mean", "max"]).to_string())
+    print(f"results in {out}")
+    return 0
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
@@ -80,6 +102,8 @@ def main(argv=None) -> int:
 
             print(describe(args.case, resolution=args.resolution, variant=args.variant))
             return 0
+        if args.command == "study":
+            return _study(args)
         return _run(args)
     except (ValueError, TypeError, FileExistsError, FileNotFoundError) as exc:
         return _error(exc)

@@ -1,16 +1,30 @@
 """Monitored quantities of the scene files (``[[monitor]]``): validation and evaluation.
 
-Quantities: max_displacement; displacement and deformed_coordinate (at the node
-nearest to ``point``, one ``component`` or the norm); reaction_force, nominal_stress
+Quantities: max_displacement; displacement and deformed_coordinate (at ``point``, one
+``component`` or the norm); reaction_force, nominal_stress
 (reaction / ``area``) and moment (about ``axis`` through ``center``) on a ``region``,
 which need the internal force vector; volume_ratio (deformed / reference volume);
 strain_energy (needs a backend, not evaluated here). Every value is multiplied by
 ``scale`` (e.g. 1e-3 for kPa).
+
+Point monitors (displacement, deformed_coordinate) interpolate the nodal field at the
+physical ``point`` (``frame = "bbox"``: fractions of the mesh bounding box) with the
+element's shape functions (:mod:`.probes`): the monitor stays at the same material point
+whatever the mesh, which a mesh-refinement study needs. A point on a node reads that
+node; a point just off a curved, faceted boundary is clipped into the nearest cell. The
+deformed coordinate is the interpolated reference position plus the interpolated
+displacement, consistent when the point was clipped. A monitor with ``boundary = true``
+instead reads the boundary node nearest to ``point``: it marks a loaded surface node
+(e.g. the liver tool tip, where a point load acts on that very node). The probes are
+built once per problem and monitor and reused at every step.
 """
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
+from .probes import Probe, make_probe
 from .regions import check_region
 from .schema import AXES, c_bool, c_enum, c_frame, c_num, c_pos, c_str, c_vec3, check_table, require
 
@@ -50,7 +64,7 @@ def evaluate_monitors(scene, problem, u, f_int=None) -> dict:
         if q == "max_displacement":
             val = float(np.linalg.norm(U, axis=1).max())
         elif q in ("displacement", "deformed_coordinate"):
-            val = _point_value(scene, m, problem.nodes, U)
+            val = _point_value(m, _probe(scene, m, problem), U)
         elif q in ("reaction_force", "nominal_stress", "moment"):
             val = _reaction(scene, m, problem.nodes, U, f_int)
         elif q == "volume_ratio":
@@ -61,11 +75,55 @@ def evaluate_monitors(scene, problem, u, f_int=None) -> dict:
     return out
 
 
-def _point_value(scene, m, nodes, U):
-    spec = {"nearest": m["point"], "boundary": m.get("boundary", False), "frame": m.get("frame", "absolute")}
-    i = scene.select(m["name"], spec, nodes)[0]
-    vec = U[i] + (nodes[i] if m["quantity"] == "deformed_coordinate" else 0.0)
+def _point_value(m, probe, U):
+    vec = probe(U)
+    if m["quantity"] == "deformed_coordinate":
+        # an interpolating probe reports the requested material point moved by u (the faceted
+        # mesh misses a curved surface by O(h^2 / R), which must not enter the value); a
+        # node probe (boundary monitors) reports its node
+        vec = vec + (np.asarray(probe.point, float) if probe.cell >= 0 else probe.location)
     return float(np.linalg.norm(vec) if m["component"] == "norm" else vec[AXES[m["component"]]])
+
+
+# problem -> {monitor key: Probe}; weak, so that a dropped problem frees its probes
+_PROBES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _probe(scene, m, problem) -> Probe:
+    """The cached :class:`~.probes.Probe` of point monitor ``m`` on ``problem``."""
+    try:
+        cache = _PROBES.setdefault(problem, {})
+    except TypeError:  # not weak-referenceable: build every time
+        cache = {}
+    key = (m["name"], tuple(m["point"]), bool(m.get("boundary", False)), m.get("frame", "absolute"))
+    if key not in cache:
+        cache[key] = _make_monitor_probe(scene, m, problem)
+    return cache[key]
+
+
+def _make_monitor_probe(scene, m, problem) -> Probe:
+    nodes = problem.nodes
+    if m.get("boundary", False):
+        # a loaded surface node (tool tip): the nearest boundary node, not an interpolation
+        spec = {"nearest": m["point"], "boundary": True, "frame": m.get("frame", "absolute")}
+        i = int(scene.select(m["name"], spec, nodes)[0])
+        p = _physical_point(m, problem.mesh)
+        return Probe(np.array([i]), np.ones(1), p, nodes[i].copy(), float(np.linalg.norm(nodes[i] - p)), -1)
+    try:
+        return make_probe(problem.mesh, nodes, problem.element, _physical_point(m, problem.mesh),
+                          cell_nodes=problem.layout[1])
+    except ValueError as e:
+        raise ValueError(f"{scene.name}: monitor {m['name']!r}: {e}") from None
+
+
+def _physical_point(m, mesh) -> np.ndarray:
+    """``m["point"]`` in the length unit: ``frame = "bbox"`` gives fractions of the mesh
+    bounding box, as for the region selectors."""
+    p = np.asarray(m["point"], float)
+    if m.get("frame", "absolute") != "bbox":
+        return p
+    lo, hi = mesh.points.min(axis=0), mesh.points.max(axis=0)
+    return lo + p * (hi - lo)
 
 
 def _reaction(scene, m, nodes, U, f_int):
