@@ -59,9 +59,18 @@ def test_cornea_series_converge_with_order(study):
 def test_interpolation_errors_are_reported_for_both_methods(study):
     i = pd.read_parquet(study / "interpolation.parquet")
     assert set(i["method"]) == {"podi", "grassmann", "nearest"}
-    assert np.isfinite(i["projection_error"]).all() and (i["projection_error"] < 0.5).all()
+    assert set(i["align"]) == {"modes", "procrustes", ""}
+    assert np.isfinite(i[["projection_error", "rom_error"]].to_numpy()).all()
     assert not i["extrapolation"].any()
     assert (i["distance"] > 0).all()
+    # what we measure (the paper's finding, with its cause): mode-matched PODI beats Grassmann
+    # and the nearest stored model, both as a basis (projection) and as an online ROM
+    mean = i.groupby(["case", "method", "align"])[["projection_error", "rom_error"]].mean()
+    for case in ("cornea_pinch", "liver_palpation"):
+        podi, grass = mean.loc[(case, "podi", "modes")], mean.loc[(case, "grassmann", "modes")]
+        near = mean.loc[(case, "nearest", "")]
+        assert podi["projection_error"] < grass["projection_error"]
+        assert podi["rom_error"] < min(grass["rom_error"], near["rom_error"])
 
 
 def test_an_interrupted_study_resumes(tmp_path, monkeypatch):

@@ -84,7 +84,8 @@ def _study(args) -> int:
             "step_p99_s", "step_recon_median_s", "reference_step_s", "speedup_per_step", "newton_radius"]
     print(table[cols].to_string(index=False))
     if len(interp):
-        print(interp.groupby(["case", "method"])["projection_error"].agg(["mean", "max"]).to_string())
+        print(interp.groupby(["case", "method", "align"])[["projection_error", "rom_error"]]
+              .agg(["mean", "max"]).to_string())
     print(f"results in {out}")
     return 0
 

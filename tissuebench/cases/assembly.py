@@ -68,6 +68,8 @@ def _fe_load(scene, i, ld, nodes):
     kind, path = ld["type"], f"load[{i}]"
     if kind == "body":
         return BodyForce(np.asarray(ld["value"], float))
+    if kind == "point" and ld["distribute"] == "interpolate":
+        return _interpolated_point_load(scene, path, ld, nodes)
     if kind == "point":
         idx = scene.select(path, ld["region"], nodes)
         return PointLoad(idx, _per_node(ld, np.asarray(ld["value"], float), idx))
@@ -80,6 +82,30 @@ def _fe_load(scene, i, ld, nodes):
         return SurfaceTraction(facets, np.asarray(ld["value"], float))
     # dead pressure on a plane region: a traction -p N
     return SurfaceTraction(facets, -float(ld["value"]) * _plane_normal(scene, path, facets))
+
+
+def _interpolated_point_load(scene, path, ld, nodes):
+    """A point force at the region's ``nearest`` point (bbox frame allowed), consistent nodal
+    forces ``w_i F`` with the shape-function weights ``w_i`` of the point in its cell."""
+    from ..refsolvers import PointLoad
+    from ..refsolvers.mesh import node_layout
+    from .probes import make_probe
+
+    region = ld["region"]
+    if "nearest" not in region:
+        raise ValueError(f"{scene.name}: {path}.distribute = 'interpolate' needs a 'nearest' point region")
+    point = np.asarray(region["nearest"], float)
+    if region.get("frame") == "bbox":
+        lo, hi = scene.mesh.points.min(axis=0), scene.mesh.points.max(axis=0)
+        point = lo + point * (hi - lo)
+    layout_nodes, cell_nodes = node_layout(scene.mesh, scene.element)
+    # a point off the body loads the closest point of the body (its surface)
+    probe = make_probe(scene.mesh, layout_nodes, scene.element, point, cell_nodes=cell_nodes, label=path,
+                       max_distance=np.inf)
+    # PointLoad pairs forces with its nodes in sorted order
+    order = np.argsort(probe.nodes)
+    force = np.outer(probe.weights[order], np.asarray(ld["value"], float))
+    return PointLoad(probe.nodes[order], force)
 
 
 def fe_problem(scene, element: str | None = None):

@@ -6,7 +6,9 @@ its parameters, density (optional, > 0), fibres (Guccione, optional 3-vector).
 ``[[dirichlet]]``: region, components ("xyz" or list), value (number or one per
 component) or motion (``{type = "rotation", axis, center, angle_deg}``), scaled (bool).
 ``[[load]]``: type (point | traction | pressure | follower_pressure | body), region,
-value, distribute ("total" | "per_node", point loads), history.
+value, distribute ("total" | "per_node" | "interpolate", point loads: "interpolate" puts one
+point force at the region's ``nearest`` point, spread on the nodes of its cell by the shape
+functions, so the load moves continuously with the point), history.
 ``[analysis]``: type static (load_steps, max_load_factor, stop_at_divergence) or
 dynamic (dt, t_end, integrator, integrator_options, lumped, dt_sweep).
 """
@@ -98,7 +100,7 @@ def _check_dirichlet_value(path, v, n):
 def check_load(path, ld, model):
     """Validate a ``[[load]]`` entry; fills the default history and distribution."""
     schema = {"type": c_enum(*LOAD_TYPES), "region": check_region, "value": c_any, "history": check_history,
-              "distribute": c_enum("total", "per_node"), "name": c_str}
+              "distribute": c_enum("total", "per_node", "interpolate"), "name": c_str}
     ld = check_table(path, ld, schema, required=("type", "value"))
     kind = ld["type"]
     if model != "fe" and kind != "point":

@@ -60,11 +60,11 @@ def _pareto(table, case, path):
 def _interp(interp, path):
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 5))
-    for (case, method), g in interp.groupby(["case", "method"]):
-        ax.plot(g["distance"], g["projection_error"], "o", label=f"{case}: {method}")
+    for (case, method, align), g in interp.groupby(["case", "method", "align"]):
+        ax.plot(g["distance"], g["rom_error"], "o", label=f"{case}: {method} {align}".strip())
     ax.set_yscale("log")
     ax.set_xlabel("distance to the nearest stored load position")
-    ax.set_ylabel("projection error of the held-out states")
+    ax.set_ylabel("ANM-POD error at the held-out position (max over the load path)")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, which="both")
     fig.tight_layout()

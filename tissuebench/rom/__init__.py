@@ -1,7 +1,7 @@
 """Reduced-order models: one module per method family, one offline/online contract (:mod:`.base`)."""
 from .base import (METHODS, STEP_STATUSES, OnlineModel, RomMethod, StepResult, Training, check_parameters,
                    make_method, register)
-from . import anm, interpolation, pod  # noqa: F401  (registers pod_linear, pod_newton, anm_pod)
+from . import anm, anm_interp, interpolation, pod  # noqa: F401  (registers the methods)
 
 __all__ = ["METHODS", "STEP_STATUSES", "OnlineModel", "RomMethod", "StepResult", "Training", "check_parameters",
            "make_method", "register"]
