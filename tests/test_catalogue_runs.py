@@ -73,8 +73,8 @@ def test_frame_matches_its_analytical_solution_to_second_order_in_dt():
         exact = frame_step_response(masses, k, 1.0e4, t, loaded_node=2)
         got = r.table[["u1", "u2"]].to_numpy()
         errors.append(np.abs(got - exact).max() / np.abs(exact).max())
-    # central difference at dt = T_min / 59: the slab displacements within 0.5 % of the peak
-    assert errors[0] < 5e-3
+    # central difference at dt = T_min / 59: measured 7.3e-4 of the peak (1.8e-4 at dt / 2)
+    assert errors[0] < 1.5e-3
     assert math.log2(errors[0] / errors[1]) == pytest.approx(2.0, abs=0.2)
 
 

@@ -239,15 +239,23 @@ class NgsolveBackend(Backend):
     ----------
     problem : Problem
     threads : int or None
-        Assemble inside NGSolve's TaskManager (None: NGSolve's default thread count;
-        1: no TaskManager; n > 1: ``SetNumThreads(n)``, a process-wide setting).
+        Assemble inside NGSolve's TaskManager (None: NGSolve's default thread count for
+        meshes of at least :attr:`TASKMANAGER_MIN_CELLS` cells, serial below; 1: no
+        TaskManager; n > 1: ``SetNumThreads(n)``, a process-wide setting).
     """
+
+    #: below this many cells, entering the TaskManager costs more than the threads save
+    #: (and its workers spin-wait when the machine is loaded: 0.5 s per call measured on the
+    #: 96-cell wave block under a concurrent test run)
+    TASKMANAGER_MIN_CELLS = 2000
 
     name = "ngsolve"
 
     def __init__(self, problem, threads=None):
         super().__init__(problem)
         pb = problem
+        if threads is None and pb.mesh.n_cells < self.TASKMANAGER_MIN_CELLS:
+            threads = 1
         self._threads = threads
         if threads and threads > 1:
             ngs.SetNumThreads(int(threads))
