@@ -5,7 +5,7 @@ import pytest
 from tissuebench.cases.meshes import box_mesh
 from tissuebench.refsolvers import Dirichlet, PointLoad, Problem, SaintVenantKirchhoff, make_backend
 from tissuebench.refsolvers.newton import newton_solve
-from tissuebench.rom.anm import AnmPod
+from tissuebench.rom.anm_pod import AnmPod
 from tissuebench.rom.anm_interp import AnmPodInterp, AnmPodInterpModel, rotate_polynomial
 from tissuebench.rom.base import METHODS, Training, make_method
 from tissuebench.rom.interpolation import grassmann_exp, grassmann_log, principal_angles

@@ -44,7 +44,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from .anm import AnmPod, AnmPodModel
+from .anm_pod import AnmPod, AnmPodModel
 from .base import OnlineModel, RomMethod, StepResult, Training, check_parameters, register
 from .interpolation import (grassmann_interpolate, interpolation_weights, match_modes, principal_angles,
                             procrustes_align)
