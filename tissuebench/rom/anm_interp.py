@@ -2,11 +2,11 @@
 
 Offline, one ANM-POD model (POD basis ``A_k`` (n_free, m), reduced tensors ``L_k, Q_k, C_k,
 f_k``) is built per stored load position ``s_k`` (a 1D lattice). Online, at a position
-``s``, the basis (§5.1 Grassmann or §5.2 PODI) *and* the reduced tensors (§5.3, the
-"f_nl terms": piecewise-linear, the weights of :func:`.interpolation_weights`) are
-interpolated from the two neighbouring positions, and the reduced ANM series (eqs.
-44-45) is built from the origin; only the basis interpolation touches full-size data
-(O(n m^2)).
+``s``, the reduced tensors (§5.3, the "f_nl terms": piecewise-linear, the weights of
+:func:`.interpolation_weights`) are interpolated from the two neighbouring positions and
+the reduced ANM series (eqs. 44-45) is built from the origin: the step stays in m-space.
+The basis (§5.1 Grassmann or §5.2 PODI), the only full-size interpolation (O(n m^2)),
+is interpolated when the field is reconstructed.
 
 Alignment. Reduced quantities of two positions can only be averaged if their
 coordinates mean the same thing: the POD modes of each position come with arbitrary
@@ -166,12 +166,12 @@ def _check_group(tr, pos, free, ndof):
 class AnmPodInterpModel(OnlineModel):
     """Online interpolated ANM-POD: ``step({"load_factor", "position"})`` -> q (m,).
 
-    ``result.info`` holds the interpolated ``basis`` (n_free, m) used by
-    :meth:`reconstruct`, the ``position``, ``distance`` to the nearest stored position
+    ``result.info`` holds the ``position``, ``distance`` to the nearest stored position
     (position units), ``position_extrapolation``, neighbour ``indices``/``weights``, the
-    ANM ``segment``/``a``, and ``timings`` (seconds: ``basis``, ``tensors``, ``series``,
-    ``evaluation``; a cached position costs no basis/tensors, and no series unless the
-    load factor lies past the continuation built so far).
+    ANM ``segment``/``a``, and ``timings`` (seconds: ``tensors``, ``series``,
+    ``evaluation``; a cached position costs no tensors, and no series unless the load
+    factor lies past the continuation built so far). The step never touches a full-size
+    array: the basis is interpolated by :meth:`reconstruct` (:meth:`basis_at`, cached).
     """
 
     name = "anm_pod_interp"
@@ -200,25 +200,34 @@ class AnmPodInterpModel(OnlineModel):
         return {"load_factor": self._lam_env, "position": (float(self.positions[0]), float(self.positions[-1]))}
 
     def model_at(self, s: float):
-        """(AnmPodModel at position s, interpolation record, timings); cached per position."""
+        """(AnmPodModel at position s, interpolation record, timings); cached per position.
+
+        Only reduced quantities are interpolated here; the basis, which only
+        :meth:`reconstruct` needs, is interpolated there (:meth:`basis_at`), off the step.
+        """
         if s in self._cache:
             self._cache.move_to_end(s)
-            return (*self._cache[s], {"basis": 0.0, "tensors": 0.0})
+            return (*self._cache[s], {"tensors": 0.0})
         t0 = time.perf_counter()
         idx, w, extra, dist = interpolation_weights(self.positions, s)
-        basis = self._basis(s, idx, w)
-        t1 = time.perf_counter()
         poly = ReducedPolynomial(*(np.tensordot(w, T[idx], axes=1) for T in (self._L, self._Q, self._C, self._f)))
-        t2 = time.perf_counter()
-        model = AnmPodModel(basis, self.free_dofs, self.ndof, poly, self._series, self._lam_env)
+        t1 = time.perf_counter()
+        model = AnmPodModel(None, self.free_dofs, self.ndof, poly, self._series, self._lam_env)
         record = {"indices": idx, "weights": w, "position_extrapolation": extra, "distance": dist}
         self._cache[s] = (model, record)
         if len(self._cache) > self.options.cache_size:
             self._cache.popitem(last=False)
-        return model, record, {"basis": t1 - t0, "tensors": t2 - t1}
+        return model, record, {"tensors": t1 - t0}
+
+    def basis_at(self, s: float) -> np.ndarray:
+        """Interpolated orthonormal basis (n_free, m) at position ``s`` in the aligned
+        coordinates (module docstring); computed once per cached position."""
+        _, record, _ = self.model_at(float(s))
+        if "basis" not in record:
+            record["basis"] = self._basis(float(s), record["indices"], record["weights"])
+        return record["basis"]
 
     def _basis(self, s, idx, w):
-        """Interpolated orthonormal basis (n_free, m) in the aligned coordinates (module docstring)."""
         B = sum(wi * self.bases[i] for wi, i in zip(w, idx))  # the plain PODI sum
         if len(idx) == 1:
             return B  # a stored position: its own aligned basis
@@ -232,22 +241,18 @@ class AnmPodInterpModel(OnlineModel):
 
         Status ``"extrapolation"`` when the position lies outside the stored range or
         the load factor outside the training envelope (value returned);
-        ``"beyond_validity"`` past the ``max_segments`` series (as :class:`.AnmPodModel`);
-        ``"failed"`` when the Grassmann log map does not exist.
+        ``"beyond_validity"`` past the ``max_segments`` series (as :class:`.AnmPodModel`).
         """
         mu = check_parameters(mu, ("load_factor", "position"), self.name)
         lam, s = float(mu["load_factor"]), float(mu["position"])
-        try:
-            model, rec, timings = self.model_at(s)
-        except ValueError as exc:  # grassmann_log: a principal angle of pi/2 between neighbours
-            return StepResult(None, "failed", f"{self.name}: position {s:g}: {exc}", {"position": s})
+        model, rec, timings = self.model_at(s)
         t0 = time.perf_counter()
         model._segments_for(lam)  # build/extend the continuation (timed apart from the evaluation)
         t1 = time.perf_counter()
         res = model.step({"load_factor": lam})
         t2 = time.perf_counter()
         timings.update(series=t1 - t0, evaluation=t2 - t1)
-        info = {**res.info, **rec, "position": s, "basis": model.basis, "timings": timings}
+        info = {**res.info, **{k: v for k, v in rec.items() if k != "basis"}, "position": s, "timings": timings}
         status, msg = res.status, res.message
         if rec["position_extrapolation"]:
             lo, hi = self.envelope["position"]
@@ -258,11 +263,19 @@ class AnmPodInterpModel(OnlineModel):
         return StepResult(res.q, status, msg, info)
 
     def reconstruct(self, result: StepResult) -> np.ndarray:
-        """Full displacement (ndof,): the step's interpolated basis times q, zero on fixed dofs."""
+        """Full displacement (ndof,): the interpolated basis at the step's position times q
+        (``result.info["basis"]``, when set, overrides it), zero on the fixed dofs.
+
+        Raises ValueError for a failed step, or when the Grassmann log map between the
+        neighbouring bases does not exist (a principal angle of pi/2).
+        """
         if result.q is None:
             raise ValueError(f"{self.name}: cannot reconstruct a failed step ({result.message})")
+        basis = result.info.get("basis")
+        if basis is None:
+            basis = self.basis_at(result.info["position"])
         u = np.zeros(self.ndof)
-        u[self.free_dofs] = result.info["basis"] @ result.q
+        u[self.free_dofs] = basis @ result.q
         return u
 
 

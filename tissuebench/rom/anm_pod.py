@@ -138,7 +138,7 @@ class AnmPodModel(OnlineModel):
 
     @property
     def n_reduced(self) -> int:
-        return self.basis.shape[1]
+        return self.poly.m
 
     @property
     def envelope(self) -> dict:
