@@ -5,10 +5,9 @@ import scipy.sparse as sp
 
 ngs = pytest.importorskip("ngsolve")
 
+from _fe_helpers import element_mesh, material_set  # noqa: E402
 from tissuebench.refsolvers.backends.ngsolve_backend import NgsolveBackend, make_intrules  # noqa: E402
-from tissuebench.refsolvers.materials import (Guccione, LinearElastic, MooneyRivlin,  # noqa: E402
-                                              NeoHookean, SaintVenantKirchhoff)
-from tissuebench.refsolvers.mesh import Mesh  # noqa: E402
+from tissuebench.refsolvers.materials import LinearElastic, NeoHookean  # noqa: E402
 from tissuebench.refsolvers.problem import (BodyForce, Dirichlet, FollowerPressure, Problem,  # noqa: E402
                                             SurfaceTraction)
 from tissuebench.refsolvers.quadrature import facet_rule, volume_rule  # noqa: E402
@@ -16,29 +15,11 @@ from tissuebench.refsolvers.quadrature import facet_rule, volume_rule  # noqa: E
 pytestmark = pytest.mark.ngsolve
 
 ELEMENTS = ["P1", "P2", "Q1"]
-# Kuhn split of a VTK hexahedron into 6 tetrahedra around the diagonal 0-6
-KUHN = np.array([[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]])
 
 
-def box_mesh(n=(2, 2, 2), L=(1.0, 1.0, 1.0), cell="hexahedron", distort=0.0, seed=0):
-    """Structured box [0, L]; interior vertices moved by up to ``distort`` * h."""
-    axes = [np.linspace(0, l, k + 1) for l, k in zip(L, n)]
-    pts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    idx = np.arange(len(pts)).reshape(*(k + 1 for k in n))
-    i, j, k = (a.ravel() for a in np.meshgrid(*(np.arange(m) for m in n), indexing="ij"))
-    hexes = np.stack([idx[i, j, k], idx[i + 1, j, k], idx[i + 1, j + 1, k], idx[i, j + 1, k],
-                      idx[i, j, k + 1], idx[i + 1, j, k + 1], idx[i + 1, j + 1, k + 1], idx[i, j + 1, k + 1]], 1)
-    if distort:
-        interior = np.all((pts > 1e-12) & (pts < np.array(L) - 1e-12), axis=1)
-        h = np.array(L) / np.array(n)
-        pts = pts + interior[:, None] * np.random.default_rng(seed).uniform(-distort, distort, pts.shape) * h
-    if cell == "tetra":
-        return Mesh(pts, hexes[:, KUHN].reshape(-1, 4), "tetra")
-    return Mesh(pts, hexes, "hexahedron")
-
-
-def mesh_for(element, **kw):
-    return box_mesh(cell="hexahedron" if element == "Q1" else "tetra", **kw)
+def mesh_for(element, n=(2, 2, 2), L=(1.0, 1.0, 1.0), distort=0.0, seed=0):
+    """Structured box [0, L] for ``element``; interior vertices moved by up to ``distort`` * h."""
+    return element_mesh(element, lengths=L, divisions=n, jitter=distort, seed=seed)
 
 
 def clamp_x0():
@@ -46,14 +27,8 @@ def clamp_x0():
 
 
 def materials(n_cells, seed=1):
-    fib = np.random.default_rng(seed).standard_normal((n_cells, 3))
-    return {
-        "linear": LinearElastic(E=2.0, nu=0.3),
-        "svk": SaintVenantKirchhoff(E=2.0, nu=0.3),
-        "neo_hookean": NeoHookean(E=2.0, nu=0.3),
-        "mooney_rivlin": MooneyRivlin(mu1=0.5, mu2=0.6, kappa=5.0),
-        "guccione": Guccione(C=1.0, bf=8.0, bt=2.0, bfs=4.0, kappa=5.0, fibres=fib),
-    }
+    """The five materials, the Guccione one with a random fibre direction per cell."""
+    return material_set(fibres=np.random.default_rng(seed).standard_normal((n_cells, 3)))
 
 
 def backend(element, material="neo_hookean", loads=(), distort=0.2, **kw):

@@ -60,7 +60,7 @@ def _run(args) -> int:
               file=sys.stderr)
     tag = scene.name + (f"-{scene.variant}" if scene.variant else "")
     out = args.out or Path("out") / f"{tag}-{args.backend}-{args.resolution}"
-    result = run_case(args.case, args.backend, args.resolution, args.variant, out, args.force,
+    result = run_case(scene, args.backend, args.resolution, args.variant, out, args.force,
                       progress=not args.quiet, linear_solver=args.linear_solver)
     t = result.table
     monitors = [m["name"] for m in scene.monitors if m["name"] in t]

@@ -1,1 +1,4 @@
-"""The case catalogue: scene builders and mesh generators."""
+"""The case catalogue: declarative scenes (``catalogue/*.toml``), their loader and mesh builders."""
+from .scene import RESOLUTIONS, Scene, list_cases, load
+
+__all__ = ["RESOLUTIONS", "Scene", "list_cases", "load"]

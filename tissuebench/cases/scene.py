@@ -19,11 +19,20 @@ Schema (see the README of the catalogue, and any scene file, for examples)
 ``[[dirichlet]]`` region, components ("xyz" or list), value (number or one per component)
                  or motion (``{type = "rotation", axis, center, angle_deg}``), scaled (bool)
 ``[[load]]``     type (point | traction | pressure | follower_pressure | body), region,
-                 value, distribute ("total" | "per_node", point loads), history
+                 value, distribute (point loads: "total" spread evenly over the selected
+                 nodes | "per_node" | "interpolate": one force at the region's ``nearest``
+                 point, or the closest point of the body, spread by the shape functions of
+                 its cell), history
 ``[analysis]``   type static (load_steps, max_load_factor, stop_at_divergence) or dynamic
                  (dt, t_end, integrator, integrator_options, lumped, dt_sweep)
-``[[monitor]]``  name, quantity, and its keys (region, point, component, axis, center, area, scale)
-``[paper]``      free table: the numbers the paper reports
+``[[monitor]]``  name, quantity, and its keys (region, point, component, axis, center, area, scale);
+                 a ``point`` is read by interpolation in its cell (``boundary = true``: the
+                 nearest boundary node), see :mod:`.probes`
+``[paper]``      free table: the numbers the paper reports; ``[paper.compare.<monitor>]``
+                 (value, note) puts our final monitored value beside the paper's, with the
+                 reason they differ (printed by ``tissuebench run``)
+``[cut]``        incisions (angle_deg, radii) and depth_fraction: the mesh is cut along them,
+                 nodes duplicated on the cut faces (see :mod:`.cutting`)
 ``[methods]``    free table: ROM settings of the paper (modes, orders, handles ...)
 ``[variants.X]`` overrides: material/model/analysis/mesh replace, dirichlet/load/monitor
                  append, paper/methods/case merge

@@ -231,10 +231,10 @@ def _dynamic(scene, plan, be, progress, linear_solver):
     name = a.get("integrator", "hht")
     res = integrate(system, None, None, dt, t_end, method=name, store_every=store_every, observe=observe,
                     **a.get("integrator_options", {}))
-    return _dynamics_output(res, monitors_per_step=res.observations, fields=_fields(pb), n_comp=3)
+    return dynamics_output(res, monitors_per_step=res.observations, fields=_fields(pb), n_comp=3)
 
 
-def _dynamics_output(res, monitors_per_step, fields, n_comp):
+def dynamics_output(res, monitors_per_step, fields, n_comp):
     """Table and fields of a :class:`~.dynamics.DynamicsResult` (shared with the 1D models)."""
     n = len(res.t)
     table = pd.DataFrame({

@@ -67,7 +67,7 @@ def _static(scene, system, monitors, progress):
 
 def _dynamic(scene, plan, system, monitors, progress):
     from .dynamics import SecondOrderSystem, integrate
-    from .reference import _dynamics_output
+    from .reference import dynamics_output
 
     a = scene.analysis
     M = system.M_lumped if plan.mass == "lumped" else system.M
@@ -81,7 +81,7 @@ def _dynamic(scene, plan, system, monitors, progress):
 
     res = integrate(sos, None, None, float(a["dt"]), t_end, method=a.get("integrator", "hht"),
                     store_every=int(a.get("store_every", 1)), observe=observe, **a.get("integrator_options", {}))
-    return _dynamics_output(res, res.observations, _fields(scene, system), n_comp=system.dofs_per_node)
+    return dynamics_output(res, res.observations, _fields(scene, system), n_comp=system.dofs_per_node)
 
 
 def solve_line(scene, plan, progress=None) -> dict:

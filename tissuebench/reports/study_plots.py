@@ -6,13 +6,7 @@ from pathlib import Path
 __all__ = ["plot_anm_pod"]
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+from .figures import pyplot as _plt
 
 
 def _fig9(curves, case, modes, path):

@@ -144,6 +144,11 @@ class AnmPodModel(OnlineModel):
     def envelope(self) -> dict:
         return {"load_factor": self._env}
 
+    @property
+    def path(self) -> AnmPath:
+        """The continuation segments built so far (the first is the series from the origin)."""
+        return self._path
+
     def _refresh(self):
         self._ends = self._path.load_factor_ends
 

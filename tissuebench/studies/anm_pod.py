@@ -120,7 +120,7 @@ def sweep_case(case, modes, orders, resolution="ci", eps=1e-6, latency_steps=100
             seen.add(key)
             rel, maxd, rom_max, statuses = _errors(model, training, lams)
             step, both, _ = time_online_steps(model, mus, warmup=50)
-            series = model._path[0]
+            series = model.path[0]
             rows.append({"case": scene.name, "resolution": resolution, "method": "anm_pod",
                          "modes_requested": m, "modes": model.n_reduced, "order": order, "eps": eps,
                          "a_max": series.a_end, "lam_at_a_max": series.load_factor(series.a_end),

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cases.scene import load
+from ..cases.scene import Scene, load
 from ..refsolvers.reference import ReferenceResult, solve
 from .store import atomic_directory, provenance, write_json_atomic
 
@@ -45,12 +45,13 @@ def _progress_bar(label):
 def run_case(case, backend: str = "skfem", resolution: str = "ci", variant: str | None = None,
              out: Path | None = None, overwrite: bool = False, progress: bool = True,
              linear_solver: str = "direct") -> ReferenceResult:
-    """Solve catalogue ``case`` (name or scene file) and, with ``out``, store it.
+    """Solve catalogue ``case`` (name, scene file or loaded :class:`Scene`) and, with
+    ``out``, store it (``resolution`` and ``variant`` apply to a name or a file).
 
     Raises ``FileExistsError`` before any work when ``out`` exists and ``overwrite`` is
     False; a numerical failure is the result's ``status``, still written.
     """
-    scene = load(case, resolution=resolution, variant=variant)
+    scene = case if isinstance(case, Scene) else load(case, resolution=resolution, variant=variant)
     if out is not None and Path(out).exists() and not overwrite:
         raise FileExistsError(f"output folder {out} exists; pass overwrite (--force) to replace it")
     bar, update = _progress_bar(f"{scene.name} [{backend}, {resolution}]") if progress else (None, None)
@@ -64,57 +65,20 @@ def run_case(case, backend: str = "skfem", resolution: str = "ci", variant: str 
     return result
 
 
-def _plot_monitors(result, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    t = result.table
-    x = "load_factor" if "load_factor" in t else "time"
-    skip = {"case", "backend", "step", "load_factor", "time", "newton_iterations", "converged", "wall_s",
-            "assembly_s", "solve_s", "final_residual", "message", "kinetic_energy", "strain_energy",
-            "external_work", "energy_error"}
-    cols = [c for c in t.columns if c not in skip]
-    fig, axes = plt.subplots(len(cols) or 1, 1, figsize=(7, 2.4 * max(len(cols), 1)), squeeze=False)
-    for ax, c in zip(axes[:, 0], cols):
-        ok = t["converged"].to_numpy(bool)
-        ax.plot(t[x][ok], t[c][ok], ".-")
-        ax.set_ylabel(c)
-        ax.grid(alpha=0.3)
-    axes[-1, 0].set_xlabel(x)
-    fig.suptitle(f"{result.case} ({result.backend}, {result.resolution}): {result.status}")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def _write_line(result, tmp):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def write_line_vtu(result, path: Path) -> Path:
+    """The final state of a 1D model on its line cells (VTU), one point array per component."""
     import meshio
 
-    x = result.points[:, 0]
     U = result.final_displacement
     meshio.Mesh(result.points, [("line", result.cells)],
-                point_data={c: U[:, i] for i, c in enumerate(result.components)}).write(tmp / "deformed.vtu")
-    fig, ax = plt.subplots(figsize=(7, 3.5))
-    for i, c in enumerate(result.components):
-        ax.plot(x, U[:, i], "o-", label=c)
-    ax.set_xlabel("x")
-    ax.legend()
-    ax.grid(alpha=0.3)
-    ax.set_title(f"{result.case}: final state ({result.status})")
-    fig.tight_layout()
-    fig.savefig(tmp / "deformed.png", dpi=110)
-    plt.close(fig)
+                point_data={c: U[:, i] for i, c in enumerate(result.components)}).write(path)
+    return Path(path)
 
 
 def write_result(result: ReferenceResult, scene, out: Path, overwrite: bool = False) -> Path:
     """Write the files of a run into ``out`` atomically (see the module docstring)."""
     from ..cases.describe import paper_comparison
+    from ..reports.figures import plot_line_state, plot_monitors
     from ..reports.plots import plot_deformed, write_vtu
 
     with atomic_directory(out, overwrite) as tmp:
@@ -123,13 +87,14 @@ def write_result(result: ReferenceResult, scene, out: Path, overwrite: bool = Fa
                             steps=result.steps, displacement=result.displacement,
                             components=np.array(result.components))
         if result.cell_type == "line":
-            _write_line(result, tmp)
+            write_line_vtu(result, tmp / "deformed.vtu")
+            plot_line_state(result, tmp / "deformed.png")
         else:
             mesh, u = result.problem.mesh, result.final_displacement.ravel()
             write_vtu(mesh, u, tmp / "deformed.vtu")
             plot_deformed(mesh, u, tmp / "deformed.png",
                           title=f"{result.case} ({result.backend}, {result.resolution}): {result.status}")
-        _plot_monitors(result, tmp / "monitors.png")
+        plot_monitors(result, tmp / "monitors.png")
         write_json_atomic(tmp / "manifest.json", provenance(
             case=result.case, variant=result.variant, resolution=result.resolution, backend=result.backend,
             scene_file=str(scene.path), scene_hash=scene_hash(scene), status=result.status, ok=result.ok,

@@ -55,7 +55,9 @@ def time_online_steps(model, mus, warmup: int = 20, repeats: int = 1, reconstruc
     if not mus:
         raise ValueError("time_online_steps: no parameters given")
     for k in range(int(warmup)):
-        model.reconstruct(model.step(mus[k % len(mus)])) if reconstruct else model.step(mus[k % len(mus)])
+        res = model.step(mus[k % len(mus)])
+        if reconstruct and res.q is not None:
+            model.reconstruct(res)
     steps, both, results = [], [], []
     for _ in range(int(repeats)):
         model.reset()
