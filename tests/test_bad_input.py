@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from _fe_helpers import BACKEND_PARAMS, element_mesh, on_plane
+from tissuebench.cases.io import liver_mesh_path
 from tissuebench.cases.meshes import box_mesh
 from tissuebench.refsolvers.backends import make_backend
 from tissuebench.refsolvers.materials import (Guccione, LinearElastic, MooneyRivlin, NeoHookean,
@@ -18,7 +19,6 @@ from tissuebench.refsolvers.newton import NewtonError, newton_solve
 from tissuebench.refsolvers.problem import (Dirichlet, FollowerPressure, PointLoad, Problem,
                                             SurfaceTraction)
 
-LIVER = Path(__file__).parents[2] / "shared/data/liver/liver_tet.vtu"
 
 CLAMP = Dirichlet(lambda x: x[:, 0] < 1e-9)
 
@@ -128,10 +128,9 @@ def test_cells_out_of_range():
         Mesh(pts, [[0, 1, 2, 7]], "tetra")
 
 
-@pytest.mark.skipif(not LIVER.exists(), reason=f"{LIVER} is absent")
 def test_liver_mesh_is_reoriented():
     meshio = pytest.importorskip("meshio")
-    raw = meshio.read(LIVER)
+    raw = meshio.read(liver_mesh_path(must_exist=True))
     cells = raw.get_cells_type("tetra")
     m = Mesh(raw.points[:, :3], cells, "tetra")
     assert m.n_reoriented == len(cells)

@@ -252,11 +252,7 @@ def test_lv_wall_volume(scenes):
     assert p[:, 2].max() == pytest.approx(5.0) and p[:, 2].min() == pytest.approx(-20.0, abs=0.2)
 
 
-def test_liver_from_shared_file(scenes):
-    from tissuebench.cases.io import liver_mesh_path
-
-    if not liver_mesh_path().is_file():
-        pytest.skip("shared liver mesh not present")
+def test_liver_from_shipped_file(scenes):
     s = scenes[("liver_palpation", None)]
     assert s.mesh.n_vertices == pytest.approx(2866, rel=0.02)
     assert not s.mesh_info["fallback"]

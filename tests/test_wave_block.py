@@ -24,7 +24,7 @@ import meshio
 import numpy as np
 import pytest
 
-from tissuebench.cases.io import DATA_ENV, liver_mesh_path, read_mesh, shared_data_dir
+from tissuebench.cases.io import DATA_ENV, PACKAGE_DATA_DIR, data_dir, liver_mesh_path, read_mesh
 from tissuebench.refsolvers.dynamics import integrate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -228,22 +228,32 @@ def test_problem_builder_rejects_bad_input():
 
 
 # ------------------------------------------------------------------ mesh reader
-def test_shared_data_dir_default_and_override(monkeypatch, tmp_path):
+def test_data_dir_default_and_override(monkeypatch, tmp_path):
     monkeypatch.delenv(DATA_ENV, raising=False)
-    assert shared_data_dir() == ROOT.parent / "shared" / "data"
+    # the default is inside the package: a clone or a wheel needs nothing beside it
+    assert data_dir() == PACKAGE_DATA_DIR == ROOT / "tissuebench" / "data"
+    assert liver_mesh_path(must_exist=True) == PACKAGE_DATA_DIR / "liver" / "liver_tet.vtu"
     monkeypatch.setenv(DATA_ENV, str(tmp_path))
-    assert shared_data_dir(must_exist=True) == tmp_path
+    assert data_dir(must_exist=True) == tmp_path
     assert liver_mesh_path() == tmp_path / "liver" / "liver_tet.vtu"
     monkeypatch.setenv(DATA_ENV, str(tmp_path / "missing"))
     with pytest.raises(FileNotFoundError, match="missing"):
-        shared_data_dir(must_exist=True)
+        data_dir(must_exist=True)
 
 
-def test_read_liver_mesh():
-    path = liver_mesh_path()
-    if not path.is_file():
-        pytest.skip(f"shared liver mesh not found at {path}")
-    mesh = read_mesh(path)
+def test_shipped_liver_mesh_is_the_documented_file(monkeypatch):
+    import hashlib
+
+    monkeypatch.delenv(DATA_ENV, raising=False)
+    path = liver_mesh_path(must_exist=True)
+    readme = (path.parent / "README.md").read_text()
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    assert digest in readme and "LGPL" in readme  # source, licence and checksum stated beside it
+
+
+def test_read_liver_mesh(monkeypatch):
+    monkeypatch.delenv(DATA_ENV, raising=False)
+    mesh = read_mesh(liver_mesh_path(must_exist=True))
     assert mesh.cell_type == "tetra"
     assert (mesh.n_vertices, mesh.n_cells) == (2866, 10995)
     assert mesh.n_reoriented == mesh.n_cells  # every tet of the file is negatively oriented

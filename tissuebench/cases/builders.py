@@ -12,7 +12,7 @@ Builders
 ``netgen_box``   unstructured netgen box
 ``cornea_dome``  structured hexahedral spherical-cap shell (O-grid disc mapped on the cap)
 ``lv_ellipsoid`` truncated thick-walled ellipsoid of Land et al. 2015 problem 2 (netgen CSG)
-``liver``        the shared SOFA liver (VTU), any meshio volume mesh, an STL surface
+``liver``        the SOFA liver shipped in tissuebench/data (VTU), any meshio volume mesh, an STL surface
                  tetrahedralised by netgen, or a built-in organ-like fallback shape
 ``interval``     1D interval [0, length] split into equal elements (Poisson 1D)
 ``beam1d``       1D beam/column axis [0, length] split into equal elements

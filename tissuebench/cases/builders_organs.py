@@ -2,7 +2,7 @@
 
 ``cornea_dome``  structured hexahedral spherical-cap shell (O-grid disc mapped on the cap)
 ``lv_ellipsoid`` truncated thick-walled ellipsoid of Land et al. 2015 problem 2 (netgen CSG)
-``liver``        the shared SOFA liver (VTU), any meshio volume mesh, an STL surface
+``liver``        the SOFA liver shipped in tissuebench/data (VTU), any meshio volume mesh, an STL surface
                  tetrahedralised by netgen, or a built-in organ-like fallback shape
 
 They are registered by name in :mod:`.builders` and importable from there.
@@ -181,19 +181,19 @@ def _fallback_organ(maxh: float) -> Mesh:
     xi = x / a
     taper = 1.0 - 0.35 * xi  # the left lobe thins out
     pts = np.column_stack([x, y * taper + 12.0 * xi ** 2, z * (0.8 - 0.3 * xi) - 8.0 * xi ** 2])
-    pts += np.array([125.0, 130.0, 130.0])  # roughly where the shared liver sits
+    pts += np.array([125.0, 130.0, 130.0])  # roughly where the shipped liver sits
     return Mesh(pts, m.cells, "tetra")
 
 
 def liver(path: str | None = None, scale: float = 1.0, maxh: float = 14.0, grading: float = 0.65,
           fallback_maxh: float = 14.0, allow_fallback: bool = True) -> BuiltMesh:
     """The liver: ``path`` (any meshio volume mesh, or an STL surface tetrahedralised by
-    netgen with ``maxh``/``grading``), default ``<shared data>/liver/liver_tet.vtu``.
+    netgen with ``maxh``/``grading``), default ``<data folder>/liver/liver_tet.vtu`` (shipped with the package).
 
-    Without ``path`` and without the shared file, a built-in organ-like shape is meshed
+    Without ``path`` and without that file ($TISSUEBENCH_DATA pointing elsewhere), a built-in organ-like shape is meshed
     (with a warning; ``info["fallback"]`` is True). An explicit ``path`` that does not
     exist raises FileNotFoundError naming it. Coordinates are multiplied by ``scale``
-    (the shared files are in mm; ``scale = 0.001`` gives metres).
+    (the shipped files are in mm; ``scale = 0.001`` gives metres).
     """
     from .io import liver_mesh_path, read_mesh
 
@@ -208,7 +208,7 @@ def liver(path: str | None = None, scale: float = 1.0, maxh: float = 14.0, gradi
             if not allow_fallback:
                 raise FileNotFoundError(f"liver mesh {p} does not exist (set $TISSUEBENCH_DATA)")
             msg = (f"liver mesh {p} not found: using the built-in organ-like fallback shape "
-                   f"(set $TISSUEBENCH_DATA to the shared data folder)")
+                   f"(unset $TISSUEBENCH_DATA to use the mesh shipped with the package)")
             warnings.warn(msg, stacklevel=2)
             info.update(fallback=True, source="built-in fallback (bent, tapered ellipsoid)", reason=msg)
             return BuiltMesh(scaled(_fallback_organ(fallback_maxh), scale), info)

@@ -1,17 +1,18 @@
-"""Reading volume meshes from files, and locating the shared data folder.
+"""Reading volume meshes from files, and locating the data folder.
 
 :func:`read_mesh` reads any volume mesh meshio understands (VTU, VTK, Gmsh, Medit,
 XDMF, ...) into a :class:`~tissuebench.refsolvers.mesh.Mesh`. Only linear tetrahedra
 and trilinear hexahedra are volume cells here; other cell blocks (triangles, lines,
 vertices of boundary tags) are ignored. Cells with negative signed volume are
-reoriented by :class:`Mesh` (the shared liver mesh has all of them negative);
+reoriented by :class:`Mesh` (the shipped liver mesh has all of them negative);
 degenerate cells are refused, with the path in the message.
 
-Coordinates are returned as stored in the file, with no unit conversion: the shared
+Coordinates are returned as stored in the file, with no unit conversion: the shipped
 liver mesh ``liver/liver_tet.vtu`` is in millimetres.
 
-:func:`shared_data_dir` finds the shared data folder: ``$TISSUEBENCH_DATA`` when set,
-else ``<repository root>/../shared/data``.
+:func:`data_dir` finds the data folder: ``$TISSUEBENCH_DATA`` when set, else the
+folder shipped inside the package (``tissuebench/data``: the liver mesh, with its source and
+licence in ``data/liver/README.md``).
 """
 from __future__ import annotations
 
@@ -22,25 +23,23 @@ import numpy as np
 
 from ..refsolvers.mesh import CELL_TYPES, Mesh
 
-__all__ = ["read_mesh", "shared_data_dir", "liver_mesh_path", "DATA_ENV"]
+__all__ = ["read_mesh", "data_dir", "liver_mesh_path", "DATA_ENV", "PACKAGE_DATA_DIR"]
 
-#: Environment variable that overrides the shared data folder.
+#: Environment variable that overrides the data folder.
 DATA_ENV = "TISSUEBENCH_DATA"
 
-#: Unit of length of the shared liver mesh.
+#: The data shipped with the package (the liver mesh).
+PACKAGE_DATA_DIR = Path(__file__).resolve().parents[1] / "data"
+
+#: Unit of length of the shipped liver mesh.
 LIVER_MESH_UNIT = "mm"
 
 
-def _repo_root() -> Path:
-    """The repository root: the folder that holds the ``tissuebench`` package."""
-    return Path(__file__).resolve().parents[2]
+def data_dir(must_exist: bool = False) -> Path:
+    """The data folder (``liver/liver_tet.vtu`` ...).
 
-
-def shared_data_dir(must_exist: bool = False) -> Path:
-    """The shared data folder (``liver/`` etc.).
-
-    ``$TISSUEBENCH_DATA`` when set and non-empty, else ``<repo root>.parent / "shared" / "data"``
-    (for a checkout at ``/work/main`` that is ``/work/shared/data``).
+    ``$TISSUEBENCH_DATA`` when set and non-empty, else :data:`PACKAGE_DATA_DIR` (shipped with
+    the package, so a clone or an installed wheel needs nothing beside it).
 
     Parameters
     ----------
@@ -53,17 +52,17 @@ def shared_data_dir(must_exist: bool = False) -> Path:
     if env:
         path, how = Path(env).expanduser(), f"from ${DATA_ENV}"
     else:
-        path, how = _repo_root().parent / "shared" / "data", f"default; set ${DATA_ENV} to override"
+        path, how = PACKAGE_DATA_DIR, f"shipped with the package; set ${DATA_ENV} to override"
     if must_exist and not path.is_dir():
-        raise FileNotFoundError(f"shared data folder {path} ({how}) does not exist")
+        raise FileNotFoundError(f"data folder {path} ({how}) does not exist")
     return path
 
 
 def liver_mesh_path(must_exist: bool = False) -> Path:
-    """Path of the shared liver tetrahedral mesh (``<shared data>/liver/liver_tet.vtu``, mm)."""
-    path = shared_data_dir() / "liver" / "liver_tet.vtu"
+    """Path of the liver tetrahedral mesh (``<data folder>/liver/liver_tet.vtu``, mm)."""
+    path = data_dir() / "liver" / "liver_tet.vtu"
     if must_exist and not path.is_file():
-        raise FileNotFoundError(f"liver mesh {path} does not exist (shared data folder: set ${DATA_ENV})")
+        raise FileNotFoundError(f"liver mesh {path} does not exist (data folder: set ${DATA_ENV})")
     return path
 
 

@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from .anm import AnmPath, AnmSeries, reduced_path, reduced_series
-from .base import OnlineModel, RomMethod, StepResult, Training, check_parameters, register
+from .base import LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, check_parameters, register
 from .pod import pod_basis
 from .polynomial import check_polynomial_problem, reduced_polynomial
 
@@ -59,6 +59,9 @@ class AnmPod(RomMethod):
     """
 
     name = "anm_pod"
+    kind = "path"
+    nested = ("n_modes", "order")
+    training_kinds = ("path",)
 
     def __init__(self, n_modes: int | None = None, energy: float = 0.999, order: int = 6, eps: float = 1e-4,
                  tangent: str = "origin", max_segments: int = 100, lam_max: float | None = None,
@@ -123,10 +126,11 @@ def _envelope(training, lam_max):
     return 0.0, float(lam_max)
 
 
-class AnmPodModel(OnlineModel):
+class AnmPodModel(LinearReconstruction, OnlineModel):
     """Online ANM-POD: ``step({"load_factor": lam})`` -> reduced coordinates q (m,)."""
 
     name = "anm_pod"
+    kind = "path"
 
     def __init__(self, basis, free_dofs, ndof, poly, options: AnmPod, envelope):
         self.basis, self.free_dofs, self.ndof, self.poly = basis, free_dofs, ndof, poly
@@ -226,10 +230,3 @@ class AnmPodModel(OnlineModel):
                f"{extra}")
         return StepResult(q, "beyond_validity", msg, {"segment": 0 if first else len(path) - 1, "a": a})
 
-    def reconstruct(self, result: StepResult) -> np.ndarray:
-        """Full displacement (ndof,): ``Phi q`` on the free dofs, zero on the fixed ones."""
-        if result.q is None:
-            raise ValueError(f"anm_pod: cannot reconstruct a failed step ({result.message})")
-        u = np.zeros(self.ndof)
-        u[self.free_dofs] = self.basis @ result.q
-        return u

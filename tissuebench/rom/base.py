@@ -1,20 +1,27 @@
-"""The contract every reduced-order model follows: offline build, online step, reconstruction.
+"""The contract every reduced-order model follows: offline build, online start/step, outputs, reconstruction.
 
 Two phases, the same for every method family (POD-Galerkin, ANM-POD, PODI, Grassmann,
-and later PGD, skinning-cubature and direct integrators), so the study harness times
-them all the same way:
+PGD, skinning-cubature, direct time integrators, baselines), so the sweep harness
+(:mod:`tissuebench.studies`) times them all the same way:
 
-1. **Offline**: ``model = Method(**options).build(training)`` reads a :class:`Training`
-   (snapshots from reference runs, the operators of a backend, the parameters the
-   snapshots belong to) and returns an :class:`OnlineModel`. Everything expensive
-   happens here.
-2. **Online**: ``res = model.step(mu)`` with ``mu`` a mapping of named parameters
-   (``{"load_factor": 0.4}``, ``{"load_factor": 0.4, "position": 0.3}``; a dynamic model
-   reads ``"time"`` and keeps its own state between calls) returns a
-   :class:`StepResult` holding the *reduced* state ``q``. This call is what latency
-   measures; it never touches a full-size vector.
-3. **Reconstruction**: ``u = model.reconstruct(res)`` gives the full dof vector
-   (n_dof,), timed separately.
+1. **Offline**: ``model = make_method(name, **options).build(training)`` reads a
+   :class:`Training` (snapshots from reference runs, the operators of a backend or a 1D
+   model, the parameters the snapshots belong to, linear output functionals) and returns
+   an :class:`OnlineModel`. Everything expensive happens here.
+2. **Online**: ``model.start(mu0, state0, dt)`` (not timed: factorisations per ``dt``
+   belong here), then ``res = model.step(mu)`` per step with ``mu`` a mapping of named
+   parameters (``{"load_factor": 0.4}``, ``{"load_factor": 0.4, "position": 0.3}``; a
+   ``trajectory`` model reads ``{"time": t, "load_factor": history(t)}``, the load of the
+   step it advances to, and keeps its state between calls) returns a :class:`StepResult`
+   holding the *reduced* state ``q``. ``model.outputs(res)`` gives the monitored scalars
+   (tool-tip displacement ...) without the full field. ``step`` + ``outputs`` is the
+   haptic step that latency measures; neither touches a full-size vector.
+3. **Reconstruction**: ``u = model.reconstruct(res)`` gives the full dof vector (n_dof,),
+   including the prescribed (Dirichlet) values at that step; timed separately.
+
+``OnlineModel.kind`` says how a model is driven: ``"map"`` (a static state at any ``mu``,
+in any order), ``"path"`` (a static load path followed in increasing load factor: warm
+starts, continuation) or ``"trajectory"`` (time stepping from ``state0``).
 
 A step never hides a failure: ``StepResult.status`` is ``"ok"``, ``"extrapolation"``
 (the parameter lies outside the training envelope; the value is returned and flagged),
@@ -22,20 +29,23 @@ A step never hides a failure: ``StepResult.status`` is ``"ok"``, ``"extrapolatio
 ``"failed"`` (no value: ``q`` is None and ``message`` says why).
 
 The registry :data:`METHODS` maps names to classes; :func:`make_method` accepts a name or
-a class and lists the valid names on an unknown one.
+a class and lists the valid names on an unknown one; :meth:`RomMethod.option_names` lists
+the options a method takes (a grid over another one is refused by name).
 """
 from __future__ import annotations
 
+import inspect
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
 __all__ = ["Training", "StepResult", "OnlineModel", "RomMethod", "METHODS", "register", "make_method",
-           "STEP_STATUSES", "check_parameters"]
+           "STEP_STATUSES", "MODEL_KINDS", "check_parameters", "LinearReconstruction", "method_class"]
 
 STEP_STATUSES = ("ok", "extrapolation", "beyond_validity", "failed")
+MODEL_KINDS = ("map", "path", "trajectory")
 
 
 @dataclass
@@ -45,16 +55,32 @@ class Training:
     Attributes
     ----------
     snapshots : (n_dof, n_snap) array, optional
-        Full displacement vectors of reference runs (columns).
+        Full displacement vectors of reference runs (columns), Dirichlet values included.
     parameters : list of dict, optional
-        The parameters of each snapshot column (same length as ``n_snap``).
+        The parameters of each snapshot column (same length as ``n_snap``), e.g.
+        ``{"load_factor": 0.5}``, ``{"position": 0.1, "load_factor": 1.0}``,
+        ``{"time": 0.01, "load_factor": 0.2}``.
     backend : Backend, optional
-        Operators (f_int, K_t, loads, mass) of the full model, for Galerkin projection.
+        Operators (f_int, K_t, loads, mass, element quantities) of the full model.
     free_dofs : (n_free,) int array, optional
         Dofs the reduced basis lives on (default: the backend problem's free dofs).
     groups : dict, optional
-        Per-parameter training sets (e.g. one snapshot matrix per stored load position
-        for PODI and Grassmann): ``{key: Training}``.
+        Per-parameter training sets (e.g. one per stored load position for PODI and
+        Grassmann): ``{key: Training}``.
+    outputs : dict of str -> (n_dof,) array
+        Linear output functionals ``y = c @ u`` of the scene's monitored scalars (a point
+        displacement component ...); models reduce them offline (:meth:`OnlineModel.attach_outputs`).
+    trajectories : (n_snap,) int array, optional
+        Which run each snapshot column comes from (dynamics: one id per reference run).
+    velocities : (n_dof, n_snap) array, optional
+        Velocities of trajectory snapshots (dynamics).
+    system : object, optional
+        A dynamics system (:class:`~tissuebench.refsolvers.dynamics.SecondOrderSystem`) or a
+        1D model, for methods that step in time or need M, C.
+    history : callable, optional
+        Load factor versus time ``history(t)`` of the training runs (dynamics).
+    dt : float, optional
+        Time step of the training runs [s].
     info : dict
         Provenance (case, backend, resolution ...).
     """
@@ -64,6 +90,12 @@ class Training:
     backend: Any = None
     free_dofs: np.ndarray | None = None
     groups: dict | None = None
+    outputs: dict = field(default_factory=dict)
+    trajectories: np.ndarray | None = None
+    velocities: np.ndarray | None = None
+    system: Any = None
+    history: Any = None
+    dt: float | None = None
     info: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -76,8 +108,22 @@ class Training:
             self.snapshots = S
             if self.parameters is not None and len(self.parameters) != S.shape[1]:
                 raise ValueError(f"parameters: {len(self.parameters)} entries for {S.shape[1]} snapshots")
+            if self.velocities is not None and np.shape(self.velocities) != S.shape:
+                raise ValueError(f"velocities: shape {np.shape(self.velocities)} differs from snapshots {S.shape}")
         if self.free_dofs is None and self.backend is not None:
             self.free_dofs = np.asarray(self.backend.problem.free_dofs)
+        for name, c in self.outputs.items():
+            c = np.asarray(c, dtype=float)
+            if c.ndim != 1 or not np.all(np.isfinite(c)):
+                raise ValueError(f"outputs[{name!r}] must be a finite (n_dof,) vector, got shape {c.shape}")
+            self.outputs[name] = c
+
+    def parameter_values(self, key: str) -> np.ndarray:
+        """The values of parameter ``key`` over the snapshot columns (ValueError if one lacks it)."""
+        try:
+            return np.array([float(p[key]) for p in (self.parameters or [])])
+        except (KeyError, TypeError):
+            raise ValueError(f"training.parameters need {key!r} for every snapshot") from None
 
 
 @dataclass
@@ -88,6 +134,7 @@ class StepResult:
     status: str = "ok"
     message: str = ""
     info: dict = field(default_factory=dict)
+    mu: dict | None = None
 
     def __post_init__(self):
         if self.status not in STEP_STATUSES:
@@ -109,43 +156,163 @@ def check_parameters(mu, required: tuple, name: str) -> dict:
         if key not in out:
             raise ValueError(f"{name}.step: parameter {key!r} missing from mu = {out}")
         v = out[key]
-        if not isinstance(v, (int, float, np.floating, np.integer)) or not np.isfinite(v):
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not np.isfinite(v):
             raise ValueError(f"{name}.step: mu[{key!r}] = {v!r} is not a finite number")
     return out
 
 
 class OnlineModel(ABC):
-    """The online phase of a reduced model (returned by :meth:`RomMethod.build`)."""
+    """The online phase of a reduced model (returned by :meth:`RomMethod.build`).
+
+    Subclasses implement :meth:`step`, :meth:`reconstruct` and :attr:`n_reduced`; a model
+    whose full field is affine in ``q`` (``u[free] = B q``, ``u[fixed] = u_D(mu)``) also
+    implements :meth:`output_map`, and then :meth:`outputs` costs ``n_out x n_reduced``.
+    """
 
     #: method name (the registry key)
     name: str = ""
+    #: how the model is driven: "map", "path" or "trajectory" (module docstring)
+    kind: ClassVar[str] = "map"
 
     @property
     @abstractmethod
     def n_reduced(self) -> int:
         """Size of the reduced state ``q``."""
 
+    def start(self, mu0: Mapping[str, float] | None = None, state0: Mapping[str, np.ndarray] | None = None,
+              dt: float | None = None) -> None:
+        """Prepare a run: forget state kept between steps; a trajectory model projects
+        ``state0`` (``{"u": (n_dof,), "v": (n_dof,)}``, default rest) and prepares for ``dt``.
+
+        Statics: nothing. Not timed by the latency protocol.
+        """
+
+    def reset(self) -> None:
+        """Alias of :meth:`start` with no arguments (kept for existing callers)."""
+        self.start()
+
     @abstractmethod
     def step(self, mu: Mapping[str, float]) -> StepResult:
-        """Reduced state for parameters ``mu`` (dynamic models: advance one step)."""
+        """Reduced state for parameters ``mu`` (trajectory models: advance one step)."""
+
+    def solve(self, mus: Sequence[Mapping[str, float]], state0=None, dt=None) -> list[StepResult]:
+        """``start(mus[0], state0, dt)`` then one :meth:`step` per ``mu``."""
+        mus = list(mus)
+        self.start(mus[0] if mus else None, state0, dt)
+        return [self.step(mu) for mu in mus]
 
     @abstractmethod
     def reconstruct(self, result: StepResult) -> np.ndarray:
-        """Full displacement (n_dof,) of a step's reduced state."""
+        """Full displacement (n_dof,) of a step's reduced state, prescribed values included."""
 
     @property
     def envelope(self) -> dict:
         """The training envelope: ``{parameter: (min, max)}``."""
         return {}
 
-    def reset(self) -> None:
-        """Forget any state kept between steps (dynamic models); statics: nothing."""
+    # ---------------------------------------------------------------- outputs
+    def output_map(self):
+        """``(free_dofs, B)`` when ``u[free] = B @ q`` (fixed dofs: the prescribed values),
+        else None (outputs then go through :meth:`reconstruct`)."""
+        return None
+
+    def prescribed(self, mu) -> tuple[np.ndarray, np.ndarray]:
+        """``(fixed_dofs, values)`` of the prescribed displacements at ``mu`` (default: none)."""
+        return np.zeros(0, dtype=np.int64), np.zeros(0)
+
+    def attach_outputs(self, operators: Mapping[str, np.ndarray]) -> None:
+        """Offline: reduce linear output functionals ``{name: c (n_dof,)}`` (``y = c @ u``)."""
+        names = list(operators)
+        C = np.array([np.asarray(operators[n], float) for n in names]).reshape(len(names), -1)
+        lin = self.output_map()
+        fixed, _ = self.prescribed(None) if lin is not None else (None, None)
+        if lin is None:
+            self._outputs = (names, C, None, None)
+        else:
+            free, B = lin
+            self._outputs = (names, C, np.ascontiguousarray(C[:, free] @ B), C[:, fixed] if len(fixed) else None)
+
+    def outputs(self, result: StepResult) -> dict:
+        """The attached outputs at a step (``{}`` if none attached; NaN for a failed step)."""
+        names, C, C_r, C_fixed = getattr(self, "_outputs", ((), None, None, None))
+        if not names:
+            return {}
+        if result.q is None:
+            return {n: float("nan") for n in names}
+        if C_r is None:
+            y = C @ self.reconstruct(result)
+        else:
+            y = C_r @ result.q
+            if C_fixed is not None:
+                y = y + C_fixed @ self.prescribed(result.mu)[1]
+        return dict(zip(names, y.tolist()))
+
+    @property
+    def output_names(self) -> list:
+        return list(getattr(self, "_outputs", ((),))[0])
+
+
+class LinearReconstruction:
+    """Mixin for models with ``u[free] = B q`` and prescribed values on the fixed dofs.
+
+    Needs attributes ``basis`` (n_free, n), ``free_dofs``, ``ndof`` and optionally
+    ``problem`` (a :class:`~tissuebench.refsolvers.Problem` whose prescribed values at the
+    step's load factor fill the fixed dofs).
+    """
+
+    problem = None
+
+    def output_map(self):
+        return self.free_dofs, self.basis
+
+    def prescribed(self, mu):
+        """Fixed dofs and their values at ``mu["load_factor"]`` (``mu`` None: the dofs, values at 1)."""
+        pb = self.problem
+        if pb is None or not len(pb.fixed_dofs):
+            return np.zeros(0, dtype=np.int64), np.zeros(0)
+        lam = 1.0 if mu is None else float(mu["load_factor"])
+        return pb.fixed_dofs, pb.prescribed_values(lam)
+
+    def reconstruct(self, result: StepResult) -> np.ndarray:
+        if result.q is None:
+            raise ValueError(f"{self.name}.reconstruct: the step failed ({result.message}); no state")
+        u = np.zeros(self.ndof)
+        u[self.free_dofs] = self.basis @ result.q
+        fixed, values = self.prescribed(None)
+        if len(fixed) and np.any(values != 0.0):
+            if result.mu is None:
+                raise ValueError(f"{self.name}.reconstruct: the result carries no mu, so the prescribed "
+                                 "displacements cannot be placed")
+            u[fixed] = self.prescribed(result.mu)[1]
+        return u
 
 
 class RomMethod(ABC):
-    """The offline phase: options in the constructor, :meth:`build` from a :class:`Training`."""
+    """The offline phase: options in the constructor, :meth:`build` from a :class:`Training`.
 
-    name: str = ""
+    Class attributes: ``name`` (registry key), ``kind`` (of the online model), ``nested``
+    (options a sweep may slice from one build of their largest value, e.g. ``n_modes``),
+    ``training_kinds`` (the training sets it can learn from: "path", "positions",
+    "trajectory", "operators").
+    """
+
+    name: ClassVar[str] = ""
+    kind: ClassVar[str] = "map"
+    nested: ClassVar[tuple] = ()
+    training_kinds: ClassVar[tuple] = ("path",)
+
+    @classmethod
+    def option_names(cls) -> list[str]:
+        """The keyword options of the constructor."""
+        return [p.name for p in inspect.signature(cls.__init__).parameters.values()
+                if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+
+    @classmethod
+    def check_options(cls, options: Mapping) -> None:
+        """ValueError naming an option the method does not take, listing the valid ones."""
+        unknown = sorted(set(options) - set(cls.option_names()))
+        if unknown:
+            raise ValueError(f"method {cls.name!r} takes no option {unknown[0]!r}; valid: {cls.option_names()}")
 
     @abstractmethod
     def build(self, training: Training) -> OnlineModel:
@@ -159,18 +326,27 @@ def register(cls):
     """Class decorator: add a :class:`RomMethod` to :data:`METHODS` under ``cls.name``."""
     if not (isinstance(cls, type) and issubclass(cls, RomMethod) and cls.name):
         raise TypeError(f"register: {cls!r} is not a named RomMethod subclass")
+    if cls.kind not in MODEL_KINDS:
+        raise TypeError(f"register: {cls.__name__}.kind = {cls.kind!r}; valid: {MODEL_KINDS}")
     METHODS[cls.name] = cls
     return cls
 
 
+def method_class(method) -> type:
+    """The :class:`RomMethod` class of a registry name or a class."""
+    if isinstance(method, type) and issubclass(method, RomMethod):
+        return method
+    if not isinstance(method, str) or method not in METHODS:
+        raise ValueError(f"unknown ROM method {method!r}; valid: {sorted(METHODS)}")
+    return METHODS[method]
+
+
 def make_method(method, **options) -> RomMethod:
     """A :class:`RomMethod` from its registry name or class, with ``options``."""
-    if isinstance(method, type) and issubclass(method, RomMethod):
-        return method(**options)
     if isinstance(method, RomMethod):
         if options:
             raise TypeError("make_method: options given with an instance")
         return method
-    if method not in METHODS:
-        raise ValueError(f"unknown ROM method {method!r}; valid: {sorted(METHODS)}")
-    return METHODS[method](**options)
+    cls = method_class(method)
+    cls.check_options(options)
+    return cls(**options)

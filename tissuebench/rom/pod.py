@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from .base import OnlineModel, RomMethod, StepResult, Training, check_parameters, register
+from .base import LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, check_parameters, register
 
 __all__ = ["PodBasis", "pod_basis", "PodLinear", "PodNewton"]
 
@@ -146,13 +146,21 @@ class _PodStatic(RomMethod):
     inner : {"euclidean", "mass", "stiffness"}
         Inner product of the POD: identity, consistent mass, or the tangent at u = 0 (free dofs).
 
-    The training needs full-dof ``snapshots`` (n_dof, n_snap), a ``backend`` whose problem
-    prescribes zero displacements, and (for the envelope) ``parameters`` with ``load_factor``.
+    The training needs full-dof ``snapshots`` (n_dof, n_snap), a ``backend``, and (for the
+    envelope) ``parameters`` with ``load_factor``. The basis lives on the free dofs; the
+    prescribed displacements of the problem (scaled values or motions) are placed on the
+    fixed dofs at each step's load factor (the lifting), so the snapshots' free part is the
+    POD's input as it stands.
     """
+
+    nested = ("n_modes",)
+    training_kinds = ("path",)
 
     def __init__(self, n_modes: int | None = None, energy: float = 0.999, inner: str = "euclidean"):
         if inner not in _INNER:
             raise ValueError(f"{self.name}: inner={inner!r}; valid: {list(_INNER)}")
+        if n_modes is not None and (isinstance(n_modes, bool) or int(n_modes) != n_modes or n_modes < 1):
+            raise ValueError(f"{self.name}: n_modes must be a positive integer, got {n_modes!r}")
         self.n_modes, self.energy, self.inner = n_modes, energy, inner
 
     def _basis(self, training: Training):
@@ -162,10 +170,6 @@ class _PodStatic(RomMethod):
         if training.snapshots.shape[0] != be.ndof:
             raise ValueError(f"{self.name}: snapshots have {training.snapshots.shape[0]} rows, "
                              f"the backend {be.ndof} dofs")
-        for lam in (0.5, 1.0):  # scaled and unscaled Dirichlet data
-            if np.any(be.problem.prescribed_values(lam) != 0.0):
-                raise ValueError(f"{self.name}: non-zero prescribed displacements are not supported "
-                                 "(the basis lives on the free dofs of a zero vector)")
         W = None
         if self.inner == "mass":
             W = be.mass()[free][:, free]
@@ -179,16 +183,25 @@ class _PodStatic(RomMethod):
         return {"load_factor": (float(min(lams)), float(max(lams)))} if lams else {}
 
 
-class _PodOnline(OnlineModel):
-    """Reduced state ``q`` on a POD basis of the free dofs; reconstruction ``u_free = Phi q``."""
+class _PodOnline(LinearReconstruction, OnlineModel):
+    """Reduced state ``q`` on a POD basis of the free dofs; ``u[free] = Phi q``, ``u[fixed] = u_D(lam)``."""
 
-    def __init__(self, name, basis: PodBasis, free, backend, envelope):
-        self.name, self.basis, self.free, self.backend = name, basis, free, backend
-        self.Phi, self.ndof, self._envelope = basis.modes, backend.ndof, envelope
+    def __init__(self, name, pod: PodBasis, free, backend, envelope):
+        self.name, self.pod, self.free_dofs, self.backend = name, pod, free, backend
+        self.basis, self.ndof, self._envelope = pod.modes, backend.ndof, envelope
+        self.problem = backend.problem
+
+    @property
+    def Phi(self) -> np.ndarray:
+        return self.basis
+
+    @property
+    def free(self) -> np.ndarray:
+        return self.free_dofs
 
     @property
     def n_reduced(self) -> int:
-        return self.Phi.shape[1]
+        return self.basis.shape[1]
 
     @property
     def envelope(self) -> dict:
@@ -199,23 +212,22 @@ class _PodOnline(OnlineModel):
         tol = 1e-12 * max(1.0, abs(lo), abs(hi))
         return "ok" if lo - tol <= lam <= hi + tol else "extrapolation"
 
-    def reconstruct(self, result: StepResult) -> np.ndarray:
-        """Full displacement (ndof,): ``Phi q`` on the free dofs, zero on the fixed ones."""
-        if result.q is None:
-            raise ValueError(f"{self.name}.reconstruct: the step failed ({result.message}); no state")
-        return self._full(result.q)
-
-    def _full(self, q) -> np.ndarray:
-        u = np.zeros(self.ndof)
-        u[self.free] = self.Phi @ q
-        return u
+    def _full(self, q, lam) -> np.ndarray:
+        return self.reconstruct(StepResult(q, mu={"load_factor": lam}))
 
 
 @register
 class PodLinear(_PodStatic):
-    """Linear POD-Galerkin model with the tangent at the origin (paper eq. 13)."""
+    """Linear POD-Galerkin model with the tangent at the origin (paper eq. 13).
+
+    ``Phi^T K_ff Phi q = Phi^T (f(lam) - K_fc u_D(lam))``: the reduced right-hand side of
+    the load and of the prescribed values (scaled linearly, or a motion evaluated at
+    ``lam`` on the fixed dofs: an O(n_fixed m) product) is solved by a Cholesky factor
+    computed offline.
+    """
 
     name = "pod_linear"
+    kind = "map"
 
     def build(self, training: Training) -> OnlineModel:
         basis, free = self._basis(training)
@@ -224,36 +236,46 @@ class PodLinear(_PodStatic):
         if be.external_tangent(u0, 1.0) is not None:
             raise ValueError("pod_linear: follower loads are not supported (dead loads only)")
         Phi = basis.modes
-        K_r = Phi.T @ (be.tangent(u0)[free][:, free] @ Phi)
+        K = be.tangent(u0)
+        K_r = Phi.T @ (K[free][:, free] @ Phi)
         f_r = Phi.T @ be.external_force(u0, 1.0)[free]
+        model = _PodLinearOnline(self.name, basis, free, be, self._envelope(training))
+        fixed = be.problem.fixed_dofs
+        model._K_rc = np.asarray((K[free][:, fixed].T @ Phi).T) if len(fixed) else None
         # K_r is SPD for a stable reference state; LU is the fallback (e.g. a singular-ish K_r)
         try:
-            q1 = sla.cho_solve(sla.cho_factor(K_r), f_r)
+            model._factor, model._solve = sla.cho_factor(K_r), sla.cho_solve
         except np.linalg.LinAlgError:
-            q1 = sla.lu_solve(sla.lu_factor(K_r), f_r)
-        model = _PodLinearOnline(self.name, basis, free, be, self._envelope(training))
-        model.K_r, model.f_r, model._q1 = K_r, f_r, q1
+            model._factor, model._solve = sla.lu_factor(K_r), sla.lu_solve
+        model.K_r, model.f_r = K_r, f_r
+        model._q1 = model._solve(model._factor, f_r)
         return model
 
 
 class _PodLinearOnline(_PodOnline):
 
     def step(self, mu) -> StepResult:
-        """``q = lam * K_r^{-1} f_r`` (the solve is done offline: one O(n) scaling)."""
+        """``q = lam K_r^{-1} f_r`` (+ the prescribed values' share, solved with the offline factor)."""
         lam = float(check_parameters(mu, ("load_factor",), self.name)["load_factor"])
-        return StepResult(lam * self._q1, self._status(lam))
+        q = lam * self._q1
+        if self._K_rc is not None:
+            values = self.prescribed({"load_factor": lam})[1]
+            if np.any(values != 0.0):
+                q = q - self._solve(self._factor, self._K_rc @ values)
+        return StepResult(q, self._status(lam), mu={"load_factor": lam})
 
 
 @register
 class PodNewton(_PodStatic):
-    """Reduced Newton: ``Phi^T (f_int(Phi q) - f_ext(Phi q, lam)) = 0`` with full assembly.
+    """Reduced Newton: ``Phi^T (f_int(u) - f_ext(u, lam))[free] = 0``, ``u = lift(lam) + Phi q``, full assembly.
 
     Extra options: ``rtol`` (on ``|r_q| / max(|Phi^T f_ext|, |Phi^T f_int|)``) and
-    ``max_iterations``. Each step starts from the last converged ``q`` (``reset()``: zero).
+    ``max_iterations``. Each step starts from the last converged ``q`` (``start()``: zero).
     Follower loads enter the reduced tangent through ``external_tangent``.
     """
 
     name = "pod_newton"
+    kind = "path"
 
     def __init__(self, n_modes=None, energy=0.999, inner="euclidean", rtol: float = 1e-10,
                  max_iterations: int = 25):
@@ -276,15 +298,15 @@ class PodNewton(_PodStatic):
 class _PodNewtonOnline(_PodOnline):
     def __init__(self, *args):
         super().__init__(*args)
-        self.reset()
+        self.start()
 
-    def reset(self) -> None:
+    def start(self, mu0=None, state0=None, dt=None) -> None:
         """Forget the warm start (next step starts from q = 0)."""
         self._q = np.zeros(self.n_reduced)
 
     def _residual_and_tangent(self, q, lam):
-        be, free, Phi = self.backend, self.free, self.Phi
-        u = self._full(q)
+        be, free, Phi = self.backend, self.free_dofs, self.basis
+        u = self._full(q, lam)
         f_int, K = be.internal_force_and_tangent(u)
         f_ext = be.external_force(u, lam)
         K_ext = be.external_tangent(u, lam)
@@ -302,11 +324,13 @@ class _PodNewtonOnline(_PodOnline):
         for it in range(self.max_iterations + 1):
             r, K_r, scale = self._residual_and_tangent(q, lam)
             norms.append(float(np.linalg.norm(r)))
+            msg = f"residual {norms[-1]:.3e}"
             if not np.isfinite(norms[-1]):
                 break
             if norms[-1] <= self.rtol * scale + self._atol:
                 self._q = q
-                return StepResult(q.copy(), self._status(lam), info={"iterations": it, "residual_norms": norms})
+                return StepResult(q.copy(), self._status(lam), info={"iterations": it, "residual_norms": norms},
+                                  mu={"load_factor": lam})
             if it == self.max_iterations:
                 break
             try:
@@ -314,5 +338,5 @@ class _PodNewtonOnline(_PodOnline):
             except np.linalg.LinAlgError:
                 break
         return StepResult(None, "failed", f"{self.name}: no convergence at load factor {lam:g} in "
-                          f"{len(norms) - 1} iterations (residual {norms[-1]:.3e})",
-                          info={"iterations": len(norms) - 1, "residual_norms": norms})
+                          f"{len(norms) - 1} iterations ({msg})",
+                          info={"iterations": len(norms) - 1, "residual_norms": norms}, mu={"load_factor": lam})
