@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from tissuebench.cases.describe import paper_comparison
+from tissuebench.studies.describe import paper_comparison
 from tissuebench.cases.scene import list_cases, load
 from tissuebench.refsolvers.line_models import assemble_line_model, frame_step_response
-from tissuebench.refsolvers.reference import solve
+from tissuebench.studies.reference import solve
 
 CASES = [(name, variant) for name in list_cases() for variant in (load(name).variants or (None,))]
 _RUNS = {}

@@ -67,7 +67,7 @@ def _run(args) -> int:
     cols = [c for c in ("step", "load_factor", "time", "newton_iterations", "converged", "wall_s") if c in t]
     shown = t[cols + monitors]
     print((shown if len(shown) <= 25 else shown.iloc[:: max(1, len(shown) // 20)]).to_string(index=False))
-    from .cases.describe import paper_comparison
+    from .studies.describe import paper_comparison
 
     for row in paper_comparison(scene, t).itertuples():
         print(f"{row.monitor}: ours {row.ours:.4g}, paper {row.paper:.4g} (ratio {row.ratio:.3f}); {row.note}")
@@ -94,12 +94,12 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
         if args.command == "cases":
-            from .cases.describe import catalogue_table
+            from .studies.describe import catalogue_table
 
             print(catalogue_table(build_meshes=not args.no_mesh, paper=args.paper).to_string(index=False))
             return 0
         if args.command == "describe":
-            from .cases.describe import describe
+            from .studies.describe import describe
 
             print(describe(args.case, resolution=args.resolution, variant=args.variant))
             return 0

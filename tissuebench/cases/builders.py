@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..refsolvers.mesh import Mesh
+from ..refsolvers.mesh import hex_corner_jacobians as corner_jacobians
 from .builders_organs import cornea_dome, liver, lv_ellipsoid, truncated_spheroid_volume
 from .builtmesh import BuiltMesh, LineMesh
 
@@ -47,9 +48,7 @@ def netgen_box(lengths, maxh, origin=(0.0, 0.0, 0.0)) -> BuiltMesh:
 
 def hex_corner_jacobians(mesh: Mesh) -> np.ndarray:
     """Corner Jacobian determinants of every hexahedron, shape (n_cells, 8)."""
-    from ..refsolvers.mesh import _hex_corner_jacobians
-
-    return _hex_corner_jacobians(mesh.points, mesh.cells)
+    return corner_jacobians(mesh.points, mesh.cells)
 
 
 # ----------------------------------------------------------------------------- 1D

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..refsolvers.mesh import _HEX_CORNERS, ELEMENTS, TET_EDGES, TET_FACES, Mesh, node_layout
+from ..refsolvers.mesh import HEX_CORNERS, ELEMENTS, TET_EDGES, TET_FACES, Mesh, node_layout
 
 __all__ = ["Probe", "make_probe", "tet_shape_weights", "hex_shape_functions"]
 
@@ -239,9 +239,9 @@ def hex_shape_functions(xi):
         Derivatives ``dN_a / dxi_j``.
     """
     xi = np.atleast_2d(np.asarray(xi, float))
-    f = 1.0 + xi[:, None, :] * _HEX_CORNERS[None]  # (m, 8, 3): 1 + c_a,j xi_j
+    f = 1.0 + xi[:, None, :] * HEX_CORNERS[None]  # (m, 8, 3): 1 + c_a,j xi_j
     N = f.prod(axis=2) / 8.0
-    dN = np.stack([_HEX_CORNERS[None, :, j] * np.prod(np.delete(f, j, axis=2), axis=2) for j in range(3)],
+    dN = np.stack([HEX_CORNERS[None, :, j] * np.prod(np.delete(f, j, axis=2), axis=2) for j in range(3)],
                   axis=2) / 8.0
     return N, dN
 

@@ -30,7 +30,7 @@ HEX_FACES = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4],
 # VTK tetra10 edge order: the local vertex pairs of nodes 4..9.
 TET_EDGES = np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])
 # Corners of the reference hexahedron [-1, 1]^3 in VTK order.
-_HEX_CORNERS = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
+HEX_CORNERS = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
                          [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float)
 
 
@@ -42,7 +42,7 @@ def _tet_signed_volumes(points, cells):
 def _hex_jacobians(points, cells, ref_points):
     """det of the trilinear map's Jacobian at reference points in [-1, 1]^3, shape (n_cells, n_points)."""
     x = points[cells]  # (n, 8, 3)
-    c = _HEX_CORNERS
+    c = HEX_CORNERS
     dets = np.empty((len(cells), len(ref_points)))
     for k, (xi, eta, zeta) in enumerate(ref_points):
         dN = np.stack([c[:, 0] * (1 + c[:, 1] * eta) * (1 + c[:, 2] * zeta),
@@ -52,9 +52,9 @@ def _hex_jacobians(points, cells, ref_points):
     return dets
 
 
-def _hex_corner_jacobians(points, cells):
+def hex_corner_jacobians(points, cells):
     """Jacobian determinants of the trilinear map at the 8 corners, shape (n_cells, 8)."""
-    return _hex_jacobians(points, cells, _HEX_CORNERS)
+    return _hex_jacobians(points, cells, HEX_CORNERS)
 
 
 @dataclass(frozen=True, eq=False)
@@ -116,7 +116,7 @@ class Mesh:
             cells = cells.copy()
             cells[neg] = cells[neg][:, [0, 2, 1, 3]]
             return cells, int(neg.sum())
-        dets = _hex_corner_jacobians(pts, cells)
+        dets = hex_corner_jacobians(pts, cells)
         scale = tol / 8.0
         pos, neg = (dets > scale).all(axis=1), (dets < -scale).all(axis=1)
         bad = ~(pos | neg)
@@ -144,7 +144,7 @@ class Mesh:
         if self.cell_type == "tetra":
             return _tet_signed_volumes(self.points, self.cells)
         # 2x2x2 Gauss (weights 1) integrates the trilinear Jacobian exactly
-        gauss = _HEX_CORNERS / np.sqrt(3.0)
+        gauss = HEX_CORNERS / np.sqrt(3.0)
         return _hex_jacobians(self.points, self.cells, gauss).sum(axis=1)
 
     @cached_property

@@ -24,7 +24,8 @@ import numpy as np
 import pandas as pd
 
 from ..cases.scene import load
-from ..refsolvers import make_backend, solve
+from ..refsolvers import make_backend
+from .reference import solve
 from ..refsolvers.newton import newton_solve
 from ..rom import Training, make_method
 from .timing import max_displacement, relative_l2, time_online_steps

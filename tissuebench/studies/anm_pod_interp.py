@@ -24,7 +24,8 @@ import dataclasses
 import numpy as np
 
 from ..cases.scene import load
-from ..refsolvers import make_backend, solve
+from ..refsolvers import make_backend
+from .reference import solve
 from ..rom import Training, make_method
 from ..rom.interpolation import grassmann_interpolate, podi_interpolate
 from ..rom.pod import pod_basis

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..cases.scene import Scene, load
-from ..refsolvers.reference import ReferenceResult, solve
+from .reference import ReferenceResult, solve
 from .store import atomic_directory, provenance, write_json_atomic
 
 __all__ = ["run_case", "scene_hash", "write_result"]
@@ -77,7 +77,7 @@ def write_line_vtu(result, path: Path) -> Path:
 
 def write_result(result: ReferenceResult, scene, out: Path, overwrite: bool = False) -> Path:
     """Write the files of a run into ``out`` atomically (see the module docstring)."""
-    from ..cases.describe import paper_comparison
+    from .describe import paper_comparison
     from ..reports.figures import plot_line_state, plot_monitors
     from ..reports.plots import plot_deformed, write_vtu
 

@@ -2,7 +2,7 @@
 
 One entry point for every case of :mod:`tissuebench.cases`: the scene's
 :class:`~.plan.ModelPlan` picks the algorithm (linear static, Newton-Raphson with load
-stepping, or a time integrator; the 1D models in :mod:`.reference_line`), and the
+stepping, or a time integrator; the 1D models in :mod:`.line`), and the
 result carries one table row per load increment or time step (with the scene's
 monitored quantities as columns) and the displacement fields. A numerical failure is a
 status of the result, never an exception; bad input raises ``ValueError``.
@@ -10,82 +10,25 @@ status of the result, never an exception; bad input raises ``ValueError``.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
-from .plan import ModelPlan, plan_for
+from ...cases.scene import Scene, load
+from ...refsolvers.backends import make_backend
+from ...refsolvers.dynamics import SecondOrderSystem, integrate
+from ...refsolvers.linear_solvers import DirectSolver
+from ...refsolvers.newton import NewtonOptions, newton_solve
+from .line import solve_line
+from .plan import plan_for
+from .result import ReferenceResult, dynamics_output
 
 __all__ = ["ReferenceResult", "solve"]
 
-# statuses where the run did what the scene asked (a stall is the measurement for
-# scenes run "until Newton stops converging")
-_OK = {"success"}
-
-
-@dataclass
-class ReferenceResult:
-    """Outcome of :func:`solve`.
-
-    Attributes
-    ----------
-    case, variant, resolution, backend : str
-    plan : ModelPlan
-    status : str
-        ``success``; ``stalled`` (Newton stopped before the target load factor);
-        ``newton_failed``, ``blow_up``, ``energy_growth`` (dynamics).
-    message : str
-    table : pandas.DataFrame
-        One row per load increment (static: ``load_factor``) or time step (``time``).
-    points : (n_nodes, 3) array
-        Reference coordinates of the discretisation nodes (P2: vertices then edges).
-    cells : (n_cells, k) int array
-    cell_type : str
-        ``tetra``, ``hexahedron`` or ``line``.
-    components : tuple of str
-        Names of the nodal displacement components.
-    steps : (n_states,) array
-        Load factor or time of each stored state (the first is the initial state).
-    displacement : (n_states, n_nodes, n_components) array
-    wall_s : float
-    info : dict
-        Counters and settings (mesh metadata, Newton increments, integrator).
-    """
-
-    case: str
-    variant: str | None
-    resolution: str
-    backend: str
-    plan: ModelPlan
-    status: str
-    message: str
-    table: pd.DataFrame
-    points: np.ndarray
-    cells: np.ndarray
-    cell_type: str
-    components: tuple
-    steps: np.ndarray
-    displacement: np.ndarray
-    wall_s: float = 0.0
-    info: dict = field(default_factory=dict)
-    problem: object = None
-
-    @property
-    def ok(self) -> bool:
-        """The run did what the scene asks (a stall counts when the scene runs to divergence)."""
-        return self.status in _OK or (self.status == "stalled" and self.info.get("stop_at_divergence", False))
-
-    @property
-    def final_displacement(self) -> np.ndarray:
-        return self.displacement[-1]
-
 
 def _scene_of(case, resolution, variant):
-    if hasattr(case, "analysis") and hasattr(case, "monitors"):
+    if isinstance(case, Scene):
         return case
-    from ..cases.scene import load
-
     return load(case, resolution=resolution, variant=variant)
 
 
@@ -110,13 +53,9 @@ def solve(case, backend: str = "skfem", resolution: str = "ci", variant: str | N
     plan = plan_for(scene)
     t0 = time.perf_counter()
     if not scene.is_fe:
-        from .reference_line import solve_line
-
         out = solve_line(scene, plan, progress)
         backend_name = "line"
     else:
-        from .backends import make_backend
-
         pb = scene.to_problem()
         be = make_backend(backend, pb)
         backend_name = backend if isinstance(backend, str) else backend.__name__
@@ -161,8 +100,6 @@ def _static(scene, plan, be, progress, linear_solver):
 
 
 def _linear_static(be, n_steps, target, monitors, progress):
-    from .linear_solvers import DirectSolver
-
     pb = be.problem
     free, fixed = pb.free_dofs, pb.fixed_dofs
     u0 = np.zeros(pb.ndof)
@@ -188,8 +125,6 @@ def _linear_static(be, n_steps, target, monitors, progress):
 
 
 def _newton_static(be, n_steps, target, monitors, progress, linear_solver, to_divergence):
-    from .newton import NewtonOptions, newton_solve
-
     # run to divergence: the first increment that fails ends the run (no cutting), so
     # the reported radius is that of the scene's fixed increment
     opts = NewtonOptions(n_increments=n_steps, max_increment=1.0 / n_steps, linear_solver=linear_solver,
@@ -212,8 +147,6 @@ def _newton_static(be, n_steps, target, monitors, progress, linear_solver, to_di
 
 # ============================================================================ FE dynamics
 def _dynamic(scene, plan, be, progress, linear_solver):
-    from .dynamics import SecondOrderSystem, integrate
-
     a = scene.analysis
     pb = be.problem
     history = scene.history
@@ -232,20 +165,3 @@ def _dynamic(scene, plan, be, progress, linear_solver):
     res = integrate(system, None, None, dt, t_end, method=name, store_every=store_every, observe=observe,
                     **a.get("integrator_options", {}))
     return dynamics_output(res, monitors_per_step=res.observations, fields=_fields(pb), n_comp=3)
-
-
-def dynamics_output(res, monitors_per_step, fields, n_comp):
-    """Table and fields of a :class:`~.dynamics.DynamicsResult` (shared with the 1D models)."""
-    n = len(res.t)
-    table = pd.DataFrame({
-        "step": np.arange(n), "time": res.t, "newton_iterations": res.newton_iterations,
-        "converged": res.converged, "wall_s": res.wall_time, "kinetic_energy": res.kinetic_energy,
-        "strain_energy": res.strain_energy, "external_work": res.external_work,
-        "energy_error": res.energy_error})
-    mon = pd.DataFrame(monitors_per_step[:n])
-    table = pd.concat([table, mon], axis=1)
-    disp = res.u.reshape(len(res.stored_steps), -1, n_comp)
-    info = {"integrator": res.method, "dt": res.dt, "energy_growth_ratio": res.energy_growth_ratio,
-            "failed_step": res.failed_step, "options": res.options}
-    return dict(status=res.status, message=res.message, table=table, steps=res.t[res.stored_steps],
-                displacement=disp, info=info, **fields)

@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import pandas as pd
 
-from .scene import RESOLUTIONS, list_cases, load
+from ..cases.scene import RESOLUTIONS, list_cases, load
+from .reference.plan import plan_for
 
 __all__ = ["catalogue_table", "describe", "mesh_size"]
 
@@ -62,7 +63,6 @@ def _fmt_region(spec) -> str:
 def describe(case, resolution: str = "ci", variant: str | None = None) -> str:
     """What a reference run of ``case`` builds and why (the :class:`ModelPlan`), with the
     scene's boundary conditions, loads, monitors and the paper's numbers."""
-    from ..refsolvers.plan import plan_for
 
     s = load(case, resolution=resolution, variant=variant)
     plan = plan_for(s)

@@ -1,0 +1,11 @@
+"""Reference runs of catalogue scenes: the plan ("model only what a scene requires"), the
+runner ``solve(scene)``, and the content-hashed on-disk cache every sweep reuses.
+
+This package sits above :mod:`tissuebench.cases` and :mod:`tissuebench.refsolvers`: the FE
+kernel knows nothing of scenes, the scenes know nothing of solvers.
+"""
+from .plan import EXPLICIT_INTEGRATORS, ModelPlan, plan_for
+from .result import ReferenceResult, dynamics_output
+from .runner import solve
+
+__all__ = ["EXPLICIT_INTEGRATORS", "ModelPlan", "plan_for", "ReferenceResult", "dynamics_output", "solve"]
