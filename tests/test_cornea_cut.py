@@ -178,7 +178,7 @@ def test_check_cut_normalises():
 
 def _scene_with_cut(tmp_path, cut_toml):
     text = Path(load("cornea_cut").path).read_text()
-    i, j = text.index("\n[cut]\n"), text.index("\n[methods.pgd_cutting]\n")
+    i, j = text.index("\n[cut]\n"), text.index("\n[paper.methods.pgd_cutting]\n")
     p = tmp_path / "cut.toml"
     p.write_text(text[:i + 1] + cut_toml + "\n" + text[j:])
     return p
