@@ -269,3 +269,19 @@ def test_parallel_executors_store_the_same_rows_as_serial(serial, tmp_path, exec
     assert len(summary.computed) == 7 and not summary.failed
     a, b = _stable(read_units(out)), _stable(read_units(serial_out))
     pd.testing.assert_frame_equal(a, b, check_exact=False, rtol=1e-9)
+
+
+def test_nested_units_are_sliced_from_one_build_and_equal_fresh_builds(serial, tmp_path):
+    """anm_pod n_modes x order: one parent (4 modes, order 6) is built; the (2, 1) unit sliced
+    from it measures what a fresh build of (2, 1) measures."""
+    spec, out, _ = serial
+    sliced = read_units(out).set_index("label")
+    label = "anm_pod eps=1e-06 max_segments=1 n_modes=2 order=1"
+    assert json.loads(sliced.loc[label, "model_info"])["sliced_from"] == {
+        "eps": 1e-06, "max_segments": 1, "n_modes": 4, "order": 6}
+    fresh_text = TINY.replace("grid = {{ n_modes = [2, 4], order = [1, 6] }}", "list = [{{ n_modes = 2, order = 1 }}]")
+    run_sweep(load_spec(write_spec(tmp_path, text=fresh_text)), tmp_path / "fresh", progress=False)
+    fresh = read_units(tmp_path / "fresh").set_index("label")
+    assert "sliced_from" not in json.loads(fresh.loc[label, "model_info"])
+    for col in ("max_rel_l2", "rmse_rel", "validity_1pct", "n_reduced", "n_beyond_validity"):
+        assert fresh.loc[label, col] == pytest.approx(sliced.loc[label, col], rel=1e-9, abs=1e-15), col

@@ -261,9 +261,29 @@ def expand_units(spec: SweepSpec) -> list[WorkUnit]:
     meta = {"name": spec.name, "hash": spec.hash}
     units = []
     for m in spec.methods:
+        parents = _nested_parents(m["name"], m["option_sets"])
         for cid in m["cases"]:
-            for opts in m["option_sets"]:
+            for opts, parent in zip(m["option_sets"], parents):
                 case = by_id[cid]
                 key = unit_key(case, scene_hashes[cid], m["name"], opts, spec.protocol)
-                units.append(WorkUnit(case, m["name"], opts, dict(spec.protocol), meta, key))
+                units.append(WorkUnit(case, m["name"], opts, dict(spec.protocol), meta, key, parent))
     return units
+
+
+def _nested_parents(method: str, option_sets: list) -> list:
+    """Per option set, the options with the method's nested options at the maximum over the
+    sets that agree on every other option (None when nothing is nested or a value is not a number)."""
+    nested = method_class(method).nested
+    out = []
+    for opts in option_sets:
+        rest = {k: v for k, v in opts.items() if k not in nested}
+        group = [o for o in option_sets if {k: v for k, v in o.items() if k not in nested} == rest]
+        parent = dict(opts)
+        for k in nested:
+            values = [o.get(k) for o in group]
+            if k not in opts or not all(isinstance(v, int) and not isinstance(v, bool) for v in values):
+                parent = None
+                break
+            parent[k] = max(values)
+        out.append(parent if parent and len(group) > 1 else None)
+    return out

@@ -16,6 +16,7 @@ import platform
 import time
 import tracemalloc
 import traceback
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -56,6 +57,7 @@ class WorkUnit:
     protocol: dict
     spec: dict
     key: str
+    parent_options: dict | None = None  # nested options at their group maximum: built once, sliced
 
     @property
     def label(self) -> str:
@@ -133,13 +135,7 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
     scene = case_scene(unit.case)
     training = build_training(unit.case, scene)
     evaluation = build_evaluation(unit.case, scene)
-    method = make_method(unit.method, **unit.options)
-    tracemalloc.start()
-    t0 = time.perf_counter()
-    model = method.build(training)
-    offline = time.perf_counter() - t0
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
+    model, offline, peak = _build(unit, training)
     if training.outputs:
         model.attach_outputs(training.outputs)
     history = training.history or (scene.history if evaluation.kind == "trajectory" else None)
@@ -163,6 +159,41 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
             "offline_s": offline, "build_peak_bytes": int(peak), "model_bytes": _nbytes(model),
             "scene_hash": scene.content_hash(), "model_info": json.dumps(_jsonable(getattr(model, "info", {}))),
             "_points": points.to_dict("records"), "_outputs": outputs.to_dict("records")}
+
+
+_PARENTS: OrderedDict = OrderedDict()  # per process: nested parents (model, build seconds, peak bytes)
+
+
+def _timed_build(method, options, training):
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    model = make_method(method, **options).build(training)
+    seconds = time.perf_counter() - t0
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return model, seconds, peak
+
+
+def _build(unit: WorkUnit, training):
+    """``(model, offline seconds, peak bytes)``. A unit whose nested options (``RomMethod.nested``,
+    e.g. n_modes and order of ANM-POD) are below its group's maximum is sliced from the group's
+    model built once per process (``variant``: leading POD modes, sliced tensors; the same model
+    as a fresh build); its offline time is then the parent's build plus the slicing."""
+    parent_opts = unit.parent_options
+    if not parent_opts or parent_opts == unit.options:
+        return _timed_build(unit.method, unit.options, training)
+    key = (unit.case["id"], training.info.get("scene_hash"), unit.method, options_text(parent_opts))
+    if key not in _PARENTS:
+        _PARENTS[key] = _timed_build(unit.method, parent_opts, training)
+        while len(_PARENTS) > 2:
+            _PARENTS.popitem(last=False)
+    parent, seconds, peak = _PARENTS[key]
+    if not hasattr(parent, "variant"):
+        return _timed_build(unit.method, unit.options, training)
+    t0 = time.perf_counter()
+    model = parent.variant(**unit.options)
+    model.info = {**getattr(model, "info", {}), "sliced_from": parent_opts}
+    return model, seconds + time.perf_counter() - t0, peak
 
 
 def _jsonable(obj, depth=0):
