@@ -111,7 +111,7 @@ def test_rayleigh_damping_ratio_of_each_mode(kind, scheme):
     dt = 1.0 / 40
     for i in range(2):
         lam = measured_root(system, method, opts, dt, t_end=8.0, u0=MODES[:, i],
-                            observe=lambda u: u @ MODES[:, i])
+                            observe=lambda u, mode=MODES[:, i]: u @ mode)
         expected = principal_eigenvalue(scheme_matrix(method, OMEGAS[i] * dt, xis[i], opts.get("alpha", 0.0)))
         assert abs(lam - expected) < 1e-9, (i, lam, expected)
         # and the root is within the scheme's O(Om^2) of the exact decay of mode i
