@@ -83,7 +83,7 @@ def test_options_are_the_constructor_keywords(name):
     params = inspect.signature(cls.__init__).parameters
     assert cls.option_names() == [p for p in params if p != "self" and params[p].kind in
                                   (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)]
-    with pytest.raises(ValueError, match=f"takes no option 'bogus_option'; valid: "):
+    with pytest.raises(ValueError, match="takes no option 'bogus_option'; valid: "):
         make_method(name, bogus_option=1)
 
 

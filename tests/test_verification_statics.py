@@ -171,7 +171,7 @@ def testuniaxial_closed_forms_independent_numbers():
     # d W(diag(l1, l2, l3)) / d l_i from the package's energy vs the hand derivation
     for mat in (svk, nh, MooneyRivlin(mu1=0.5, mu2=0.6, kappa=10.0)):
         l1, s, h = 1.3, 0.9, 1e-6
-        W = lambda a, b, c: float(mat.energy(np.diag([a, b, c])[None, None])[0, 0])  # noqa: E731
+        W = lambda a, b, c, m=mat: float(m.energy(np.diag([a, b, c])[None, None])[0, 0])  # noqa: E731
         dW1 = (W(l1 + h, s, s) - W(l1 - h, s, s)) / (2 * h)
         dW2 = (W(l1, s + h, s) - W(l1, s - h, s)) / (2 * h)
         P11, P22 = principal_stress(mat, l1, s)

@@ -9,6 +9,8 @@
                                             any methods over any scenes, one results store
 ``tissuebench study anm_pod``               alias of ``sweep --preset anm_pod``
 ``tissuebench cache ls|clear``              the reference-run cache
+``tissuebench check RESULTS --baseline FILE [--update-baseline] [--junit OUT.xml]``
+                                            regression gate on error and latency ratios
 
 Exit codes: 0 success, 1 the run finished with a numerical failure (stored), 2 bad input.
 """
@@ -45,6 +47,11 @@ def _parser():
     _sweep_options(study)
     cache = sub.add_parser("cache", help="the reference-run cache")
     cache.add_argument("action", choices=["ls", "clear"])
+    chk = sub.add_parser("check", help="fail on a regression in error or latency against a baseline")
+    chk.add_argument("results", type=Path, help="a sweep's results folder")
+    chk.add_argument("--baseline", type=Path, required=True, help="baseline TOML (e.g. baselines/ci.toml)")
+    chk.add_argument("--update-baseline", action="store_true", help="rewrite the baseline from the results")
+    chk.add_argument("--junit", type=Path, default=None, help="also write JUnit XML here")
     desc = sub.add_parser("describe", help="what a run of CASE models, and why")
     desc.add_argument("case")
     desc.add_argument("--variant", default=None)
@@ -134,6 +141,27 @@ def _print_pareto(out) -> None:
         print(front[cols].to_string(index=False))
 
 
+def _check(args) -> int:
+    from .reports.check import check, update_baseline, write_junit
+
+    if args.update_baseline:
+        n = update_baseline(args.results, args.baseline)
+        print(f"baseline {args.baseline}: {n} units written from {args.results}")
+        return 0
+    result = check(args.results, args.baseline)
+    if args.junit:
+        write_junit(result, args.junit)
+    for key in result.new_units:
+        print(f"note: {' '.join(key)} is not in the baseline (run --update-baseline to add it)")
+    if result.ok:
+        print(f"check: {result.checked} units hold against {args.baseline}")
+        return 0
+    print(f"check: {len(result.regressions)} regressions in {result.checked} units against {args.baseline}:")
+    for f in result.regressions:
+        print("  " + f.line())
+    return 1
+
+
 def _cache(args) -> int:
     from .studies.reference.cache import cache_dir, clear, list_entries
 
@@ -168,6 +196,8 @@ def main(argv=None) -> int:
             return _sweep(args, preset=args.name)
         if args.command == "cache":
             return _cache(args)
+        if args.command == "check":
+            return _check(args)
         return _run(args)
     except (ValueError, TypeError, FileExistsError, FileNotFoundError, SweepLocked) as exc:
         return _error(exc)

@@ -18,8 +18,9 @@ its cell (``distribute = "interpolate"``), so the load and the response move con
 with the position (a nearest-node load would jump from node to node).
 
 Analysis overrides (``mu`` keys ``max_load_factor``, ``load_steps``, ``t_end``) let a study
-shorten a training path or lengthen a time horizon, and ``load_scale`` multiplies every load's value (training runs at other
-amplitudes, loads past the training envelope); they are part of the hash too.
+shorten a training path or lengthen a time horizon, and ``load_scale`` multiplies every
+load's value (training runs at other amplitudes, loads past the training envelope); they
+are part of the hash too.
 """
 from __future__ import annotations
 

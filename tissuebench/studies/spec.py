@@ -26,6 +26,7 @@ a grid of options, the protocol and the error metric of the derived tables::
     [[method]]
     name = "anm_pod"
     cases = ["liver_palpation"]       # default: every case whose training kind the method takes
+    protocol = { latency_steps = 20 } # optional: this method's protocol (e.g. a full-assembly ROM)
     options = { eps = 1e-6 }          # fixed options
     grid = { n_modes = [1, 4, 9], order = [1, 6] }   # cartesian product (and/or)
     list = [{ n_modes = 2, order = 3 }]             # explicit option sets
@@ -55,7 +56,7 @@ ERROR_METRICS = ("max_rel_l2", "mean_rel_l2", "rmse_rel", "max_rel_l2_in_envelop
 _TOP = {"sweep", "protocol", "case", "method"}
 _SWEEP = {"name", "description", "resolution", "error_metric"}
 _CASE = {"name", "id", "variant", "backend", "resolution", "training", "evaluation"}
-_METHOD = {"name", "cases", "options", "grid", "list", "paper"}
+_METHOD = {"name", "cases", "options", "grid", "list", "paper", "protocol"}
 _TRAINING_KEYS = {"path": {"every"}, "positions": {"positions", "max_load_factor", "load_steps"},
                   "trajectory": {"runs"}, "operators": set()}
 _EVALUATION_KEYS = {"path": {"every", "beyond"}, "positions": {"held_out"}, "trajectory": {"t_end", "load_scale"},
@@ -210,7 +211,15 @@ def _check_method(i, m, cases, resolution):
             if c["training"]["kind"] not in cls.training_kinds:
                 _fail(f"{path}.cases", c["id"], f"its training kind {c['training']['kind']!r} is not one method "
                       f"{name!r} learns from ({list(cls.training_kinds)})")
-    return {"name": name, "cases": [c["id"] for c in chosen], "option_sets": sets}
+    protocol = _table(f"{path}.protocol", m.get("protocol", {}), set(DEFAULT_PROTOCOL))
+    return {"name": name, "cases": [c["id"] for c in chosen], "option_sets": sets, "protocol": protocol}
+
+
+def _check_protocol(path, protocol):
+    for k, v in protocol.items():
+        if isinstance(v, bool) or not isinstance(v, int) or v < (1 if k in ("latency_steps", "reference_samples")
+                                                                   else 0):
+            _fail(f"{path}.{k}", v, "expected a non-negative integer (latency_steps, reference_samples >= 1)")
 
 
 def load_spec(spec_or_preset, resolution: str | None = None) -> SweepSpec:
@@ -232,10 +241,7 @@ def load_spec(spec_or_preset, resolution: str | None = None) -> SweepSpec:
     if metric not in ERROR_METRICS:
         _fail("sweep.error_metric", metric, f"unknown metric; valid: {list(ERROR_METRICS)}")
     protocol = {**DEFAULT_PROTOCOL, **_table("protocol", raw.get("protocol", {}), set(DEFAULT_PROTOCOL))}
-    for k, v in protocol.items():
-        if isinstance(v, bool) or not isinstance(v, int) or v < (1 if k in ("latency_steps", "reference_samples")
-                                                                   else 0):
-            _fail(f"protocol.{k}", v, "expected a non-negative integer (latency_steps, reference_samples >= 1)")
+    _check_protocol("protocol", protocol)
     raw_cases = raw.get("case", [])
     if not isinstance(raw_cases, list) or not raw_cases:
         raise ValueError(f"case: a sweep needs at least one [[case]] ({path})")
@@ -250,6 +256,9 @@ def load_spec(spec_or_preset, resolution: str | None = None) -> SweepSpec:
     if not isinstance(raw_methods, list) or not raw_methods:
         raise ValueError(f"method: a sweep needs at least one [[method]] ({path})")
     methods = [_check_method(i, m, cases, res) for i, m in enumerate(raw_methods)]
+    for i, m in enumerate(methods):
+        m["protocol"] = {**protocol, **m["protocol"]}
+        _check_protocol(f"method[{i}].protocol", m["protocol"])
     return SweepSpec(str(sweep.get("name", path.stem)), str(sweep.get("description", "")), res, metric, protocol,
                      cases, methods, text, str(path))
 
@@ -265,8 +274,8 @@ def expand_units(spec: SweepSpec) -> list[WorkUnit]:
         for cid in m["cases"]:
             for opts, parent in zip(m["option_sets"], parents):
                 case = by_id[cid]
-                key = unit_key(case, scene_hashes[cid], m["name"], opts, spec.protocol)
-                units.append(WorkUnit(case, m["name"], opts, dict(spec.protocol), meta, key, parent))
+                key = unit_key(case, scene_hashes[cid], m["name"], opts, m["protocol"])
+                units.append(WorkUnit(case, m["name"], opts, dict(m["protocol"]), meta, key, parent))
     return units
 
 

@@ -106,7 +106,8 @@ def _provenance_row() -> dict:
     v = package_versions()
     return {"git_commit": git_commit(), "code_hash": code_hash(), "tissuebench": v.get("tissuebench"),
             "numpy": v.get("numpy"), "scipy": v.get("scipy"), "machine": platform.node(),
-            "python": platform.python_version(), "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
+            "python": platform.python_version(),
+            "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
 
 
 def run_unit(unit: WorkUnit) -> UnitOutcome:
