@@ -315,3 +315,41 @@ def test_liver_tetrahedralises_a_surface(tmp_path):
         warnings.simplefilter("ignore")
         b = builders.liver(path=str(path), maxh=0.5)
     assert b.info["tetrahedralised"] and b.mesh.cell_volumes().sum() == pytest.approx(1.0, rel=1e-6)
+
+
+def test_scene_at_mu_changes_what_it_names_and_the_hash():
+    liver = load("liver_palpation")
+    base = liver.content_hash()
+    moved = liver.at({"position": 0.4, "max_load_factor": 1.0, "load_steps": 4})
+    assert moved.loads[0]["region"] == {"nearest": [0.4, 1.0, 0.5], "frame": "bbox"}
+    assert moved.loads[0]["distribute"] == "interpolate"
+    assert (moved.analysis["max_load_factor"], moved.analysis["load_steps"]) == (1.0, 4)
+    assert not moved.analysis["stop_at_divergence"]
+    soft = liver.at({"nu": 0.499})
+    assert soft.material["nu"] == 0.499 and liver.material["nu"] == 0.48
+    scaled = liver.at({"load_scale": 2.0})
+    assert scaled.loads[0]["value"] == [0.0, -2.4, 0.0]
+    hashes = {base, moved.content_hash(), soft.content_hash(), scaled.content_hash(),
+              liver.at({"position": 0.41}).content_hash()}
+    assert len(hashes) == 5 and load("liver_palpation").content_hash() == base
+    with pytest.raises(ValueError, match=r"mu.nope = 1: not a parameter of this scene; valid keys: \["):
+        liver.at({"nope": 1})
+    with pytest.raises(ValueError, match=r"nu = 0.5: expected a Poisson ratio"):
+        liver.at({"nu": 0.5})
+    with pytest.raises(ValueError, match="declares no \\[parameters.position\\]"):
+        load("cube_tension_twist").at({"position": 0.1})
+
+
+def test_the_mesh_file_is_part_of_the_scene_hash(tmp_path, monkeypatch):
+    import shutil
+
+    from tissuebench.cases.io import PACKAGE_DATA_DIR
+
+    base = load("liver_palpation").content_hash()
+    (tmp_path / "liver").mkdir()
+    shutil.copy(PACKAGE_DATA_DIR / "liver" / "liver_tet.vtu", tmp_path / "liver" / "liver_tet.vtu")
+    monkeypatch.setenv("TISSUEBENCH_DATA", str(tmp_path))
+    assert load("liver_palpation").content_hash() == base  # same bytes elsewhere: same scene
+    with open(tmp_path / "liver" / "liver_tet.vtu", "ab") as fh:
+        fh.write(b"\n")
+    assert load("liver_palpation").content_hash() != base  # another mesh source: another scene

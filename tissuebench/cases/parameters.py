@@ -17,16 +17,18 @@ The moved load becomes one point force at that point, spread by the shape functi
 its cell (``distribute = "interpolate"``), so the load and the response move continuously
 with the position (a nearest-node load would jump from node to node).
 
-Analysis overrides (``mu`` keys ``max_load_factor``, ``load_steps``, ``t_end``) let a study
-shorten a training path or lengthen a time horizon, and ``load_scale`` multiplies every
-load's value (training runs at other amplitudes, loads past the training envelope); they
-are part of the hash too.
+Analysis overrides (``mu`` keys ``max_load_factor``, ``load_steps``, ``t_end``, ``dt``) let a
+study shorten a training path, lengthen a time horizon or change the time step;
+``load_scale`` multiplies every load's value (training runs at other amplitudes, loads past
+the training envelope); a key of the scene's material (``nu``, ``E``, ``mu1`` ...) replaces
+that parameter (validated as in the scene file: nu -> 0.5 studies). All are part of the hash.
 """
 from __future__ import annotations
 
 import copy
 
 from .schema import AXES, c_enum, c_int1, c_num, c_pos, c_str, c_vec3, check_table, fail
+from .sections import check_material
 
 __all__ = ["PARAMETER_KINDS", "ANALYSIS_OVERRIDES", "check_parameters_table", "apply_mu"]
 
@@ -34,7 +36,7 @@ _POSITION = {"load": lambda p, v: _c_index(p, v), "axis": c_enum(*AXES), "point"
              "frame": c_enum("absolute", "bbox"), "range": lambda p, v: _c_range(p, v), "description": c_str,
              "unit": c_str}
 PARAMETER_KINDS = {"position": _POSITION}
-ANALYSIS_OVERRIDES = {"max_load_factor": c_pos, "load_steps": c_int1, "t_end": c_pos}
+ANALYSIS_OVERRIDES = {"max_load_factor": c_pos, "load_steps": c_int1, "t_end": c_pos, "dt": c_pos}
 
 
 def _c_index(path, v):
@@ -72,12 +74,18 @@ def check_parameters_table(path, raw, loads) -> dict:
 
 
 def apply_mu(scene_fields: dict, parameters: dict, mu: dict, who: str) -> dict:
-    """New ``loads`` / ``analysis`` of a scene evaluated at ``mu`` (ValueError naming a bad key)."""
+    """New ``loads`` / ``analysis`` / ``material`` of a scene evaluated at ``mu`` (ValueError
+    naming a bad key or value)."""
     if not isinstance(mu, dict):
         raise TypeError(f"{who}.at: mu must be a mapping of parameters, got {type(mu).__name__}")
     loads, analysis = copy.deepcopy(scene_fields["loads"]), dict(scene_fields["analysis"])
-    valid = sorted(parameters) + sorted(ANALYSIS_OVERRIDES) + ["load_scale"]
+    material = dict(scene_fields["material"]) if scene_fields.get("material") else None
+    material_keys = sorted(k for k in (material or {}) if k not in ("name", "fibres"))
+    valid = sorted(parameters) + sorted(ANALYSIS_OVERRIDES) + ["load_scale"] + material_keys
     for key, value in mu.items():
+        if key in material_keys:
+            material[key] = value  # validated with the whole material below
+            continue
         if key in ANALYSIS_OVERRIDES:
             analysis[key] = ANALYSIS_OVERRIDES[key](f"mu.{key}", value)
             if key != "t_end":
@@ -100,4 +108,7 @@ def apply_mu(scene_fields: dict, parameters: dict, mu: dict, who: str) -> dict:
             load.update(region=region, distribute="interpolate")
         else:
             fail(f"{who}: mu.{key}", value, f"not a parameter of this scene; valid keys: {valid}")
-    return {"loads": loads, "analysis": analysis}
+    out = {"loads": loads, "analysis": analysis}
+    if material is not None and any(k in material_keys for k in mu):
+        out["material"] = check_material("mu (material)", material)
+    return out

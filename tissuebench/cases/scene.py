@@ -116,7 +116,8 @@ class Scene:
         The mesh is shared (not rebuilt) when only loads or analysis change."""
         if not mu:
             return self
-        fields = apply_mu({"loads": self.loads, "analysis": self.analysis}, self.parameters, dict(mu), self.name)
+        fields = apply_mu({"loads": self.loads, "analysis": self.analysis, "material": self.material},
+                          self.parameters, dict(mu), self.name)
         fields["loads"] = [check_load(f"load[{i}]", ld, self.model) for i, ld in enumerate(fields["loads"])]
         new = dataclasses.replace(self, mu={**self.mu, **dict(mu)}, **fields)
         if "built" in self.__dict__:  # cached_property: reuse the mesh already built
