@@ -3,8 +3,9 @@
 A case entry of a sweep spec names what its methods learn from (``training``) with a
 ``kind`` (the ``training_kinds`` a method declares must include it):
 
-``path``        the scene's reference load path (statics): every converged state, its load
-                factor as the parameter (``every = k`` keeps every k-th state).
+``path``        the scene's reference load path (statics): the initial state and every
+                converged state, the load factor as the parameter (``every = k`` keeps every
+                k-th state counted back from the last).
 ``positions``   one reference path per stored load position (``positions = n`` points of
                 the scene's ``[parameters.position]`` range, or a list), each shortened by
                 ``max_load_factor`` / ``load_steps``: ``Training.groups = {s: Training}``
@@ -62,7 +63,10 @@ def _outputs(scene, problem) -> dict:
 
 def _path(scene, case, spec, info):
     ref, _ = cached_solve(scene, case["backend"])
-    U, lams = reference_states(ref)
+    # the initial state (load factor 0, at rest) belongs to the path: known exactly for free,
+    # it anchors interpolation between the origin and the first converged state
+    U = ref.displacement.reshape(len(ref.displacement), -1).T
+    lams = np.asarray(ref.steps, float)
     every = int(spec.get("every", 1))
     keep = np.arange(len(lams))[::-1][::every][::-1]  # always keep the last state
     be = make_backend(case["backend"], ref.problem)
