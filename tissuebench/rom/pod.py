@@ -272,7 +272,7 @@ class _PodLinearOnline(_PodOnline):
 class PodNewton(_PodStatic):
     """Reduced Newton: ``Phi^T (f_int(u) - f_ext(u, lam))[free] = 0``, ``u = lift(lam) + Phi q``, full assembly.
 
-    Extra options: ``rtol`` (on ``|r_q| / max(|Phi^T f_ext|, |Phi^T f_int|)``) and
+    Extra options: ``rtol`` (on ``|r_q| / max(|f_ext|, |reaction on the fixed dofs|)``) and
     ``max_iterations``. Each step starts from the last converged ``q`` (``start()``: zero).
     Follower loads enter the reduced tangent through ``external_tangent``.
     """
@@ -318,7 +318,9 @@ class _PodNewtonOnline(_PodOnline):
         if K_ext is not None:  # follower loads: K = K_t - d f_ext / du
             K = K - K_ext
         r = Phi.T @ (f_int - f_ext)[free]
-        scale = max(np.linalg.norm(Phi.T @ f_ext[free]), np.linalg.norm(Phi.T @ f_int[free]))
+        # the force scale of the residual: the applied load or, for a motion imposed through
+        # Dirichlet data (no load at all), the reaction it takes (as the full Newton does)
+        scale = max(np.linalg.norm(f_ext), np.linalg.norm(f_int[self.problem.fixed_dofs]))
         return r, Phi.T @ (K[free][:, free] @ Phi), scale
 
     def step(self, mu) -> StepResult:
