@@ -1,6 +1,10 @@
-"""Session-wide settings: one reference cache for the whole test session, so tests that need
-the same reference run share it (the sweep harness's content-hashed cache), and nothing is
-written to the user's cache folder."""
+"""Session-wide settings.
+
+One reference cache for the whole test session, so tests that need the same reference run
+share it (the sweep harness's content-hashed cache): ``$TISSUEBENCH_CACHE`` when set (CI
+sets it, so its later sweep steps reuse the references the tests computed), else a
+temporary folder (nothing is written to the user's cache folder).
+"""
 import os
 
 import pytest
@@ -8,11 +12,10 @@ import pytest
 
 @pytest.fixture(scope="session", autouse=True)
 def reference_cache(tmp_path_factory):
+    if os.environ.get("TISSUEBENCH_CACHE", "").strip():
+        yield os.environ["TISSUEBENCH_CACHE"]
+        return
     path = tmp_path_factory.mktemp("reference-cache")
-    old = os.environ.get("TISSUEBENCH_CACHE")
     os.environ["TISSUEBENCH_CACHE"] = str(path)
     yield path
-    if old is None:
-        os.environ.pop("TISSUEBENCH_CACHE", None)
-    else:
-        os.environ["TISSUEBENCH_CACHE"] = old
+    os.environ.pop("TISSUEBENCH_CACHE", None)

@@ -148,11 +148,17 @@ def build_evaluation(case: dict, scene) -> Evaluation:
     spec = dict(case.get("evaluation") or {})
     kind = spec.pop("kind", case["training"]["kind"])
     if kind == "path":
-        return _path(scene, case, spec)
-    if kind == "positions":
-        return _positions(scene, case, spec, case["training"])
-    if kind == "trajectory":
-        return _trajectory(scene, case, spec)
-    if kind == "map":
-        return _map(scene, case, spec)
-    raise ValueError(f"evaluation.kind = {kind!r}; valid: {list(EVALUATION_KINDS)}")
+        ev = _path(scene, case, spec)
+    elif kind == "positions":
+        ev = _positions(scene, case, spec, case["training"])
+    elif kind == "trajectory":
+        ev = _trajectory(scene, case, spec)
+    elif kind == "map":
+        ev = _map(scene, case, spec)
+    else:
+        raise ValueError(f"evaluation.kind = {kind!r}; valid: {list(EVALUATION_KINDS)}")
+    ref = ev.reference_steps.get("ref")
+    if ref is not None:  # what the full model did there: a failure of the reference is data too
+        ev.info.update(reference_status=ref.status, reference_message=ref.message[:300],
+                       reference_energy_growth=float(ref.info.get("energy_growth_ratio", np.nan)))
+    return ev

@@ -22,8 +22,9 @@ UNIT_COLUMNS = {
     # identity
     "unit_key": _S, "case_name": _S, "variant": _S, "resolution": _S, "backend": _S, "kind": _S,
     "options": _S, "label": _S, "spec_name": _S, "spec_hash": _S, "scene_hash": _S,
-    # outcome
-    "unit_status": _S, "message": _S,
+    # outcome, and what the reference did at the evaluation (status, message, energy growth ratio)
+    "unit_status": _S, "message": _S, "reference_status": _S, "reference_message": _S,
+    "reference_energy_growth": _F,
     # sizes
     "n_dof": _I, "n_reduced": _I, "n_training_snapshots": _I, "n_points": _I, "n_reference_points": _I,
     # step statuses

@@ -19,7 +19,7 @@ a grid of options, the protocol and the error metric of the derived tables::
 
     [[case]]
     name = "liver_palpation"          # catalogue case or scene file; id defaults to the name
-    backend = "skfem"                 # variant = "...", resolution = "..." optional
+    backend = "skfem"                 # variant, resolution, mu = {nu = 0.499} (Scene.at) optional
     training = { kind = "path" }      # path | positions | trajectory | operators (studies.training)
     evaluation = { kind = "path", beyond = [2.0] }   # default: the training's kind (studies.evaluation)
 
@@ -55,7 +55,7 @@ PRESETS_DIR = Path(__file__).resolve().parent / "presets"
 ERROR_METRICS = ("max_rel_l2", "mean_rel_l2", "rmse_rel", "max_rel_l2_in_envelope", "max_monitor_rel_error")
 _TOP = {"sweep", "protocol", "case", "method"}
 _SWEEP = {"name", "description", "resolution", "error_metric"}
-_CASE = {"name", "id", "variant", "backend", "resolution", "training", "evaluation"}
+_CASE = {"name", "id", "variant", "backend", "resolution", "training", "evaluation", "mu"}
 _METHOD = {"name", "cases", "options", "grid", "list", "paper", "protocol"}
 _TRAINING_KEYS = {"path": {"every"}, "positions": {"positions", "max_load_factor", "load_steps"},
                   "trajectory": {"runs"}, "operators": set()}
@@ -142,7 +142,12 @@ def _check_case(i, c, resolution):
     _table(f"{path}.evaluation", evaluation, {"kind"} | _EVALUATION_KEYS[ekind])
     entry = {"id": str(c.get("id", Path(name).stem)), "name": name, "variant": c.get("variant"),
              "resolution": res, "backend": backend, "training": training, "evaluation": evaluation}
-    case_scene(entry)  # the scene must load (its errors name the scene key)
+    if "mu" in c:
+        entry["mu"] = _table(f"{path}.mu", c["mu"], set(c["mu"]) if isinstance(c["mu"], dict) else set())
+    try:
+        case_scene(entry)  # the scene must load and take the mu (their errors name the key)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
     return entry
 
 

@@ -37,8 +37,10 @@ TRAINING_KINDS = ("path", "positions", "trajectory", "operators")
 
 
 def case_scene(case: dict):
-    """The scene of a case entry (``name``, ``variant``, ``resolution``)."""
-    return load(case["name"], resolution=case["resolution"], variant=case.get("variant"))
+    """The scene of a case entry (``name``, ``variant``, ``resolution``, evaluated at its ``mu``:
+    e.g. ``{nu = 0.499}`` trains and measures every method of that case at that parameter)."""
+    scene = load(case["name"], resolution=case["resolution"], variant=case.get("variant"))
+    return scene.at(case["mu"]) if case.get("mu") else scene
 
 
 def reference_states(ref) -> tuple[np.ndarray, np.ndarray]:

@@ -158,7 +158,9 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
             "reference_step_s": ref_step, "speedup": ref_step / h.median if h.median > 0 else np.nan,
             "calibration_s": calib, "haptic_per_calibration": h.median / calib, **blas_info(),
             "offline_s": offline, "build_peak_bytes": int(peak), "model_bytes": _nbytes(model),
-            "scene_hash": scene.content_hash(), "model_info": json.dumps(_jsonable(getattr(model, "info", {}))),
+            "scene_hash": scene.content_hash(),
+            **{k: evaluation.info.get(k) for k in ("reference_status", "reference_message",
+                                                     "reference_energy_growth")}, "model_info": json.dumps(_jsonable(getattr(model, "info", {}))),
             "_points": points.to_dict("records"), "_outputs": outputs.to_dict("records")}
 
 
