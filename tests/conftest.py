@@ -16,3 +16,8 @@ def reference_cache(tmp_path_factory):
         os.environ.pop("TISSUEBENCH_CACHE", None)
     else:
         os.environ["TISSUEBENCH_CACHE"] = old
+
+
+def pytest_configure(config):
+    # registered here (pyproject's markers list is the lead's): tests that drive a real browser
+    config.addinivalue_line("markers", "browser: loads a generated report in headless Chromium (skipped without it)")

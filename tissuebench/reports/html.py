@@ -32,6 +32,7 @@ import pandas as pd
 
 from ..studies.store import git_commit, package_versions
 from .extremes import extremes_table
+from .format import seconds
 from .paper import paper_rows
 from .plotly_figures import error_figure, pareto_figure
 from .recommend import LATENCY_STATISTIC, parse_requirement
@@ -97,7 +98,7 @@ def _paper_sections(data, tables):
 def _environment() -> jinja2.Environment:
     env = jinja2.Environment(loader=jinja2.FileSystemLoader(TEMPLATES), autoescape=True,
                              undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True)
-    env.filters["seconds"] = lambda v: "-" if v is None or not math.isfinite(float(v)) else f"{float(v):.3g} s"
+    env.filters["seconds"] = seconds
     return env
 
 

@@ -151,9 +151,15 @@ def rank_units(units: pd.DataFrame, requirement: Requirement, error_metric: str)
     margin = np.min(np.vstack(ratios), axis=0) if ratios else np.full(len(out), np.inf)
     out["margin"] = np.where(ok, np.nan_to_num(margin, nan=0.0), np.nan)
     out["meets"] = meets
-    out["misses"] = [_misses(requirement, row) if m and not good else "" for (_, row), m, good in
-                     zip(out.iterrows(), ok, meets)]
+    out["misses"] = [("" if good else _misses(requirement, row)) if m else _unmeasurable(row)
+                     for (_, row), m, good in zip(out.iterrows(), ok, meets)]
     return out.sort_values(["meets", "margin"], ascending=[False, False], na_position="last", kind="stable")
+
+
+def _unmeasurable(row) -> str:
+    if row["unit_status"] != "ok":
+        return f"unit failed: {row.get('message', '')}"
+    return "no error (no evaluation point with a reference)" if pd.isna(row["error"]) else "no latency measured"
 
 
 def _misses(requirement: Requirement, row) -> str:

@@ -74,7 +74,8 @@ def extremes_table_view(name: str, ext: pd.DataFrame) -> dict:
     rows = []
     for r in ext.itertuples():
         rows.append([r.label, {"text": r.verdict, "cls": r.verdict}, r.unit_status,
-                     f"{r.n_ok} / {r.n_extrapolation} / {r.n_beyond_validity} / {r.n_failed} / {r.n_not_reached}",
+                     " / ".join(_count(v) for v in (r.n_ok, r.n_extrapolation, r.n_beyond_validity, r.n_failed,
+                                                    r.n_not_reached)),
                      f"{r.n_without_reference}: {r.statuses_without_reference}" if r.n_without_reference else "0",
                      f"{number(r.x_max_reference)} / {number(r.x_max_evaluated)}", str(r.failed_with_reference),
                      number(r.energy_drift, 3), number(getattr(r, "nu", np.nan)), r.reasons])
@@ -85,9 +86,13 @@ def extremes_table_view(name: str, ext: pd.DataFrame) -> dict:
     return Table(name, cols, rows, ext)
 
 
+def _count(v) -> str:
+    return "-" if v is None or v < 0 else str(int(v))  # -1: the schema's missing value (a failed unit)
+
+
 def offline_table(name: str, units: pd.DataFrame) -> dict:
-    rows = [[r.label, seconds(r.offline_s), nbytes(r.build_peak_bytes), nbytes(r.model_bytes), str(r.n_reduced),
-             str(r.n_training_snapshots), seconds(r.reconstruct_median_s), seconds(r.reconstruct_p99_s),
+    rows = [[r.label, seconds(r.offline_s), nbytes(r.build_peak_bytes), nbytes(r.model_bytes), _count(r.n_reduced),
+             _count(r.n_training_snapshots), seconds(r.reconstruct_median_s), seconds(r.reconstruct_p99_s),
              number(r.haptic_per_calibration, 3)] for r in units.itertuples()]
     cols = ["unit", "offline (build)", "build peak memory", "online model size", "reduced size", "training snapshots",
             "reconstruct median", "reconstruct p99", "haptic median / calibration kernel"]
@@ -97,7 +102,8 @@ def offline_table(name: str, units: pd.DataFrame) -> dict:
 
 
 def radius_table(name: str, units: pd.DataFrame) -> dict:
-    rows = [[r.label, number(r.validity_1pct), number(r.validity_5pct), r.x_name] for r in units.itertuples()]
+    rows = [[r.label, number(r.validity_1pct) if r.unit_status == "ok" else "-",
+             number(r.validity_5pct) if r.unit_status == "ok" else "-", r.x_name] for r in units.itertuples()]
     return Table(name, ["unit", "validity radius, error <= 1 %", "validity radius, error <= 5 %", "abscissa"],
                  rows, units[["case", "label", "unit_key", "x_name", "validity_1pct", "validity_5pct"]])
 
