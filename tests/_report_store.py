@@ -61,13 +61,14 @@ def build_store(root: Path, case: str = "cornea", evil: bool = False, failed_uni
         if evil and i == 0:
             opts["note"] = EVIL
         row = _row(case, method, opts, err, med, p99, evil, info={"energy_drift": 0.002} if i == 2 else None)
-        row["unit_key"] = f"k{i:02d}"
+        row["unit_key"] = f"{case}-k{i:02d}"
         status = "ok" if (unflagged and i == 1) else "extrapolation"
         store.write_unit(UnitOutcome(row, _points(err, beyond_status=status)))
         rows.append(row)
     if failed_unit:
         row = _row(case, "broken", {}, np.nan, np.nan, np.nan, evil)
-        row.update(unit_key="k99", unit_status="failed", message=("ValueError: " + (EVIL if evil else "boom")))
+        row.update(unit_key=f"{case}-k99", unit_status="failed",
+                   message="ValueError: " + (EVIL if evil else "boom"))
         store.write_unit(UnitOutcome(row))
     manifest = {"spec_name": EVIL if evil else "handmade", "spec_hash": "0" * 64, "error_metric": "max_rel_l2",
                 "spec_text": '[sweep]\nname = "handmade"\ndescription = "' + (EVIL if evil else "by hand") + '"\n',

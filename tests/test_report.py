@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 from html.parser import HTMLParser
 
 import numpy as np
@@ -135,11 +136,11 @@ def test_extremes_pass_fail(tmp_path):
 
 def test_failed_step_where_a_reference_exists_fails(store):
     units, points = read_units(store), read_points(store).copy()
-    hit = (points["unit_key"] == "k00") & (points["point"] == 2)
+    hit = (points["unit_key"] == "cornea-k00") & (points["point"] == 2)
     points.loc[hit, ["status", "rel_l2"]] = ["failed", np.inf]
     ext = extremes_table(units, points).set_index("unit_key")
-    assert ext.loc["k00", "verdict"] == "fail"
-    assert "1 steps failed or not reached where a reference exists" in ext.loc["k00", "reasons"]
+    assert ext.loc["cornea-k00", "verdict"] == "fail"
+    assert "1 steps failed or not reached where a reference exists" in ext.loc["cornea-k00", "reasons"]
 
 
 # ------------------------------------------------------------------------ the page and its data
@@ -190,6 +191,24 @@ def test_user_strings_are_escaped_everywhere(tmp_path):
     data = json.loads(blocks[2])
     assert "&lt;script&gt;alert(1)&lt;/script&gt;" in json.dumps(data)  # plotly's label markup escaped too
     assert all(p.parent == tmp_path / "report_data" for p in (tmp_path / "report_data").iterdir())
+
+
+def test_anchors_table_and_case_selection(tmp_path):
+    root = build_store(tmp_path / "r")
+    build_store(tmp_path / "r2", case="other")
+    for sub in ("", "_points", "_outputs"):  # a second case in the same folder
+        shutil.move(str(tmp_path / "r2" / sub / "case=other"), str(root / sub / "case=other"))
+    anchors = pd.DataFrame({"case": ["cornea", "other"], "quantity": ["tip deflection", "<b>x</b>"],
+                            "ours": [4.15, 1.0], "anchor": [4.17, 2.0], "low": [4.1, 1.9], "high": [4.2, 2.1],
+                            "source": ["Land et al. 2015", "made up"], "verdict": ["pass", "fail"]})
+    anchors.to_parquet(root / "_anchors.parquet")
+    page = write_report(root, tmp_path / "all.html").read_text()
+    assert "Land et al. 2015" in page and "&lt;b&gt;x&lt;/b&gt;" in page and '<td class="fail">fail</td>' in page
+    assert 'id="case-0"' in page and 'id="case-1"' in page
+    one = write_report(root, tmp_path / "one.html", case="other").read_text()
+    assert 'id="case-1"' not in one and "&gt;other&lt;" not in one and "Land et al. 2015" not in one
+    assert "made up" in one  # the anchors of the selected case only
+    assert pd.read_csv(tmp_path / "one_data" / "units.csv")["case"].unique().tolist() == ["other"]
 
 
 def test_report_bad_arguments(store, tmp_path):

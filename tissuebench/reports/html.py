@@ -68,12 +68,14 @@ def _case_section(data, case, index, requirement, figures, tables):
     rec = recommendation(units, requirement, data.error_metric)
     ext = extremes_table(units, data.points, {case: scene_info(scene)})
     section = {"case": case, "index": index, "scene": scene, "scene_error": scene_error,
-               "n_units": len(units), "n_plotted": len(pareto_data), "n_failed": int((units["unit_status"] != "ok").sum()),
+               "n_units": len(units), "n_plotted": len(pareto_data),
+               "n_failed": int((units["unit_status"] != "ok").sum()),
                "pareto_csv": f"pareto_{part}.csv", "error_csv": f"error_{part}.csv", "recommendation": rec,
                "ranking": ranking_table(f"ranking_{part}", rec["ranked"]),
                "extremes": extremes_table_view(f"extremes_{part}", ext),
                "offline": offline_table(f"offline_{part}", units), "radius": radius_table(f"radius_{part}", units),
-               "reference_step": units["reference_step_s"].median(), "failed_units": units[units["unit_status"] != "ok"]}
+               "reference_step": units["reference_step_s"].median(),
+               "failed_units": units[units["unit_status"] != "ok"]}
     tables += [section[k] for k in ("ranking", "extremes", "offline", "radius")]
     return section
 
@@ -184,7 +186,8 @@ def write_report(results_dir, out_html, require: str | None = None, case: str | 
                "data_folder": f"{out_html.stem}_data", "requirement": requirement, "require_text": requirement.text,
                "error_metric": data.error_metric, "latency_statistic": LATENCY_STATISTIC, "sections": sections,
                "papers": papers, "anchors": anchors, "calibration": calibration(data.units),
-               "provenance": provenance_rows(data.manifest, data.units), "spec_text": data.manifest.get("spec_text", ""),
+               "provenance": provenance_rows(data.manifest, data.units),
+               "spec_text": data.manifest.get("spec_text", ""),
                "description": _description(data.manifest), "notes": data.notes, "results_dir": str(data.root),
                "generated": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
                "generator": f"tissuebench {package_versions().get('tissuebench')} ({git_commit()[:12]})",
