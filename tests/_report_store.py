@@ -22,7 +22,7 @@ UNITS = [
 ]
 
 
-def _points(error: float, n: int = 6, beyond_status: str = "extrapolation"):
+def point_rows(error: float, n: int = 6, beyond_status: str = "extrapolation"):
     xs = np.linspace(1.0 / n, 1.0, n)
     rows = [{"point": k, "x": float(x), "group": np.nan, "mu": f"load_factor={x:.6g}", "status": "ok", "message": "",
              "rel_l2": float(error * x), "rel_max_displacement": float(error * x / 2), "has_reference": True}
@@ -33,7 +33,7 @@ def _points(error: float, n: int = 6, beyond_status: str = "extrapolation"):
     return rows
 
 
-def _row(case, method, options, error, median, p99, evil, info=None):
+def unit_row(case, method, options, error, median, p99, evil, info=None):
     label = f"{method} " + " ".join(f"{k}={v}" for k, v in sorted(options.items()))
     return {"unit_key": "", "case": case, "case_name": "cornea_pinch", "variant": "", "resolution": "ci",
             "backend": "skfem", "method": method, "kind": "path", "options": options_text(options),
@@ -60,13 +60,13 @@ def build_store(root: Path, case: str = "cornea", evil: bool = False, failed_uni
         opts = dict(opts)
         if evil and i == 0:
             opts["note"] = EVIL
-        row = _row(case, method, opts, err, med, p99, evil, info={"energy_drift": 0.002} if i == 2 else None)
+        row = unit_row(case, method, opts, err, med, p99, evil, info={"energy_drift": 0.002} if i == 2 else None)
         row["unit_key"] = f"{case}-k{i:02d}"
         status = "ok" if (unflagged and i == 1) else "extrapolation"
-        store.write_unit(UnitOutcome(row, _points(err, beyond_status=status)))
+        store.write_unit(UnitOutcome(row, point_rows(err, beyond_status=status)))
         rows.append(row)
     if failed_unit:
-        row = _row(case, "broken", {}, np.nan, np.nan, np.nan, evil)
+        row = unit_row(case, "broken", {}, np.nan, np.nan, np.nan, evil)
         row.update(unit_key=f"{case}-k99", unit_status="failed",
                    message="ValueError: " + (EVIL if evil else "boom"))
         store.write_unit(UnitOutcome(row))

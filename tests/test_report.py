@@ -11,14 +11,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from _report_store import EVIL, UNITS, build_store, rename_case
+from _report_store import EVIL, UNITS, build_store, point_rows, unit_row, rename_case
 from tissuebench.cases import load
 from tissuebench.reports.extremes import ENERGY_DRIFT_TOL, extremes_table
 from tissuebench.reports.html import write_report
 from tissuebench.reports.paper import cached_reference_table, paper_rows
 from tissuebench.reports.recommend import parse_requirement, rank_units
 from tissuebench.studies.reference import cached_solve
-from tissuebench.studies.results import read_points, read_units
+from tissuebench.studies.results import ResultsStore, read_points, read_units
+from tissuebench.studies.units import UnitOutcome
 
 
 @pytest.fixture(scope="module")
@@ -211,6 +212,23 @@ def test_anchors_table_and_case_selection(tmp_path):
     assert pd.read_csv(tmp_path / "one_data" / "units.csv")["case"].unique().tolist() == ["other"]
 
 
+def test_report_of_units_without_any_measurement(tmp_path):
+    """Only a failed unit and one whose points all lack a reference: the page still renders and
+    says so (no recommendation, the missing manifest and derived tables named)."""
+    store = ResultsStore(tmp_path / "r")
+    broken = unit_row("c", "broken", {}, np.nan, np.nan, np.nan, False)
+    broken.update(unit_key="x1", unit_status="failed", message="boom")
+    store.write_unit(UnitOutcome(broken))
+    blind = unit_row("c", "blind", {}, np.nan, 1e-5, 2e-5, False)
+    blind.update(unit_key="x2")
+    store.write_unit(UnitOutcome(blind, [p for p in point_rows(0.01) if not p["has_reference"]]))
+    page = write_report(tmp_path / "r", tmp_path / "r.html").read_text()
+    assert "None meets it: no finished unit has a finite error and latency." in page
+    assert "_sweep.json is missing" in page and "_derived/pareto.parquet is missing" in page
+    ranking = pd.read_csv(tmp_path / "r_data" / "ranking_00_c.csv").set_index("label")
+    assert ranking.loc["blind", "misses"] == "no error (no evaluation point with a reference)"
+
+
 def test_report_bad_arguments(store, tmp_path):
     with pytest.raises(ValueError, match=r"case = 'nope': not in the results; valid: \['cornea', 'cornea_pinch'\]"):
         write_report(store, tmp_path / "r.html", case="nope")
@@ -223,6 +241,11 @@ def test_report_bad_arguments(store, tmp_path):
     with pytest.raises(ValueError, match="require = 'rate>5 parsecs'"):
         write_report(store, tmp_path / "r.html", require="rate>5 parsecs")
     assert not list(tmp_path.glob("r*"))
+    (tmp_path / "mine_data").mkdir()  # a folder the report did not write is never replaced
+    with pytest.raises(ValueError, match="data folder .*mine_data' exists and was not written by a report"):
+        write_report(store, tmp_path / "mine.html")
+    write_report(store, tmp_path / "again.html")
+    write_report(store, tmp_path / "again.html")  # its own data folder is replaced
 
 
 # ------------------------------------------------------------------------ paper versus ours

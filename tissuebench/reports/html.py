@@ -43,6 +43,7 @@ from .sections import (Table, anchors_table, calibration, extremes_table_view, o
 __all__ = ["write_report", "TEMPLATES"]
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"
+_MARKER = ".tissuebench-report"  # in the data folder: a later report may replace the folder
 
 
 def _file_part(text: str) -> str:
@@ -136,13 +137,23 @@ def _check_out(out_html: Path) -> None:
         raise ValueError(f"out_html = {str(out_html)!r}: the folder {str(parent)!r} is not writable")
 
 
+def _data_folder(out_html: Path) -> Path:
+    """``<stem>_data`` beside the page; an existing folder is replaced only if a report wrote it."""
+    folder = out_html.with_name(f"{out_html.stem}_data")
+    if folder.exists() and not (folder / _MARKER).is_file():
+        raise ValueError(f"out_html = {str(out_html)!r}: its data folder {str(folder)!r} exists and was not written "
+                         "by a report; move it or choose another file name")
+    return folder
+
+
 def _write(out_html: Path, page: str, tables: list) -> None:
     """The data folder then the page, each through a temporary name (no half-written report)."""
-    folder = out_html.with_name(f"{out_html.stem}_data")
+    folder = _data_folder(out_html)
     tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=out_html.parent))
     try:
         for t in tables:
             t["data"].to_csv(tmp / t["csv"], index=False)
+        (tmp / _MARKER).write_text(f"written by tissuebench report for {out_html.name}\n")
         os.chmod(tmp, 0o755)
         if folder.exists():
             shutil.rmtree(folder)
@@ -174,6 +185,7 @@ def write_report(results_dir, out_html, require: str | None = None, case: str | 
     requirement = parse_requirement(require)
     out_html = Path(out_html)
     _check_out(out_html)
+    _data_folder(out_html)
     data = load_results(results_dir, case)
     figures, tables = {}, []
     sections = [_case_section(data, c, i, requirement, figures, tables) for i, c in enumerate(data.cases)]

@@ -119,7 +119,9 @@ def _unit_traces(key, g, meta, color, visible, top) -> list:
     ok, bad = g[finite], g[~finite]
     common = {"type": "scatter", "legendgroup": key, "visible": visible}
     text = [f"{label}<br>{esc(r.mu)}<br>status {esc(r.status)}<br>error {percent(r.rel_l2)}" for r in ok.itertuples()]
-    traces = [{**common, "mode": "lines+markers", "name": label, "x": [_num(v) for v in ok["x"]],
+    # held-out positions share their distance: markers only (a line would zigzag between positions)
+    mode = "markers" if meta.loc[key, "x_name"] == "distance" else "lines+markers"
+    traces = [{**common, "mode": mode, "name": label, "x": [_num(v) for v in ok["x"]],
                "y": [_num(max(v, ERROR_FLOOR)) for v in ok["rel_l2"]], "text": text,
                "hovertemplate": "%{text}<extra></extra>", "line": {"color": color, "width": 1},
                "marker": {"color": color, "size": 6,
