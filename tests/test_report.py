@@ -234,13 +234,23 @@ def test_report_bad_arguments(store, tmp_path):
         write_report(store, tmp_path / "r.html", case="nope")
     with pytest.raises(ValueError, match="results_dir = .*: not a folder"):
         write_report(tmp_path / "missing", tmp_path / "r.html")
+    (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="holds no unit rows"):
-        write_report(tmp_path, tmp_path / "r.html")
+        write_report(tmp_path / "empty", tmp_path / "r.html")
     with pytest.raises(ValueError, match="out_html = .*: is a folder"):
         write_report(store, tmp_path)
+    with pytest.raises(ValueError, match=r"out_html = .*: '.*/afile' is not a folder"):
+        (tmp_path / "afile").write_text("")
+        write_report(store, tmp_path / "afile" / "r.html")
     with pytest.raises(ValueError, match="require = 'rate>5 parsecs'"):
         write_report(store, tmp_path / "r.html", require="rate>5 parsecs")
     assert not list(tmp_path.glob("r*"))
+    assert write_report(store, tmp_path / "new" / "sub" / "r.html").is_file()  # missing folders are created
+    with pytest.raises(ValueError, match="inside the results folder only under a folder starting with '_'"):
+        write_report(store, store / "report.html")
+    inside = write_report(store, store / "_report" / "report.html")  # the CLI's default place
+    assert len(read_units(store)) == 6 and inside.is_file()  # the store still reads
+    shutil.rmtree(store / "_report")
     (tmp_path / "mine_data").mkdir()  # a folder the report did not write is never replaced
     with pytest.raises(ValueError, match="data folder .*mine_data' exists and was not written by a report"):
         write_report(store, tmp_path / "mine.html")

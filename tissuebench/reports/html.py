@@ -40,9 +40,10 @@ from .report_data import load_results
 from .sections import (Table, anchors_table, calibration, extremes_table_view, offline_table, paper_table,
                        provenance_rows, radius_table, ranking_table, recommendation, scene_info, scene_of)
 
-__all__ = ["write_report", "TEMPLATES"]
+__all__ = ["write_report", "TEMPLATES", "DEFAULT_NAME"]
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"
+DEFAULT_NAME = Path("_report") / "report.html"  # inside a results folder (a '_' folder is not part of the dataset)
 _MARKER = ".tissuebench-report"  # in the data folder: a later report may replace the folder
 
 
@@ -127,14 +128,26 @@ def _jsonable(obj):
     return obj
 
 
-def _check_out(out_html: Path) -> None:
+def _check_out(out_html: Path, results_dir) -> None:
+    rel = _relative(out_html, Path(results_dir))
+    if rel is not None and not any(part.startswith(("_", ".")) for part in rel.parts[:-1]):
+        # pandas/pyarrow would read the page and its CSVs as part of the results dataset
+        raise ValueError(f"out_html = {str(out_html)!r}: inside the results folder only under a folder starting "
+                         f"with '_' (e.g. {str(Path(results_dir) / DEFAULT_NAME)!r}), else the store stops reading")
     if out_html.is_dir():
         raise ValueError(f"out_html = {str(out_html)!r}: is a folder; give a file name like report.html")
-    parent = out_html.parent if str(out_html.parent) else Path(".")
+    parent = next((p for p in [out_html.parent, *out_html.parent.parents] if p.exists()), Path("."))
     if not parent.is_dir():
-        raise ValueError(f"out_html = {str(out_html)!r}: the folder {str(parent)!r} does not exist")
+        raise ValueError(f"out_html = {str(out_html)!r}: {str(parent)!r} is not a folder")
     if not os.access(parent, os.W_OK):
         raise ValueError(f"out_html = {str(out_html)!r}: the folder {str(parent)!r} is not writable")
+
+
+def _relative(path: Path, root: Path):
+    try:
+        return path.resolve().relative_to(root.resolve())
+    except ValueError:
+        return None
 
 
 def _data_folder(out_html: Path) -> Path:
@@ -149,6 +162,7 @@ def _data_folder(out_html: Path) -> Path:
 def _write(out_html: Path, page: str, tables: list) -> None:
     """The data folder then the page, each through a temporary name (no half-written report)."""
     folder = _data_folder(out_html)
+    out_html.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=out_html.parent))
     try:
         for t in tables:
@@ -176,7 +190,9 @@ def write_report(results_dir, out_html, require: str | None = None, case: str | 
     results_dir : path
         A folder written by ``tissuebench sweep``.
     out_html : path
-        The HTML file; its data go to ``<stem>_data/`` beside it (both replaced).
+        The HTML file; its data go to ``<stem>_data/`` beside it (both replaced). Inside the
+        results folder only under a ``_`` folder, e.g. ``RESULTS/_report/report.html``
+        (:data:`DEFAULT_NAME`): anything else there would be read as part of the dataset.
     require : str, optional
         ``"rate>=500Hz, error<=2%"`` (see :mod:`.recommend`); default 1 kHz and 1 %.
     case : str, optional
@@ -184,7 +200,7 @@ def write_report(results_dir, out_html, require: str | None = None, case: str | 
     """
     requirement = parse_requirement(require)
     out_html = Path(out_html)
-    _check_out(out_html)
+    _check_out(out_html, results_dir)
     _data_folder(out_html)
     data = load_results(results_dir, case)
     figures, tables = {}, []

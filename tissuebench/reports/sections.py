@@ -11,7 +11,7 @@ import pandas as pd
 from ..cases import load
 from .extremes import ENERGY_DRIFT_TOL
 from .format import hz, nbytes, number, percent, seconds
-from .recommend import LATENCY_STATISTIC, rank_units
+from .recommend import rank_units
 
 __all__ = ["Table", "scene_of", "scene_info", "recommendation", "ranking_table", "extremes_table_view",
            "offline_table", "radius_table", "paper_table", "anchors_table", "provenance_rows", "calibration"]
@@ -43,9 +43,6 @@ def recommendation(units: pd.DataFrame, requirement, error_metric: str) -> dict:
     """The ranked units and the sentence(s) of the recommendation for one case."""
     ranked = rank_units(units, requirement, error_metric)
     meets = ranked[ranked["meets"]]
-    head = (f"Requirement: {requirement.describe(error_metric)}. The rate applies to the 99th percentile of the "
-            f"haptic step ({LATENCY_STATISTIC}): a haptic loop misses its deadline on its slow steps. The error is "
-            f"the sweep's error metric {error_metric}.")
     items = [f"{r.label}: p99 {seconds(r.p99_s)} ({hz(r.rate_hz)}), median {seconds(r.haptic_median_s)}, "
              f"error {percent(r.error)}, margin {r.margin:.3g}x" for r in meets.itertuples()]
     measurable = ranked[ranked["measurable"]]
@@ -57,7 +54,7 @@ def recommendation(units: pd.DataFrame, requirement, error_metric: str) -> dict:
         verdict = f"None meets it. Closest: {c['label']} (margin {c['margin']:.3g}x): {c['misses']}."
     else:
         verdict = "None meets it: no finished unit has a finite error and latency."
-    return {"head": head, "verdict": verdict, "lines": items, "meets": len(meets), "ranked": ranked}
+    return {"verdict": verdict, "lines": items, "meets": len(meets), "ranked": ranked}
 
 
 def ranking_table(name: str, ranked: pd.DataFrame) -> dict:
