@@ -1,0 +1,94 @@
+"""The extremes table of a report: how every unit behaves at the edges, with pass/fail.
+
+Per unit (one row), from its row and its evaluation points (``_points``):
+
+* the unit ran (``unit_status == "ok"``), else **fail** with its message;
+* extrapolation is flagged: every evaluation point without a reference (loads past the
+  reference path, the scene's ``beyond``) has a non-ok status (``extrapolation``,
+  ``beyond_validity`` or ``failed``); a point there reported ``ok`` is a **fail**: the model
+  claims an answer nobody checked;
+* no step failed (or was not reached) where a reference exists, else **fail**;
+* the long-run energy drift, when the model's ``model_info`` carries ``energy_drift``
+  (relative), within :data:`ENERGY_DRIFT_TOL`, else **fail**.
+
+``n_beyond_validity`` (steps the model itself marks past its validity) is reported, not
+failed: saying so is the contract. The scene's own extremes (Poisson ratio, the largest
+load factor evaluated, the reference's largest) are columns beside it.
+"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+
+from .format import number
+
+__all__ = ["ENERGY_DRIFT_TOL", "extremes_table", "energy_drift"]
+
+ENERGY_DRIFT_TOL = 0.01
+_COUNTS = ["n_points", "n_reference_points", "n_ok", "n_extrapolation", "n_beyond_validity", "n_failed",
+           "n_not_reached"]
+
+
+def energy_drift(model_info: str) -> float:
+    """``energy_drift`` of a unit's ``model_info`` JSON (NaN when absent or unreadable)."""
+    try:
+        value = json.loads(model_info or "{}").get("energy_drift")
+        return float(value) if value is not None else float("nan")
+    except (ValueError, TypeError, AttributeError):
+        return float("nan")
+
+
+def _point_checks(pts: pd.DataFrame) -> dict:
+    pts = pts[pts["status"] != "initial"]
+    ref = pts["has_reference"].astype(bool)
+    past = pts[~ref]
+    inside = pts[ref]
+    x_ref = inside["x"].to_numpy(float)
+    x_all = pts["x"].to_numpy(float)
+    return {"n_without_reference": int(len(past)),
+            "unflagged_without_reference": int((past["status"] == "ok").sum()),
+            "failed_with_reference": int(inside["status"].isin(["failed", "not_reached"]).sum()),
+            "beyond_validity_with_reference": int((inside["status"] == "beyond_validity").sum()),
+            "statuses_without_reference": ", ".join(f"{s} {n}" for s, n in past["status"].value_counts().items()),
+            "x_max_reference": float(np.nanmax(x_ref)) if x_ref.size else np.nan,
+            "x_max_evaluated": float(np.nanmax(x_all)) if x_all.size else np.nan}
+
+
+def _verdict(row: dict) -> tuple[str, str]:
+    reasons = []
+    if row["unit_status"] != "ok":
+        reasons.append(f"unit failed: {row['message']}")
+    else:
+        if row["unflagged_without_reference"]:
+            reasons.append(f"{row['unflagged_without_reference']} of {row['n_without_reference']} points without a "
+                           "reference reported ok (extrapolation not flagged)")
+        if row["failed_with_reference"]:
+            reasons.append(f"{row['failed_with_reference']} steps failed or not reached where a reference exists")
+        drift = row["energy_drift"]
+        if np.isfinite(drift) and abs(drift) > ENERGY_DRIFT_TOL:
+            reasons.append(f"energy drift {number(drift, 3)} beyond +-{ENERGY_DRIFT_TOL:g}")
+    return ("fail", "; ".join(reasons)) if reasons else ("pass", "")
+
+
+def extremes_table(units: pd.DataFrame, points: pd.DataFrame, scene_info: dict | None = None) -> pd.DataFrame:
+    """One row per unit (module docstring): counts, checks, ``verdict`` (pass | fail), ``reasons``.
+
+    ``scene_info``: ``{case id: {"nu": ..., ...}}`` columns copied onto the case's rows."""
+    scene_info = scene_info or {}
+    by_unit = dict(tuple(points.groupby("unit_key"))) if len(points) else {}
+    rows = []
+    for _, u in units.iterrows():
+        pts = by_unit.get(u["unit_key"])
+        checks = _point_checks(pts) if pts is not None else {
+            "n_without_reference": 0, "unflagged_without_reference": 0, "failed_with_reference": 0,
+            "beyond_validity_with_reference": 0, "statuses_without_reference": "", "x_max_reference": np.nan,
+            "x_max_evaluated": np.nan}
+        row = {"case": u["case"], "label": u["label"], "unit_key": u["unit_key"], "unit_status": u["unit_status"],
+               "message": u.get("message", ""), "x_name": u.get("x_name", ""),
+               **{c: int(u[c]) for c in _COUNTS}, **checks, "energy_drift": energy_drift(u.get("model_info", "")),
+               **scene_info.get(u["case"], {})}
+        row["verdict"], row["reasons"] = _verdict(row)
+        rows.append(row)
+    return pd.DataFrame(rows)

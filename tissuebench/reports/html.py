@@ -1,0 +1,234 @@
+"""``tissuebench report``: one self-contained HTML file answering "which method for this scene".
+
+:func:`write_report` reads a results folder (``tissuebench sweep``) and writes
+
+* ``OUT.html``: works offline, opened from disk: plotly.js is inlined
+  (:func:`plotly.offline.get_plotlyjs`), the figures' data embedded as JSON;
+* ``OUT_data/``: the data of every plot and table as CSV, linked from the page.
+
+Per case: the accuracy-versus-latency Pareto front, error versus load factor / distance /
+time with the validity radii, the recommendation for the requirement, the extremes table
+with pass/fail, offline cost and memory; per scene: the paper's figures beside ours; then
+the verification anchors, the calibration kernel and the provenance.
+
+Every user-supplied string is escaped: the template is rendered with jinja2 autoescape on,
+figure data are embedded with the ``tojson`` filter (``<``, ``>``, ``&`` and ``'`` become
+``\\u003c`` ...; ``</script>`` in a string cannot end the script block), and strings inside
+figures are HTML-escaped for plotly's own label markup.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import os
+import re
+import shutil
+import tempfile
+from pathlib import Path
+
+import jinja2
+import numpy as np
+import pandas as pd
+
+from ..studies.store import git_commit, package_versions
+from .extremes import extremes_table
+from .format import seconds
+from .paper import paper_rows
+from .plotly_figures import error_figure, pareto_figure
+from .recommend import LATENCY_STATISTIC, parse_requirement
+from .report_data import load_results
+from .sections import (Table, anchors_table, calibration, extremes_table_view, offline_table, paper_table,
+                       provenance_rows, radius_table, ranking_table, recommendation, scene_info, scene_of)
+
+__all__ = ["write_report", "TEMPLATES", "DEFAULT_NAME"]
+
+TEMPLATES = Path(__file__).resolve().parent / "templates"
+DEFAULT_NAME = Path("_report") / "report.html"  # inside a results folder (a '_' folder is not part of the dataset)
+_MARKER = ".tissuebench-report"  # in the data folder: a later report may replace the folder
+
+
+def _file_part(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", str(text))[:80] or "_"
+
+
+def _case_units(data, case):
+    units = data.units[data.units["case"] == case].copy()
+    flags = data.pareto.set_index("unit_key")["pareto"] if "pareto" in data.pareto else pd.Series(dtype=bool)
+    units["pareto"] = units["unit_key"].map(flags).fillna(False).astype(bool)
+    units["error"] = units[data.error_metric].astype(float)
+    return units.reset_index(drop=True)
+
+
+def _case_section(data, case, index, requirement, figures, tables):
+    units = _case_units(data, case)
+    scene, scene_error = scene_of(units)
+    part = f"{index:02d}_{_file_part(case)}"
+    pareto, pareto_data = pareto_figure(case, units, data.error_metric, requirement)
+    err, err_data = error_figure(case, units, data.points)
+    figures[f"pareto-{index}"], figures[f"error-{index}"] = pareto, err
+    tables += [Table(f"pareto_{part}", [], [], pareto_data), Table(f"error_{part}", [], [], err_data)]
+    rec = recommendation(units, requirement, data.error_metric)
+    ext = extremes_table(units, data.points, {case: scene_info(scene)})
+    section = {"case": case, "index": index, "scene": scene, "scene_error": scene_error,
+               "n_units": len(units), "n_plotted": len(pareto_data),
+               "n_failed": int((units["unit_status"] != "ok").sum()),
+               "pareto_csv": f"pareto_{part}.csv", "error_csv": f"error_{part}.csv", "recommendation": rec,
+               "ranking": ranking_table(f"ranking_{part}", rec["ranked"]),
+               "extremes": extremes_table_view(f"extremes_{part}", ext),
+               "offline": offline_table(f"offline_{part}", units), "radius": radius_table(f"radius_{part}", units),
+               "reference_step": units["reference_step_s"].median(),
+               "failed_units": units[units["unit_status"] != "ok"]}
+    tables += [section[k] for k in ("ranking", "extremes", "offline", "radius")]
+    return section
+
+
+def _paper_sections(data, tables):
+    """One section per scene (catalogue case, variant, resolution), over every case id of it."""
+    out = []
+    for i, ((name, variant, res), units) in enumerate(data.units.groupby(["case_name", "variant", "resolution"],
+                                                                         sort=False)):
+        scene, error = scene_of(units)
+        title = f"{name}" + (f" [{variant}]" if variant else "") + f" ({res})"
+        if scene is None or not scene.paper:
+            out.append({"title": title, "error": error or "the catalogue has no [paper] table", "table": None})
+            continue
+        rows = paper_rows(scene, units, data.outputs, data.error_metric)
+        table = paper_table(f"paper_{i:02d}_{_file_part(title)}", rows)
+        tables.append(table)
+        out.append({"title": title, "source": scene.case.get("paper", ""), "error": "", "table": table})
+    return out
+
+
+def _environment() -> jinja2.Environment:
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(TEMPLATES), autoescape=True,
+                             undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True)
+    env.filters["seconds"] = seconds
+    return env
+
+
+def _plotly_js() -> str:
+    from plotly.offline import get_plotlyjs
+
+    js = get_plotlyjs()
+    if "</script" in js.lower():  # would end the inline script block early
+        raise RuntimeError("plotly.js contains '</script': cannot be inlined")
+    return js
+
+
+def _jsonable(obj):
+    """Figures with NaN/inf replaced by None (JSON has neither)."""
+    if isinstance(obj, dict):
+        return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, (np.integer, np.bool_)):
+        return obj.item()
+    return obj
+
+
+def _check_out(out_html: Path, results_dir) -> None:
+    rel = _relative(out_html, Path(results_dir))
+    if rel is not None and not any(part.startswith(("_", ".")) for part in rel.parts[:-1]):
+        # pandas/pyarrow would read the page and its CSVs as part of the results dataset
+        raise ValueError(f"out_html = {str(out_html)!r}: inside the results folder only under a folder starting "
+                         f"with '_' (e.g. {str(Path(results_dir) / DEFAULT_NAME)!r}), else the store stops reading")
+    if out_html.is_dir():
+        raise ValueError(f"out_html = {str(out_html)!r}: is a folder; give a file name like report.html")
+    parent = next((p for p in [out_html.parent, *out_html.parent.parents] if p.exists()), Path("."))
+    if not parent.is_dir():
+        raise ValueError(f"out_html = {str(out_html)!r}: {str(parent)!r} is not a folder")
+    if not os.access(parent, os.W_OK):
+        raise ValueError(f"out_html = {str(out_html)!r}: the folder {str(parent)!r} is not writable")
+
+
+def _relative(path: Path, root: Path):
+    try:
+        return path.resolve().relative_to(root.resolve())
+    except ValueError:
+        return None
+
+
+def _data_folder(out_html: Path) -> Path:
+    """``<stem>_data`` beside the page; an existing folder is replaced only if a report wrote it."""
+    folder = out_html.with_name(f"{out_html.stem}_data")
+    if folder.exists() and not (folder / _MARKER).is_file():
+        raise ValueError(f"out_html = {str(out_html)!r}: its data folder {str(folder)!r} exists and was not written "
+                         "by a report; move it or choose another file name")
+    return folder
+
+
+def _write(out_html: Path, page: str, tables: list) -> None:
+    """The data folder then the page, each through a temporary name (no half-written report)."""
+    folder = _data_folder(out_html)
+    out_html.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=out_html.parent))
+    try:
+        for t in tables:
+            t["data"].to_csv(tmp / t["csv"], index=False)
+        (tmp / _MARKER).write_text(f"written by tissuebench report for {out_html.name}\n")
+        os.chmod(tmp, 0o755)
+        if folder.exists():
+            shutil.rmtree(folder)
+        tmp.rename(folder)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    fd, tmp_html = tempfile.mkstemp(prefix=f".{out_html.name}.", dir=out_html.parent)
+    with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        fh.write(page)
+    os.chmod(tmp_html, 0o644)
+    os.replace(tmp_html, out_html)
+
+
+def write_report(results_dir, out_html, require: str | None = None, case: str | None = None) -> Path:
+    """Write the HTML report of a results folder (module docstring); returns the HTML path.
+
+    Parameters
+    ----------
+    results_dir : path
+        A folder written by ``tissuebench sweep``.
+    out_html : path
+        The HTML file; its data go to ``<stem>_data/`` beside it (both replaced). Inside the
+        results folder only under a ``_`` folder, e.g. ``RESULTS/_report/report.html``
+        (:data:`DEFAULT_NAME`): anything else there would be read as part of the dataset.
+    require : str, optional
+        ``"rate>=500Hz, error<=2%"`` (see :mod:`.recommend`); default 1 kHz and 1 %.
+    case : str, optional
+        Only this case id (or the case ids of this catalogue case name).
+    """
+    requirement = parse_requirement(require)
+    out_html = Path(out_html)
+    _check_out(out_html, results_dir)
+    _data_folder(out_html)
+    data = load_results(results_dir, case)
+    figures, tables = {}, []
+    sections = [_case_section(data, c, i, requirement, figures, tables) for i, c in enumerate(data.cases)]
+    papers = _paper_sections(data, tables)
+    anchors = anchors_table("anchors", data.anchors) if data.anchors is not None else None
+    if anchors is not None:
+        tables.append(anchors)
+    tables.append(Table("units", [], [], data.units))
+    context = {"title": f"tissuebench report: {data.manifest.get('spec_name', data.root.name)}",
+               "data_folder": f"{out_html.stem}_data", "requirement": requirement, "require_text": requirement.text,
+               "error_metric": data.error_metric, "latency_statistic": LATENCY_STATISTIC, "sections": sections,
+               "papers": papers, "anchors": anchors, "calibration": calibration(data.units),
+               "provenance": provenance_rows(data.manifest, data.units),
+               "spec_text": data.manifest.get("spec_text", ""),
+               "description": _description(data.manifest), "notes": data.notes, "results_dir": str(data.root),
+               "generated": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+               "generator": f"tissuebench {package_versions().get('tissuebench')} ({git_commit()[:12]})",
+               "figures": _jsonable(figures), "plotly_js": _plotly_js()}
+    page = _environment().get_template("report.html.j2").render(**context)
+    _write(out_html, page, tables)
+    return out_html
+
+
+def _description(manifest: dict) -> str:
+    import tomllib
+
+    try:
+        return str(tomllib.loads(manifest.get("spec_text", "")).get("sweep", {}).get("description", ""))
+    except (tomllib.TOMLDecodeError, TypeError, AttributeError):
+        return ""

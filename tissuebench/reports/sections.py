@@ -1,0 +1,143 @@
+"""The report's sections as plain data for the template: tables (header, rows of cells, the CSV
+they are written to), texts and figures. Cells are plain strings (escaped by the template)
+or ``{"text", "cls"}`` for a styled cell (pass / fail)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+
+from ..cases import load
+from .extremes import ENERGY_DRIFT_TOL
+from .format import hz, nbytes, number, percent, seconds
+from .recommend import rank_units
+
+__all__ = ["Table", "scene_of", "scene_info", "recommendation", "ranking_table", "extremes_table_view",
+           "offline_table", "radius_table", "paper_table", "anchors_table", "provenance_rows", "calibration"]
+
+
+def Table(name: str, columns: list, rows: list, data: pd.DataFrame) -> dict:
+    """A table for the template; ``data`` (the unformatted values) is written to ``<name>.csv``."""
+    return {"name": name, "columns": columns, "rows": rows, "data": data, "csv": f"{name}.csv"}
+
+
+def scene_of(units: pd.DataFrame):
+    """``(scene, error text)`` of the first unit's catalogue case, variant and resolution."""
+    u = units.iloc[0]
+    try:
+        return load(u["case_name"], resolution=u["resolution"] or "ci", variant=u["variant"] or None), ""
+    except Exception as exc:  # a moved scene file must not stop the report: said in the section
+        return None, f"scene {u['case_name']!r} could not be loaded: {exc}"
+
+
+def scene_info(scene) -> dict:
+    """The scene's own extremes for the extremes table: Poisson ratio (or bulk modulus)."""
+    if scene is None or not scene.material:
+        return {}
+    m = scene.material
+    return {"material": m.get("name", ""), "nu": m.get("nu", np.nan), "kappa": m.get("kappa", np.nan)}
+
+
+def recommendation(units: pd.DataFrame, requirement, error_metric: str) -> dict:
+    """The ranked units and the sentence(s) of the recommendation for one case."""
+    ranked = rank_units(units, requirement, error_metric)
+    meets = ranked[ranked["meets"]]
+    items = [f"{r.label}: p99 {seconds(r.p99_s)} ({hz(r.rate_hz)}), median {seconds(r.haptic_median_s)}, "
+             f"error {percent(r.error)}, margin {r.margin:.3g}x" for r in meets.itertuples()]
+    measurable = ranked[ranked["measurable"]]
+    if len(meets):
+        verdict = f"{len(meets)} of {len(ranked)} units meet it, ranked by margin (the smallest headroom of the " \
+                  f"clauses):"
+    elif len(measurable):
+        c = measurable.iloc[0]
+        verdict = f"None meets it. Closest: {c['label']} (margin {c['margin']:.3g}x): {c['misses']}."
+    else:
+        verdict = "None meets it: no finished unit has a finite error and latency."
+    return {"verdict": verdict, "lines": items, "meets": len(meets), "ranked": ranked}
+
+
+def ranking_table(name: str, ranked: pd.DataFrame) -> dict:
+    rows = [[r.label, {"text": "meets" if r.meets else "no", "cls": "pass" if r.meets else "fail"},
+             number(r.margin, 3), seconds(r.p99_s), hz(r.rate_hz), seconds(r.haptic_median_s), percent(r.error),
+             r.misses] for r in ranked.itertuples()]
+    cols = ["unit", "meets", "margin", "haptic p99", "rate on p99", "haptic median", "error", "misses by"]
+    keep = ["case", "label", "options", "unit_key", "meets", "margin", "p99_s", "rate_hz", "haptic_median_s", "error",
+            "misses"] + [c for c in ranked.columns if c.startswith("headroom_")]
+    return Table(name, cols, rows, ranked[keep])
+
+
+def extremes_table_view(name: str, ext: pd.DataFrame) -> dict:
+    rows = []
+    for r in ext.itertuples():
+        rows.append([r.label, {"text": r.verdict, "cls": r.verdict}, r.unit_status,
+                     " / ".join(_count(v) for v in (r.n_ok, r.n_extrapolation, r.n_beyond_validity, r.n_failed,
+                                                    r.n_not_reached)),
+                     f"{r.n_without_reference}: {r.statuses_without_reference}" if r.n_without_reference else "0",
+                     f"{number(r.x_max_reference)} / {number(r.x_max_evaluated)}", str(r.failed_with_reference),
+                     number(r.energy_drift, 3), number(getattr(r, "nu", np.nan)), r.reasons])
+    cols = ["unit", "verdict", "unit status", "steps ok / extrapolation / beyond validity / failed / not reached",
+            "points without reference: statuses", "largest x with reference / evaluated",
+            "failed steps where a reference exists", f"energy drift (pass within +-{ENERGY_DRIFT_TOL:g})",
+            "scene nu", "why it fails"]
+    return Table(name, cols, rows, ext)
+
+
+def _count(v) -> str:
+    return "-" if v is None or v < 0 else str(int(v))  # -1: the schema's missing value (a failed unit)
+
+
+def offline_table(name: str, units: pd.DataFrame) -> dict:
+    rows = [[r.label, seconds(r.offline_s), nbytes(r.build_peak_bytes), nbytes(r.model_bytes), _count(r.n_reduced),
+             _count(r.n_training_snapshots), seconds(r.reconstruct_median_s), seconds(r.reconstruct_p99_s),
+             number(r.haptic_per_calibration, 3)] for r in units.itertuples()]
+    cols = ["unit", "offline (build)", "build peak memory", "online model size", "reduced size", "training snapshots",
+            "reconstruct median", "reconstruct p99", "haptic median / calibration kernel"]
+    keep = ["case", "label", "unit_key", "offline_s", "build_peak_bytes", "model_bytes", "n_reduced",
+            "n_training_snapshots", "reconstruct_median_s", "reconstruct_p99_s", "haptic_per_calibration"]
+    return Table(name, cols, rows, units[keep])
+
+
+def radius_table(name: str, units: pd.DataFrame) -> dict:
+    rows = [[r.label, number(r.validity_1pct) if r.unit_status == "ok" else "-",
+             number(r.validity_5pct) if r.unit_status == "ok" else "-", r.x_name] for r in units.itertuples()]
+    return Table(name, ["unit", "validity radius, error <= 1 %", "validity radius, error <= 5 %", "abscissa"],
+                 rows, units[["case", "label", "unit_key", "x_name", "validity_1pct", "validity_5pct"]])
+
+
+def paper_table(name: str, rows: pd.DataFrame) -> dict:
+    cells = [[r.section, r.key, r.paper, r.ours, r.how, r.note] for r in rows.itertuples()]
+    return Table(name, ["table", "figure", "paper", "ours", "our value is", "why they differ (catalogue note)"],
+                 cells, rows)
+
+
+def anchors_table(name: str, anchors: pd.DataFrame) -> dict:
+    rows = [[str(r.case), str(r.quantity), number(r.ours), number(r.anchor), f"[{number(r.low)}, {number(r.high)}]",
+             str(r.source), {"text": str(r.verdict), "cls": "pass" if str(r.verdict).lower() in ("pass", "ok")
+                             else "fail"}] for r in anchors.itertuples()]
+    return Table(name, ["case", "quantity", "ours", "anchor", "spread [low, high]", "source", "verdict"], rows, anchors)
+
+
+def provenance_rows(manifest: dict, units: pd.DataFrame) -> list:
+    """``(key, value)`` pairs: the sweep's manifest (spec text apart) and what the unit rows record."""
+    out = []
+    for k, v in manifest.items():
+        if k in ("units", "spec_text"):
+            continue
+        out.append((k, json.dumps(v, sort_keys=True) if isinstance(v, (dict, list)) else str(v)))
+    for col in ("git_commit", "code_hash", "tissuebench", "numpy", "scipy", "python", "machine", "blas",
+                "blas_threads"):
+        if col in units:
+            out.append((f"units: {col}", ", ".join(sorted({str(v) for v in units[col]}))))
+    if "date" in units and len(units):
+        out.append(("units: dates", f"{units['date'].min()} .. {units['date'].max()}"))
+    return out
+
+
+def calibration(units: pd.DataFrame) -> dict:
+    c = units["calibration_s"].astype(float)
+    c = c[np.isfinite(c) & (c > 0)]
+    if c.empty:
+        return {"median": "-", "range": "-", "n": 0}
+    return {"median": seconds(float(c.median())), "range": f"{seconds(float(c.min()))} .. {seconds(float(c.max()))}",
+            "n": int(len(c))}
