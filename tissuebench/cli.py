@@ -9,6 +9,8 @@
                                             any methods over any scenes, one results store
 ``tissuebench study anm_pod``               alias of ``sweep --preset anm_pod``
 ``tissuebench cache ls|clear``              the reference-run cache
+``tissuebench report RESULTS [--out report.html] [--require "rate>=500Hz, error<=2%"] [--case C]``
+                                            self-contained HTML: which method for which scene
 ``tissuebench check RESULTS --baseline FILE [--update-baseline] [--junit OUT.xml]``
                                             regression gate on error and latency ratios
 
@@ -47,6 +49,12 @@ def _parser():
     _sweep_options(study)
     cache = sub.add_parser("cache", help="the reference-run cache")
     cache.add_argument("action", choices=["ls", "clear"])
+    rep = sub.add_parser("report", help="self-contained HTML report of a results folder: which method for a scene")
+    rep.add_argument("results", type=Path, help="a sweep's results folder")
+    rep.add_argument("--out", type=Path, default=None, help="HTML file (default: RESULTS/_report/report.html)")
+    rep.add_argument("--require", default=None,
+                     help='e.g. "rate>=500Hz, error<=2%%" (default: 1 kHz on the p99 haptic step, error <= 1 %%)')
+    rep.add_argument("--case", default=None, help="only this case id (or catalogue case name)")
     chk = sub.add_parser("check", help="fail on a regression in error or latency against a baseline")
     chk.add_argument("results", type=Path, help="a sweep's results folder")
     chk.add_argument("--baseline", type=Path, required=True, help="baseline TOML (e.g. baselines/ci.toml)")
@@ -141,6 +149,14 @@ def _print_pareto(out) -> None:
         print(front[cols].to_string(index=False))
 
 
+def _report(args) -> int:
+    from .reports.html import DEFAULT_NAME, write_report
+
+    path = write_report(args.results, args.out or args.results / DEFAULT_NAME, args.require, args.case)
+    print(f"report: {path}")
+    return 0
+
+
 def _check(args) -> int:
     from .reports.check import check, update_baseline, write_junit
 
@@ -198,6 +214,8 @@ def main(argv=None) -> int:
             return _cache(args)
         if args.command == "check":
             return _check(args)
+        if args.command == "report":
+            return _report(args)
         return _run(args)
     except (ValueError, TypeError, FileExistsError, FileNotFoundError, SweepLocked) as exc:
         return _error(exc)
