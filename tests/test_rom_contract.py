@@ -117,3 +117,14 @@ def test_method_contract(name, trainings):
         model.reconstruct(StepResult(None, "failed", "a failed step"))
     with pytest.raises((ValueError, TypeError)):
         model.step({"nonsense": 1.0})
+
+
+def test_pod_interp_takes_a_duplicated_snapshot_set_and_refuses_an_ambiguous_one(trainings):
+    path = trainings["path"]
+    twice = Training(np.hstack([path.snapshots] * 2), path.parameters * 2, path.backend)
+    model = make_method("pod_interp", n_modes=path.snapshots.shape[1], interpolation="rbf").build(twice)
+    res = model.step({"load_factor": path.parameters[2]["load_factor"]})
+    np.testing.assert_allclose(model.reconstruct(res), path.snapshots[:, 2], rtol=0, atol=1e-9)
+    clash = Training(np.hstack([path.snapshots, 1.5 * path.snapshots]), path.parameters * 2, path.backend)
+    with pytest.raises(ValueError, match="appear 2 times with different snapshots"):
+        make_method("pod_interp").build(clash)

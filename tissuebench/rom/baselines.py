@@ -133,9 +133,25 @@ class PodInterp(RomMethod):
         keys, P, lo, span = _parameter_table(training, self.name)
         pod = pod_basis(training.snapshots, self.energy, self.n_modes)
         coeffs = pod.modes.T @ training.snapshots  # (m, n_snap)
-        model = _PodInterpModel(self.name, keys, P, lo, span, pod, coeffs.T, self)
+        P, coeffs = _unique_points(P, coeffs.T, keys)
+        model = _PodInterpModel(self.name, keys, P, lo, span, pod, coeffs, self)
         model.info = {"n_modes": pod.n_modes, "pod_message": pod.message, "energy_captured": pod.energy_captured}
         return model
+
+
+def _unique_points(P, A, keys):
+    """Training parameters without repeats (an interpolant needs distinct points); a repeated
+    parameter with different snapshots is ambiguous: ValueError naming it."""
+    U, first, inverse = np.unique(P, axis=0, return_index=True, return_inverse=True)
+    if len(U) == len(P):
+        return P, A
+    scale = max(float(np.abs(A).max()), 1e-300)
+    for j in range(len(U)):
+        rows = A[inverse.ravel() == j]
+        if np.abs(rows - rows[0]).max() > 1e-10 * scale:
+            raise ValueError(f"pod_interp: parameters {dict(zip(keys, U[j].tolist()))} appear {len(rows)} times "
+                             "with different snapshots")
+    return P[first], A[first]
 
 
 class _PodInterpModel(LinearReconstruction, _ParametricModel):

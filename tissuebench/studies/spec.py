@@ -57,7 +57,7 @@ _TOP = {"sweep", "protocol", "case", "method"}
 _SWEEP = {"name", "description", "resolution", "error_metric"}
 _CASE = {"name", "id", "variant", "backend", "resolution", "training", "evaluation", "mu"}
 _METHOD = {"name", "cases", "options", "grid", "list", "paper", "protocol"}
-_TRAINING_KEYS = {"path": {"every"}, "positions": {"positions", "max_load_factor", "load_steps"},
+_TRAINING_KEYS = {"path": {"every", "repeat"}, "positions": {"positions", "max_load_factor", "load_steps"},
                   "trajectory": {"runs"}, "operators": set()}
 _EVALUATION_KEYS = {"path": {"every", "beyond"}, "positions": {"held_out"}, "trajectory": {"t_end", "load_scale"},
                     "map": {"mus"}}

@@ -5,7 +5,8 @@ A case entry of a sweep spec names what its methods learn from (``training``) wi
 
 ``path``        the scene's reference load path (statics): the initial state and every
                 converged state, the load factor as the parameter (``every = k`` keeps every
-                k-th state counted back from the last).
+                k-th state counted back from the last; ``repeat = k`` duplicates the set,
+                a rank-deficient training set for the extremes).
 ``positions``   one reference path per stored load position (``positions = n`` points of
                 the scene's ``[parameters.position]`` range, or a list), each shortened by
                 ``max_load_factor`` / ``load_steps``: ``Training.groups = {s: Training}``
@@ -71,6 +72,7 @@ def _path(scene, case, spec, info):
     lams = np.asarray(ref.steps, float)
     every = int(spec.get("every", 1))
     keep = np.arange(len(lams))[::-1][::every][::-1]  # always keep the last state
+    keep = np.tile(keep, int(spec.get("repeat", 1)))  # a duplicated snapshot set (extremes)
     be = make_backend(case["backend"], ref.problem)
     return Training(U[:, keep], [{"load_factor": float(lams[k])} for k in keep], be,
                     outputs=_outputs(scene, ref.problem), info={**info, "reference_status": ref.status})
