@@ -37,7 +37,7 @@ UNIT_COLUMNS = {
     "reference_step_s": _F, "speedup": _F, "calibration_s": _F, "haptic_per_calibration": _F,
     "blas": _S, "blas_threads": _I,
     # offline
-    "offline_s": _F, "build_peak_bytes": _I, "model_bytes": _I, "model_info": _S,
+    "offline_s": _F, "build_peak_bytes": _I, "model_bytes": _I, "model_info": _S, "unit_wall_s": _F,
     # provenance
     "git_commit": _S, "code_hash": _S, "tissuebench": _S, "numpy": _S, "scipy": _S, "machine": _S, "python": _S,
     "date": _S,

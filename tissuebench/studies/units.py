@@ -114,15 +114,16 @@ def run_unit(unit: WorkUnit) -> UnitOutcome:
     """Build, drive, time and measure one unit (see :mod:`.protocol`); failures become a row."""
     row = {**_base_row(unit), **_provenance_row()}
     threads = unit.protocol.get("blas_threads") or None
+    t0 = time.perf_counter()
     try:
         with threadpool_limits(limits=threads, user_api="blas"):
             row.update(_measure(unit, row))
-            row.update(unit_status="ok", message="")
+            row.update(unit_status="ok", message="", unit_wall_s=time.perf_counter() - t0)
             return UnitOutcome(row, row.pop("_points"), row.pop("_outputs"))
     except Exception as exc:  # a method that raises is a stored result, not the end of the sweep
         tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
         row.pop("_points", None), row.pop("_outputs", None)
-        row.update(unit_status="failed", message=f"{tb} (in {_where(exc)})")
+        row.update(unit_status="failed", message=f"{tb} (in {_where(exc)})", unit_wall_s=time.perf_counter() - t0)
         return UnitOutcome(row)
 
 
