@@ -285,3 +285,12 @@ def test_nested_units_are_sliced_from_one_build_and_equal_fresh_builds(serial, t
     assert "sliced_from" not in json.loads(fresh.loc[label, "model_info"])
     for col in ("max_rel_l2", "rmse_rel", "validity_1pct", "n_reduced", "n_beyond_validity"):
         assert fresh.loc[label, col] == pytest.approx(sliced.loc[label, col], rel=1e-9, abs=1e-15), col
+
+
+def test_cases_option_keeps_only_the_named_cases():
+    spec = load_spec("anm_pod", resolution="paper", only=["liver_palpation", "liver_palpation-heldout"])
+    units = expand_units(spec)
+    assert {u.case["id"] for u in units} == {"liver_palpation", "liver_palpation-heldout"}
+    assert len(units) == 150 + 2 + 2 + 1 + 2  # anm_pod paper grid; heldout: anm_pod x2, pod_linear x2, nearest, pod_interp x2
+    with pytest.raises(ValueError, match="--cases = 'nope': not a case id"):
+        load_spec("anm_pod", only=["nope"])

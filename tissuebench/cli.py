@@ -75,6 +75,7 @@ def _sweep_options(p):
     p.add_argument("--workers", type=int, default=None, help="worker processes (processes, dask LocalCluster)")
     p.add_argument("--scheduler", default=None, help="address of a running dask scheduler (tcp://host:port)")
     p.add_argument("--resume", action="store_true", help="continue the sweep stored in --out")
+    p.add_argument("--cases", default=None, help="only these case ids of the spec (comma-separated)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no per-unit lines")
 
 
@@ -119,7 +120,8 @@ def _sweep(args, preset=None) -> int:
     source = preset or args.preset or args.spec
     if source is None or (args.spec and args.preset):
         raise ValueError("sweep: give exactly one of SPEC.toml, --preset NAME or --list")
-    spec = load_spec(source, resolution=args.resolution)
+    only = [c.strip() for c in args.cases.split(",") if c.strip()] if args.cases else None
+    spec = load_spec(source, resolution=args.resolution, only=only)
     out = args.out or Path("out") / f"sweep-{spec.name}-{spec.resolution}"
     log = (lambda *_: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     try:

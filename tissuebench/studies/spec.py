@@ -227,8 +227,9 @@ def _check_protocol(path, protocol):
             _fail(f"{path}.{k}", v, "expected a non-negative integer (latency_steps, reference_samples >= 1)")
 
 
-def load_spec(spec_or_preset, resolution: str | None = None) -> SweepSpec:
-    """Read and validate a sweep spec (a path or a preset name); ``resolution`` overrides the cases'."""
+def load_spec(spec_or_preset, resolution: str | None = None, only: list | None = None) -> SweepSpec:
+    """Read and validate a sweep spec (a path or a preset name); ``resolution`` overrides the
+    cases'; ``only`` (case ids) keeps those cases and the methods' units on them."""
     path = _resolve(spec_or_preset)
     text = path.read_text()
     try:
@@ -261,6 +262,13 @@ def load_spec(spec_or_preset, resolution: str | None = None) -> SweepSpec:
     if not isinstance(raw_methods, list) or not raw_methods:
         raise ValueError(f"method: a sweep needs at least one [[method]] ({path})")
     methods = [_check_method(i, m, cases, res) for i, m in enumerate(raw_methods)]
+    if only is not None:
+        unknown = sorted(set(only) - set(ids))
+        if unknown:
+            _fail("--cases", unknown[0], f"not a case id of {path.name}; valid: {ids}")
+        cases = [c for c in cases if c["id"] in only]
+        methods = [{**m, "cases": [c for c in m["cases"] if c in only]} for m in methods]
+        methods = [m for m in methods if m["cases"]]
     for i, m in enumerate(methods):
         m["protocol"] = {**protocol, **m["protocol"]}
         _check_protocol(f"method[{i}].protocol", m["protocol"])
