@@ -103,13 +103,15 @@ def family_from_training(training: Training, who: str = "pgd", s_nodes=None) -> 
     info = training.info or {}
     mesh = pb.mesh
     nodes, w = info.get("accessible_nodes"), info.get("weights")
+    minfo = dataclasses.replace(scene, cut=None).mesh_info
     if nodes is None:
-        minfo = dataclasses.replace(scene, cut=None).mesh_info
         nodes = anterior_nodes(mesh, minfo, pb.free_dofs)
-        if w is None:  # lumped areas over the whole anterior layer (the clamped rim included)
-            layer = minfo["layers"] * minfo["nodes_per_layer"] + np.arange(minfo["nodes_per_layer"])
-            w = nodal_areas(mesh, layer)[np.searchsorted(layer, nodes)]
     nodes = np.asarray(nodes, dtype=np.int64)
+    if w is None and "nodes_per_layer" in minfo:
+        # lumped areas over the whole anterior layer (clamped rim included), then the accessible ones
+        layer = minfo["layers"] * minfo["nodes_per_layer"] + np.arange(minfo["nodes_per_layer"])
+        if np.isin(nodes, layer).all():
+            w = nodal_areas(mesh, layer)[np.searchsorted(layer, nodes)]
     w = nodal_areas(mesh, nodes) if w is None else np.asarray(w, float)
     K = be.tangent(np.zeros(be.ndof))
     return surface_family(K, pb.nodes, pb.free_dofs, nodes, w, contact_force(pb))
