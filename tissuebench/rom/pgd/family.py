@@ -63,6 +63,13 @@ class PointLoadFamily:
         self.free_index = np.full(self.ndof, -1, dtype=np.int64)
         self.free_index[self.free_dofs] = np.arange(len(self.free_dofs))
 
+    def parameter_of_node(self, node: int) -> int:
+        """Index of mesh ``node`` among the parameter nodes (surface), -1 if it is not one."""
+        table = self.__dict__.get("_node_table")
+        if table is None:
+            table = self.__dict__["_node_table"] = {int(n): j for j, n in enumerate(self.nodes)}
+        return table.get(int(node), -1)
+
     @property
     def n_parameters(self) -> int:
         return len(self.weights)

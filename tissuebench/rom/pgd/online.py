@@ -73,13 +73,12 @@ def locate(vademecum, mu, who: str, need_S: bool):
         node = _integer(mu["node"], who, "node")
         if not 0 <= node < fam.ndof // 3:
             return None, "failed", f"{who}: node {node} is not a node of the mesh (0..{fam.ndof // 3 - 1})", lam
-        hit = np.flatnonzero(fam.nodes == node)
-        if not len(hit):
+        j = fam.parameter_of_node(node)
+        if j < 0:
             msg = f"{who}: node {node} is not on the accessible surface (the vademecum's domain)"
             if need_S:
                 return None, "failed", msg + " (S undefined there)", lam
             rows, vals = fam.load_at(node)
             return Contact(-1, node, rows, vals, None, "extrapolation", msg), "extrapolation", msg, lam
-        j = int(hit[0])
     rows, vals = fam.load_at(node)
     return Contact(j, node, rows, vals, vademecum.S[j]), "ok", "", lam

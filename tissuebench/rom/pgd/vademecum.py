@@ -70,8 +70,8 @@ class Vademecum:
             k = int(np.clip(np.searchsorted(s, p) - 1, 0, len(s) - 2))
             t = (p - s[k]) / (s[k + 1] - s[k])
             return np.array([k, k + 1]), np.array([1.0 - t, t])
-        hit = np.flatnonzero(fam.nodes == int(position))
-        return (hit, np.ones(1)) if len(hit) else None
+        j = fam.parameter_of_node(int(position))
+        return (np.array([j]), np.ones(1)) if j >= 0 else None
 
     def S_at(self, position) -> np.ndarray | None:
         """``S_i(position)`` (N,), None outside the parameter domain."""
