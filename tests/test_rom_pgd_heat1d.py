@@ -125,3 +125,12 @@ def test_positions_outside_the_domain(scene):
 def test_bad_options(opts, match):
     with pytest.raises(ValueError, match=match):
         make_method("pgd", **opts)
+
+
+def test_fixed_point_not_converging_is_reported_in_the_build_info(training):
+    model = make_method("pgd", n_modes=3, max_fixed_point=2, fixed_point_tol=1e-14).build(training)
+    info = model.build_info
+    assert info["fixed_point_iterations"] == [2, 2, 2] and info["fixed_point_converged"] == [False] * 3
+    assert "not converged in 3 mode(s)" in info["message"] and info["stop_reason"] == "max_modes"
+    assert "stiffness K" in info["operators"]  # the vademecum uses operators, no snapshots
+    assert model.step({"position": 0.5}).status == "ok"  # the modes are usable, the record says how good
