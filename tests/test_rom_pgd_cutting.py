@@ -34,7 +34,7 @@ def models(training):
     srb = make_method("pgd_cutting", n_modes=10, projection="srb", radii=RADII).build(training)
     # the same vademecum and enrichment, the other projection (what build(projection="prb") makes)
     return {"srb": srb, "prb": CuttingModel("pgd_cutting", srb.vademecum, "prb", srb.enrichment, srb.F_cut,
-                                            srb._points)}
+                                            srb.points)}
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +64,7 @@ def test_enrichment_spans_the_cut_mesh_fe_space_exactly(models, references):
     m = models["srb"]
     fam = m.vademecum.family
     full = Vademecum(fam, np.eye(fam.n_free), np.ones((fam.n_parameters, fam.n_free)), m.vademecum.record)
-    exact = CuttingModel("exact", full, "srb", m.enrichment, 3.0, m._points)
+    exact = CuttingModel("exact", full, "srb", m.enrichment, 3.0, m.points)
     for c, (u_ref, M) in enumerate(references):
         u = exact.reconstruct(_step(exact, c))
         assert u.shape == u_ref.shape
@@ -84,7 +84,7 @@ def test_srb_and_prb_against_the_full_fe_of_the_same_cut(models, references):
     # fewer modes, larger error (intact cornea)
     few = make_method("pgd_cutting", n_modes=3, projection="srb", radii=RADII)
     m3 = CuttingModel("m3", models["srb"].vademecum.truncated(3), "srb", models["srb"].enrichment, 3.0,
-                      models["srb"]._points)
+                      models["srb"].points)
     assert l2_error(m3.reconstruct(_step(m3, 0)), *references[0]) > 10 * errs["srb"][0]
     assert few.n_modes == 3
 
@@ -102,7 +102,7 @@ def test_online_enrichment_in_any_order_matches_a_fresh_model(models):
 def test_contact_force_and_cutting_criterion(models):
     m = models["srb"]
     r = _step(m, 1)
-    n = m.strip.normal(m._points, m.strip.tip(1))
+    n = m.strip.normal(m.points, m.strip.tip(1))
     # the scene's 0.1 N along -z on the dome: its parallel part is |P x n| (0.051 N at r = 4.09 mm)
     assert r.info["F_parallel"] == pytest.approx(np.linalg.norm(np.cross(m.force, n)), rel=1e-12)
     assert r.info["F_normal"] < 0 and r.info["cuts"] is False

@@ -87,7 +87,10 @@ def test_pgd_against_the_closed_form_green_function(training):
     L = np.linalg.cholesky(fam.K.toarray())
     sw = np.sqrt(fam.weights)
     sig = np.linalg.svd(L.T @ G * sw, compute_uv=False)
-    energy = lambda E: np.linalg.norm(L.T @ E * sw)  # noqa: E731
+
+    def energy(E):
+        return np.linalg.norm(L.T @ E * sw)
+
     vad = build_vademecum(fam, n_modes=8, tol=0.0, max_fixed_point=2000, fixed_point_tol=1e-11)
     errs = [energy(vad.truncated(n).X @ vad.truncated(n).S.T - G) for n in range(1, 9)]
     assert all(b < a for a, b in zip(errs, errs[1:]))

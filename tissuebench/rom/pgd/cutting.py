@@ -70,7 +70,7 @@ class CuttingModel(OnlineModel):
         keep = lam > 1e-12 * lam.max()  # (pseudo-)inverse: prb's K_bb may be singular for dependent modes
         self._inv = {0: (V[:, keep] / lam[keep]) @ V[:, keep].T}  # inverse of the coupled matrix per cut length
         self._normals = {}
-        self._points = points
+        self.points = points
         self._c = 0
 
     # ------------------------------------------------------------------ sizes
@@ -148,7 +148,7 @@ class CuttingModel(OnlineModel):
         u_c = self.basis[rows] @ x[:self.r]  # the contact node is a crack-front node: not enriched
         n = self._normals.get(node)
         if n is None:
-            n = self._normals[node] = self.strip.normal(self._points, node)
+            n = self._normals[node] = self.strip.normal(self.points, node)
         F_n = float(F @ n)
         F_par = float(np.linalg.norm(F - F_n * n))
         info = {"cut_length": c, "contact_node": node, "contact_displacement": u_c, "F_normal": F_n,
