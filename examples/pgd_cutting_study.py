@@ -268,7 +268,7 @@ def main(argv=None):
     latency.to_parquet(args.out / "latency.parquet")
     pd.DataFrame([{k: v for k, v in r.items() if k not in ("u", "mass")} for r in refs]).to_parquet(
         args.out / "reference.parquet")
-    plot_errors(errors, args.out / "fig7_error_vs_cut_length.png")
+    plot_errors(errors, args.out / "fig7_error_vs_cut_length.png", sorted({6, 10, args.modes}))
     plot_latency(latency, args.out / "fig8_step_time.png", min(6, args.modes))
     table, full = _table(errors, latency, refs)
     summary = {"resolution": args.resolution, "build_s": models["build_s"], "condense_s": models["condense_s"],
