@@ -10,7 +10,9 @@
 ``tissuebench study anm_pod``               alias of ``sweep --preset anm_pod``
 ``tissuebench cache ls|clear``              the reference-run cache
 
-Exit codes: 0 success, 1 the run finished with a numerical failure (stored), 2 bad input.
+Exit codes: 0 success, 1 the run finished with a numerical failure (stored) or its results
+could not be written (a full disk: nothing stored), 2 bad input (including an output location
+that cannot be written, checked before any work), 130 interrupted (Ctrl-C).
 """
 from __future__ import annotations
 
@@ -70,14 +72,34 @@ def _error(exc) -> int:
 
 def _run(args) -> int:
     from .cases.scene import load
-    from .studies.run import run_case
+    from .studies.run import default_out
+    from .studies.store import check_output_location, clean_leftovers
 
     scene = load(args.case, resolution=args.resolution, variant=args.variant)
+    out = args.out or default_out(scene, args.backend, args.resolution)
+    clean_leftovers(out)  # what a killed run left beside it
+    check_output_location(out, args.force)  # before any work (meshing included)
+    try:
+        return _run_scene(scene, args, out)
+    except KeyboardInterrupt:
+        print(f"tissuebench: interrupted; nothing was written to {out} (a partial result is never kept). "
+              f"Run the command again to start over.", file=sys.stderr)
+        return 130
+    except OSError as exc:
+        if isinstance(exc, (FileExistsError, FileNotFoundError)):
+            raise
+        print(f"tissuebench: error: cannot write the results to {out}: {exc}; nothing was written",
+              file=sys.stderr)
+        return 1
+
+
+def _run_scene(scene, args, out) -> int:
+    from .studies.describe import paper_comparison
+    from .studies.run import run_case
+
     if scene.is_fe and scene.mesh_info.get("fallback"):
         print(f"tissuebench: note: {scene.mesh_info.get('reason', 'built-in fallback shape used')}",
               file=sys.stderr)
-    tag = scene.name + (f"-{scene.variant}" if scene.variant else "")
-    out = args.out or Path("out") / f"{tag}-{args.backend}-{args.resolution}"
     result = run_case(scene, args.backend, args.resolution, args.variant, out, args.force,
                       progress=not args.quiet, linear_solver=args.linear_solver)
     t = result.table
@@ -85,8 +107,6 @@ def _run(args) -> int:
     cols = [c for c in ("step", "load_factor", "time", "newton_iterations", "converged", "wall_s") if c in t]
     shown = t[cols + monitors]
     print((shown if len(shown) <= 25 else shown.iloc[:: max(1, len(shown) // 20)]).to_string(index=False))
-    from .studies.describe import paper_comparison
-
     for row in paper_comparison(scene, t).itertuples():
         print(f"{row.monitor}: ours {row.ours:.4g}, paper {row.paper:.4g} (ratio {row.ratio:.3f}); {row.note}")
     print(f"{result.status}: {result.message}; results in {out}")
