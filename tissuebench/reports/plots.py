@@ -60,7 +60,7 @@ def write_time_series(points, cells, cell_type, components, times, displacement,
     folder = Path(folder)
     (folder / name).mkdir(parents=True, exist_ok=True)
     entries = []
-    for k, (t, u) in enumerate(zip(np.asarray(times, float), displacement)):
+    for k, (t, u) in enumerate(zip(np.asarray(times, float).tolist(), displacement)):
         rel = f"{name}/step_{k:05d}.vtu"
         _meshio_mesh(points, cells, cell_type, _displacement_data(u, components)).write(folder / rel)
         entries.append(f'    <DataSet timestep="{t!r}" group="" part="0" file="{rel}"/>')

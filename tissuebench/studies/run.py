@@ -63,9 +63,10 @@ def default_out(scene, backend: str, resolution: str) -> Path:
 
 def safe_name(text: str) -> str:
     """``text`` with every run of other characters than letters, digits, ``_``, ``.``, ``-``
-    replaced by ``_`` and no leading dot (never empty, at most 80 characters)."""
-    safe = re.sub(r"[^A-Za-z0-9_.-]+", "_", str(text)).lstrip(".")[:80]
-    return safe if safe.strip("_") else "case"
+    replaced by ``_``, no leading or trailing ``._-`` (so no hidden or ``..`` name), never
+    empty (``case``), at most 80 characters."""
+    safe = re.sub(r"[^A-Za-z0-9_.-]+", "_", str(text)).strip("._-")[:80]
+    return safe or "case"
 
 
 def run_case(case, backend: str = "skfem", resolution: str = "ci", variant: str | None = None,
