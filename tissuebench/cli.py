@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 
@@ -71,19 +72,25 @@ def _error(exc) -> int:
 
 
 def _run(args) -> int:
-    from .cases.scene import load
-    from .studies.run import default_out
-    from .studies.store import check_output_location, clean_leftovers
-
-    scene = load(args.case, resolution=args.resolution, variant=args.variant)
-    out = args.out or default_out(scene, args.backend, args.resolution)
-    clean_leftovers(out)  # what a killed run left beside it
-    check_output_location(out, args.force)  # before any work (meshing included)
+    out, started = args.out, time.time()
     try:
+        from .cases.scene import load
+        from .studies.run import default_out
+        from .studies.store import check_output_location, clean_leftovers
+
+        scene = load(args.case, resolution=args.resolution, variant=args.variant)
+        out = args.out or default_out(scene, args.backend, args.resolution)
+        clean_leftovers(out)  # what a killed run left beside it
+        check_output_location(out, args.force)  # before any work (meshing included)
         return _run_scene(scene, args, out)
     except KeyboardInterrupt:
-        print(f"tissuebench: interrupted; nothing was written to {out} (a partial result is never kept). "
-              f"Run the command again to start over.", file=sys.stderr)
+        manifest = Path(out) / "manifest.json" if out is not None else None
+        if manifest is not None and manifest.is_file() and manifest.stat().st_mtime >= started - 1:
+            print(f"tissuebench: interrupted after the results were written to {out}", file=sys.stderr)
+        else:
+            where = f" to {out}" if out is not None else ""
+            print(f"tissuebench: interrupted; nothing was written{where} (a partial result is never kept). "
+                  f"Run the command again to start over.", file=sys.stderr)
         return 130
     except OSError as exc:
         if isinstance(exc, (FileExistsError, FileNotFoundError)):
