@@ -23,6 +23,8 @@ from functools import cached_property
 import numpy as np
 
 CELL_TYPES = {"tetra": 4, "hexahedron": 8}
+# |coordinate| above this: the cube of a cell size (its volume) may overflow a float
+MAX_COORDINATE = 1e100
 ELEMENTS = {"P1": "tetra", "P2": "tetra", "Q1": "hexahedron"}
 
 # Local faces with outward normals (right-hand rule) for positively oriented cells.
@@ -126,6 +128,10 @@ class Mesh:
         if not np.all(np.isfinite(pts)):
             bad = np.argwhere(~np.isfinite(pts))[0]
             raise ValueError(f"points[{bad[0]}, {bad[1]}] = {pts[tuple(bad)]} is not finite")
+        if pts.size and np.abs(pts).max() > MAX_COORDINATE:
+            bad = np.unravel_index(np.argmax(np.abs(pts)), pts.shape)
+            raise ValueError(f"points[{bad[0]}, {bad[1]}] = {pts[bad]:.3g}: coordinates beyond {MAX_COORDINATE:g} "
+                             f"(cell volumes would overflow; a unit mistake?)")
         cells = np.ascontiguousarray(self.cells, dtype=np.int64)
         nv = CELL_TYPES[self.cell_type]
         if cells.ndim != 2 or cells.shape[1] != nv or len(cells) == 0:
