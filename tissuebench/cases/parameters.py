@@ -25,7 +25,8 @@ from __future__ import annotations
 
 import copy
 
-from .schema import AXES, c_enum, c_int1, c_num, c_pos, c_str, c_vec3, check_table, fail
+from .schema import AXES, c_enum, c_int_range, c_num, c_pos, c_str, c_vec3, check_table, fail
+from .sections import MAX_LOAD_STEPS, MAX_TIME_STEPS
 
 __all__ = ["PARAMETER_KINDS", "ANALYSIS_OVERRIDES", "check_parameters_table", "apply_mu"]
 
@@ -33,7 +34,7 @@ _POSITION = {"load": lambda p, v: _c_index(p, v), "axis": c_enum(*AXES), "point"
              "frame": c_enum("absolute", "bbox"), "range": lambda p, v: _c_range(p, v), "description": c_str,
              "unit": c_str}
 PARAMETER_KINDS = {"position": _POSITION}
-ANALYSIS_OVERRIDES = {"max_load_factor": c_pos, "load_steps": c_int1, "t_end": c_pos}
+ANALYSIS_OVERRIDES = {"max_load_factor": c_pos, "load_steps": c_int_range(1, MAX_LOAD_STEPS), "t_end": c_pos}
 
 
 def _c_index(path, v):
@@ -79,6 +80,8 @@ def apply_mu(scene_fields: dict, parameters: dict, mu: dict, who: str) -> dict:
     for key, value in mu.items():
         if key in ANALYSIS_OVERRIDES:
             analysis[key] = ANALYSIS_OVERRIDES[key](f"mu.{key}", value)
+            if key == "t_end" and "dt" in analysis and not value / analysis["dt"] <= MAX_TIME_STEPS:
+                fail("mu.t_end", value, f"t_end / dt = {value / analysis['dt']:.3g} time steps; at most {MAX_TIME_STEPS}")
             if key != "t_end":
                 analysis["stop_at_divergence"] = False  # a shortened path runs to its end
         elif key == "load_scale":
