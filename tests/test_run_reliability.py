@@ -107,7 +107,8 @@ def test_uniformly_negative_mesh_is_reoriented_and_said_in_the_manifest(tmp_path
     (("E = 2.0", "E = 1e308"), "no load increment converged"),
 ])
 def test_run_to_divergence_that_converges_nothing_fails_with_exit_1(tmp_path, edit, message):
-    scene = scene_copy(tmp_path, "cornea_pinch", [edit, ("load_steps = 10", "load_steps = 10\nstop_at_divergence = true")])
+    scene = scene_copy(tmp_path, "cornea_pinch",
+                       [edit, ("load_steps = 10", "load_steps = 10\nstop_at_divergence = true")])
     out = tmp_path / "out"
     assert main(["run", str(scene), "--out", str(out), "--quiet"]) == 1
     m = json.loads((out / "manifest.json").read_text())

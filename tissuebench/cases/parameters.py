@@ -81,7 +81,8 @@ def apply_mu(scene_fields: dict, parameters: dict, mu: dict, who: str) -> dict:
         if key in ANALYSIS_OVERRIDES:
             analysis[key] = ANALYSIS_OVERRIDES[key](f"mu.{key}", value)
             if key == "t_end" and "dt" in analysis and not value / analysis["dt"] <= MAX_TIME_STEPS:
-                fail("mu.t_end", value, f"t_end / dt = {value / analysis['dt']:.3g} time steps; at most {MAX_TIME_STEPS}")
+                n = value / analysis["dt"]
+                fail("mu.t_end", value, f"t_end / dt = {n:.3g} time steps; at most {MAX_TIME_STEPS}")
             if key != "t_end":
                 analysis["stop_at_divergence"] = False  # a shortened path runs to its end
         elif key == "load_scale":
