@@ -19,3 +19,14 @@ def reference_cache(tmp_path_factory):
     os.environ["TISSUEBENCH_CACHE"] = str(path)
     yield path
     os.environ.pop("TISSUEBENCH_CACHE", None)
+
+
+# Property-based fuzzing (tests/test_fuzz_inputs.py): seeded (derandomized) profiles, no
+# example database. ``ci`` is the default; ``pytest --hypothesis-profile=fuzz`` runs 5x more.
+from hypothesis import HealthCheck, settings  # noqa: E402
+
+_FUZZ_COMMON = dict(derandomize=True, database=None, deadline=None, print_blob=True,
+                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
+settings.register_profile("ci", max_examples=200, **_FUZZ_COMMON)
+settings.register_profile("fuzz", max_examples=1000, **_FUZZ_COMMON)
+settings.load_profile("ci")

@@ -200,8 +200,9 @@ def test_unknown_and_missing_keys(tmp_path):
 def test_missing_mesh_path(tmp_path):
     p = _write(tmp_path)
     p.write_text(p.read_text().replace('builder = "box"', 'builder = "liver"')
+                 .replace("lengths = [1.0, 1.0, 1.0]", "scale = 1.0").replace("divisions = [2, 2, 2]", "")
                  .replace("divisions = [1, 1, 1]", f'path = "{tmp_path / "nope.vtu"}"'))
-    with pytest.raises(FileNotFoundError, match="nope.vtu"):
+    with pytest.raises(FileNotFoundError, match=r"mesh.ci.path = .*nope.vtu.*does not exist"):
         load(p)
 
 

@@ -115,7 +115,7 @@ def test_run_command_writes_results_atomically(tmp_path, capsys):
                 "nominal_stress_kPa", "volume_ratio"):
         assert col in table
     assert table["load_factor"].iloc[-1] == pytest.approx(1.0)
-    fields = np.load(out / "fields.npz")
+    fields = np.load(out / "fields.npz", allow_pickle=False)
     # the initial state and one state per converged increment
     assert fields["displacement"].shape[0] == table["converged"].sum() + 1
     assert fields["steps"][0] == 0.0 and fields["steps"][-1] == pytest.approx(1.0)

@@ -14,12 +14,15 @@
 ``tissuebench check RESULTS --baseline FILE [--update-baseline] [--junit OUT.xml]``
                                             regression gate on error and latency ratios
 
-Exit codes: 0 success, 1 the run finished with a numerical failure (stored), 2 bad input.
+Exit codes: 0 success, 1 the run finished with a numerical failure (stored) or its results
+could not be written (a full disk: nothing stored), 2 bad input (including an output location
+that cannot be written, checked before any work), 130 interrupted (Ctrl-C).
 """
 from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 
@@ -85,15 +88,41 @@ def _error(exc) -> int:
 
 
 def _run(args) -> int:
-    from .cases.scene import load
+    out, started = args.out, time.time()
+    try:
+        from .cases.scene import load
+        from .studies.run import default_out
+        from .studies.store import check_output_location, clean_leftovers
+
+        scene = load(args.case, resolution=args.resolution, variant=args.variant)
+        out = args.out or default_out(scene, args.backend, args.resolution)
+        clean_leftovers(out)  # what a killed run left beside it
+        check_output_location(out, args.force)  # before any work (meshing included)
+        return _run_scene(scene, args, out)
+    except KeyboardInterrupt:
+        manifest = Path(out) / "manifest.json" if out is not None else None
+        if manifest is not None and manifest.is_file() and manifest.stat().st_mtime >= started - 1:
+            print(f"tissuebench: interrupted after the results were written to {out}", file=sys.stderr)
+        else:
+            where = f" to {out}" if out is not None else ""
+            print(f"tissuebench: interrupted; nothing was written{where} (a partial result is never kept). "
+                  f"Run the command again to start over.", file=sys.stderr)
+        return 130
+    except OSError as exc:
+        if isinstance(exc, (FileExistsError, FileNotFoundError)):
+            raise
+        print(f"tissuebench: error: cannot write the results to {out}: {exc}; nothing was written",
+              file=sys.stderr)
+        return 1
+
+
+def _run_scene(scene, args, out) -> int:
+    from .studies.describe import paper_comparison
     from .studies.run import run_case
 
-    scene = load(args.case, resolution=args.resolution, variant=args.variant)
     if scene.is_fe and scene.mesh_info.get("fallback"):
         print(f"tissuebench: note: {scene.mesh_info.get('reason', 'built-in fallback shape used')}",
               file=sys.stderr)
-    tag = scene.name + (f"-{scene.variant}" if scene.variant else "")
-    out = args.out or Path("out") / f"{tag}-{args.backend}-{args.resolution}"
     result = run_case(scene, args.backend, args.resolution, args.variant, out, args.force,
                       progress=not args.quiet, linear_solver=args.linear_solver)
     t = result.table
@@ -101,8 +130,6 @@ def _run(args) -> int:
     cols = [c for c in ("step", "load_factor", "time", "newton_iterations", "converged", "wall_s") if c in t]
     shown = t[cols + monitors]
     print((shown if len(shown) <= 25 else shown.iloc[:: max(1, len(shown) // 20)]).to_string(index=False))
-    from .studies.describe import paper_comparison
-
     for row in paper_comparison(scene, t).itertuples():
         print(f"{row.monitor}: ours {row.ours:.4g}, paper {row.paper:.4g} (ratio {row.ratio:.3f}); {row.note}")
     print(f"{result.status}: {result.message}; results in {out}")

@@ -95,6 +95,12 @@ def build_mesh(builder: str, **params) -> BuiltMesh:
     if builder not in BUILDERS:
         raise ValueError(f"mesh.builder: unknown builder {builder!r}; valid: {sorted(BUILDERS)}")
     try:
-        return BUILDERS[builder](**params)
+        built = BUILDERS[builder](**params)
     except TypeError as exc:
         raise ValueError(f"mesh: builder {builder!r}: {exc}") from None
+    n = getattr(built.mesh, "n_reoriented", 0)
+    if n:  # said in the run's manifest (mesh info): the file's node order was changed
+        built.info.update(reoriented_cells=n, orientation_note=(
+            f"{n} of {built.mesh.n_cells} cells had negative orientation (node order) and were reoriented"
+            + (" (all of them: a node-order convention of the source)" if n == built.mesh.n_cells else "")))
+    return built

@@ -48,7 +48,10 @@ def scaled(mesh: Mesh, scale: float) -> Mesh:
     """``mesh`` with its coordinates multiplied by ``scale`` (the same object for 1)."""
     if scale == 1.0:
         return mesh
-    return Mesh(mesh.points * scale, mesh.cells, mesh.cell_type)
+    out = Mesh(mesh.points * scale, mesh.cells, mesh.cell_type)
+    # the cells were reoriented when ``mesh`` was built: keep the count for the mesh info
+    object.__setattr__(out, "n_reoriented", mesh.n_reoriented)
+    return out
 
 
 def ngmesh_to_mesh(ngmesh) -> Mesh:

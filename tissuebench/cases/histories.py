@@ -31,7 +31,7 @@ def check_history(path, h):
     """Validate a history table; returns the checked table."""
     c_table(path, h)
     kind = h.get("type")
-    if kind not in _HISTORY_SCHEMAS:
+    if not isinstance(kind, str) or kind not in _HISTORY_SCHEMAS:
         fail(f"{path}.type", kind, f"unknown history; valid: {sorted(_HISTORY_SCHEMAS)}")
     schema, req = _HISTORY_SCHEMAS[kind]
     out = check_table(path, h, dict(schema, type=c_str), required=req)

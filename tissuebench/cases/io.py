@@ -4,8 +4,10 @@
 XDMF, ...) into a :class:`~tissuebench.refsolvers.mesh.Mesh`. Only linear tetrahedra
 and trilinear hexahedra are volume cells here; other cell blocks (triangles, lines,
 vertices of boundary tags) are ignored. Cells with negative signed volume are
-reoriented by :class:`Mesh` (the shipped liver mesh has all of them negative);
-degenerate cells are refused, with the path in the message.
+reoriented by :class:`Mesh` (the shipped liver mesh has all of them negative; the count is
+``Mesh.n_reoriented`` and the builders report it as ``reoriented_cells``); degenerate,
+duplicate and overlapping cells and folded meshes (an inverted cell overlapping its
+neighbour) are refused, with the path and the cells in the message.
 
 Coordinates are returned as stored in the file, with no unit conversion: the shipped
 liver mesh ``liver/liver_tet.vtu`` is in millimetres.
@@ -16,12 +18,14 @@ licence in ``data/liver/README.md``).
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 from pathlib import Path
 
 import numpy as np
 
-from ..refsolvers.mesh import CELL_TYPES, Mesh
+from ..refsolvers.mesh import CELL_TYPES, HEX_FACES, TET_FACES, Mesh
 
 __all__ = ["read_mesh", "data_dir", "liver_mesh_path", "DATA_ENV", "PACKAGE_DATA_DIR"]
 
@@ -99,10 +103,14 @@ def read_mesh(path, cell_type: str | None = None, reorient: bool = True) -> Mesh
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"mesh file {path} does not exist")
-    try:
-        m = meshio.read(path)
+    said = io.StringIO()
+    try:  # meshio prints its complaints: they go into the message, not onto the terminal
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            m = meshio.read(path)
     except (Exception, SystemExit) as exc:  # ReadError, KeyError, ...; meshio 5 even calls sys.exit
-        raise ValueError(f"{path}: meshio cannot read it: {type(exc).__name__}: {exc}") from exc
+        detail = " ".join(said.getvalue().split())[:300]
+        raise ValueError(f"{path}: meshio cannot read it: {type(exc).__name__}: {exc}"
+                         + (f" ({detail})" if detail else "")) from exc
     blocks: dict[str, list[np.ndarray]] = {}
     for block in m.cells:
         if block.type in CELL_TYPES and len(block.data):
@@ -131,7 +139,29 @@ def read_mesh(path, cell_type: str | None = None, reorient: bool = True) -> Mesh
         renumber = np.full(len(points), -1, dtype=np.int64)
         renumber[used] = np.arange(len(used))
         points, cells = points[used], renumber[cells]
+    _check_cell_set(path, cells, cell_type)
     try:
         return Mesh(points, cells, cell_type, reorient=reorient)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from exc
+
+
+def _check_cell_set(path, cells, cell_type):
+    """Refuse a file whose cells repeat (the same vertices twice: stiffness and mass counted
+    twice) or overlap (a face shared by more than two cells)."""
+    _, first, inverse, counts = np.unique(np.sort(cells, axis=1), axis=0, return_index=True,
+                                          return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    if (counts > 1).any():
+        dup = np.flatnonzero(counts[inverse] > 1)
+        raise ValueError(f"{path}: duplicate cells: cells {dup[:12].tolist()} ({len(dup)} cells) repeat the "
+                         f"vertices of another cell (e.g. cells[{dup[0]}] = {cells[dup[0]].tolist()})")
+    local = TET_FACES if cell_type == "tetra" else HEX_FACES
+    faces = np.sort(cells[:, local].reshape(-1, local.shape[1]), axis=1)
+    _, inverse, counts = np.unique(faces, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    over = np.flatnonzero(counts[inverse] > 2)
+    if len(over):
+        shared = np.unique(over // len(local))
+        raise ValueError(f"{path}: overlapping cells: cells {shared[:12].tolist()} share a face with more than "
+                         f"one other cell (e.g. face {faces[over[0]].tolist()})")

@@ -26,7 +26,7 @@ import numpy as np
 
 from .probes import Probe, make_probe
 from .regions import check_region
-from .schema import AXES, c_bool, c_enum, c_frame, c_num, c_pos, c_str, c_vec3, check_table, require
+from .schema import AXES, c_bool, c_enum, c_frame, c_name, c_num, c_pos, c_str, c_vec3, check_table, require
 
 __all__ = ["MONITOR_QUANTITIES", "check_monitor", "evaluate_monitors", "linear_outputs", "unit_vector"]
 
@@ -35,7 +35,7 @@ MONITOR_QUANTITIES = ("max_displacement", "displacement", "deformed_coordinate",
 _MONITOR_NEEDS = {"displacement": ("point", "component"), "deformed_coordinate": ("point", "component"),
                   "reaction_force": ("region", "component"), "nominal_stress": ("region", "component", "area"),
                   "moment": ("region", "axis", "center")}
-_MONITOR_SCHEMA = {"name": c_str, "quantity": c_enum(*MONITOR_QUANTITIES), "region": check_region,
+_MONITOR_SCHEMA = {"name": c_name, "quantity": c_enum(*MONITOR_QUANTITIES), "region": check_region,
                    "point": c_vec3, "component": c_enum("x", "y", "z", "u", "w", "theta", "norm"),
                    "axis": c_vec3, "center": c_vec3, "area": c_pos, "scale": c_num, "unit": c_str,
                    "boundary": c_bool, "frame": c_frame}

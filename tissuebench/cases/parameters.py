@@ -27,8 +27,8 @@ from __future__ import annotations
 
 import copy
 
-from .schema import AXES, c_enum, c_int1, c_num, c_pos, c_str, c_vec3, check_table, fail
-from .sections import check_material
+from .schema import AXES, c_enum, c_int_range, c_num, c_pos, c_str, c_vec3, check_table, fail
+from .sections import MAX_LOAD_STEPS, MAX_TIME_STEPS, check_material
 
 __all__ = ["PARAMETER_KINDS", "ANALYSIS_OVERRIDES", "check_parameters_table", "apply_mu"]
 
@@ -36,7 +36,8 @@ _POSITION = {"load": lambda p, v: _c_index(p, v), "axis": c_enum(*AXES), "point"
              "frame": c_enum("absolute", "bbox"), "range": lambda p, v: _c_range(p, v), "description": c_str,
              "unit": c_str}
 PARAMETER_KINDS = {"position": _POSITION}
-ANALYSIS_OVERRIDES = {"max_load_factor": c_pos, "load_steps": c_int1, "t_end": c_pos, "dt": c_pos}
+ANALYSIS_OVERRIDES = {"max_load_factor": c_pos, "load_steps": c_int_range(1, MAX_LOAD_STEPS), "t_end": c_pos,
+                      "dt": c_pos}
 
 
 def _c_index(path, v):
@@ -88,7 +89,11 @@ def apply_mu(scene_fields: dict, parameters: dict, mu: dict, who: str) -> dict:
             continue
         if key in ANALYSIS_OVERRIDES:
             analysis[key] = ANALYSIS_OVERRIDES[key](f"mu.{key}", value)
-            if key != "t_end":
+            if key in ("t_end", "dt") and "dt" in analysis and "t_end" in analysis \
+                    and not analysis["t_end"] / analysis["dt"] <= MAX_TIME_STEPS:
+                n = analysis["t_end"] / analysis["dt"]
+                fail(f"mu.{key}", value, f"t_end / dt = {n:.3g} time steps; at most {MAX_TIME_STEPS}")
+            if key in ("max_load_factor", "load_steps"):
                 analysis["stop_at_divergence"] = False  # a shortened path runs to its end
         elif key == "load_scale":
             scale = c_num("mu.load_scale", value)

@@ -67,13 +67,14 @@ import numpy as np
 
 from . import assembly
 from .assembly import LineModel
+from .builder_params import check_builder_params
 from .cutting import check_cut
 from .histories import DEFAULT_HISTORY, History
 from .monitors import check_monitor, evaluate_monitors
 from .parameters import apply_mu, check_parameters_table
 from .regions import MeshGeometry, compile_region
 # the checkers were defined here before the split: re-exported for existing imports
-from .schema import (MODELS, c_any, c_bool, c_enum, c_int1, c_nonneg, c_num, c_numlist, c_nu,  # noqa: F401
+from .schema import (MODELS, c_name, key_text, c_any, c_bool, c_enum, c_int1, c_nonneg, c_num, c_numlist, c_nu,  # noqa: F401
                      c_pos, c_str, c_table, c_vec3, check_table, fail)
 from .sections import (INTEGRATOR_NAMES, LOAD_TYPES, MATERIAL_SCHEMAS, MODEL_SCHEMAS,  # noqa: F401
                        check_analysis, check_dirichlet, check_load, check_material, check_model)
@@ -242,7 +243,7 @@ class Scene:
 # =============================================================================== loading
 _TOP = {"case", "units", "mesh", "material", "model", "dirichlet", "load", "analysis", "monitor", "paper",
         "variants", "cut", "parameters"}
-_CASE_SCHEMA = {"name": c_str, "paper": c_str, "description": c_str, "model": c_enum(*MODELS),
+_CASE_SCHEMA = {"name": c_name, "paper": c_str, "description": c_str, "model": c_enum(*MODELS),
                 "default_variant": c_str}
 _UNITS_SCHEMA = {k: c_str for k in ("length", "force", "stress", "mass", "time", "note")}
 _MESH_SCHEMA = {"builder": c_str, "element": c_enum("P1", "P2", "Q1"), "params": c_table, "ci": c_table,
@@ -274,23 +275,22 @@ def _check_mesh(raw, resolution, model):
 
     if mesh["builder"] not in BUILDERS:
         fail("mesh.builder", mesh["builder"], f"unknown builder; valid: {sorted(BUILDERS)}")
-    params = {**mesh.get("params", {}), **mesh[resolution]}
-    if "path" in params:
-        p = Path(params["path"]).expanduser()
-        if not p.is_file():
-            raise FileNotFoundError(f"mesh.{resolution}.path: mesh file {p} does not exist")
-    return {"builder": mesh["builder"], "element": mesh.get("element"), "params": params,
-            "resolutions": {r: {**mesh.get("params", {}), **mesh[r]} for r in RESOLUTIONS}}
+    tables = {k: mesh[k] for k in ("params",) + RESOLUTIONS if k in mesh}
+    resolutions = check_builder_params(mesh["builder"], tables, RESOLUTIONS, resolution)
+    return {"builder": mesh["builder"], "element": mesh.get("element"), "params": resolutions[resolution],
+            "resolutions": resolutions}
 
 
 def _read_raw(path: Path) -> dict:
     try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text: {exc}") from None
+    except ValueError as exc:  # TOMLDecodeError, or an integer literal beyond Python's digit limit
         raise ValueError(f"{path}: not valid TOML: {exc}") from None
     for key in raw:
         if key not in _TOP:
-            raise ValueError(f"{key}: unknown top-level key in {path} (valid: {sorted(_TOP)})")
+            raise ValueError(f"{key_text(key)}: unknown top-level key in {path} (valid: {sorted(_TOP)})")
     return raw
 
 
@@ -307,9 +307,27 @@ def _check_entries(raw, model, path):
             fail(key, raw[key], f"expected an array of tables ([[{key}]])")
     if not raw.get("dirichlet"):
         raise ValueError(f"dirichlet: a scene needs at least one [[dirichlet]] entry ({path})")
+    monitors = [check_monitor(f"monitor[{i}]", d, model) for i, d in enumerate(raw.get("monitor", []))]
+    _check_monitor_names(monitors)
     return ([check_dirichlet(f"dirichlet[{i}]", d, model) for i, d in enumerate(raw["dirichlet"])],
-            [check_load(f"load[{i}]", d, model) for i, d in enumerate(raw.get("load", []))],
-            [check_monitor(f"monitor[{i}]", d, model) for i, d in enumerate(raw.get("monitor", []))])
+            [check_load(f"load[{i}]", d, model) for i, d in enumerate(raw.get("load", []))], monitors)
+
+
+# columns of a run's result table: a monitor of one of these names would overwrite it
+RESERVED_COLUMNS = ("case", "backend", "step", "load_factor", "time", "newton_iterations", "converged", "wall_s",
+                    "assembly_s", "solve_s", "final_residual", "message", "kinetic_energy", "strain_energy",
+                    "external_work", "energy_error")
+
+
+def _check_monitor_names(monitors):
+    seen = {}
+    for i, m in enumerate(monitors):
+        name = m["name"]
+        if name in RESERVED_COLUMNS:
+            fail(f"monitor[{i}].name", name, f"a column of the result table; reserved: {list(RESERVED_COLUMNS)}")
+        if name in seen:
+            fail(f"monitor[{i}].name", name, f"already the name of monitor[{seen[name]}]")
+        seen[name] = i
 
 
 def _check_paper(paper, monitors):
@@ -338,7 +356,7 @@ def load(name_or_path, resolution: str = "ci", variant: str | None = None) -> Sc
         raise ValueError(f"resolution = {resolution!r}: expected one of {list(RESOLUTIONS)}")
     path = _resolve_path(name_or_path)
     raw = _read_raw(path)
-    all_variants = tuple(raw.get("variants", {}))
+    all_variants = tuple(c_table("variants", raw.get("variants", {})))
     raw, variant = apply_variant(raw, variant, path)
     case = check_table("case", raw.get("case", {}), _CASE_SCHEMA, required=("name", "paper", "description"))
     model = case.get("model", "fe")

@@ -8,11 +8,14 @@ so a scene author sees *where* in the file the mistake is, not only what it is.
 from __future__ import annotations
 
 import math
+import re
 
 __all__ = ["AXES", "COMPONENTS_1D", "MODELS", "fail", "require", "is_num", "c_str", "c_bool", "c_num",
            "c_pos", "c_nonneg", "c_int1", "c_nu", "c_vec3", "c_numlist", "c_table", "c_any", "c_enum",
-           "c_axis", "c_frame", "check_table", "check_components"]
+           "c_axis", "c_frame", "check_table", "check_components", "key_text", "c_int_range", "c_name",
+           "value_text"]
 
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 MODELS = ("fe", "poisson1d", "frame2dof", "hermite_beam")
 AXES = {"x": 0, "y": 1, "z": 2}
 # the 1D models name their degrees of freedom instead of using x, y, z
@@ -20,8 +23,17 @@ COMPONENTS_1D = {"poisson1d": {"u": 0}, "frame2dof": {"u": 0}, "hermite_beam": {
 
 
 def fail(path, value, what):
-    """Raise the ``ValueError`` ``"<path> = <value>: <what>"``."""
-    raise ValueError(f"{path} = {value!r}: {what}")
+    """Raise the ``ValueError`` ``"<path> = <value>: <what>"`` (a long value shortened)."""
+    raise ValueError(f"{path} = {value_text(value)}: {what}")
+
+
+def value_text(value, limit: int = 200) -> str:
+    """``repr(value)``, cut to ``limit`` characters (a scene may hold a megabyte string)."""
+    try:
+        text = repr(value)
+    except ValueError:  # an integer beyond Python's digit limit for str()
+        text = f"<integer of about {value.bit_length() * 0.30103:.0f} digits>"
+    return text if len(text) <= limit else text[: limit - 5] + " ...>"
 
 
 def require(path, table, keys, context):
@@ -33,17 +45,47 @@ def require(path, table, keys, context):
 
 
 def is_num(v):
-    # bool is an int subclass: `true` must not pass as 1
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    """A finite number that converts to a float: not a bool (an int subclass: `true` must not
+    pass as 1), not NaN/inf, not an integer literal beyond the float range (1.8e308)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(v))
+    except OverflowError:
+        return False
+
+
+def key_text(key) -> str:
+    """A key as a message shows it: bare words as they are, anything else quoted (``repr``),
+    so a key path stays readable and no control character of a key reaches the terminal."""
+    return key if isinstance(key, str) and _BARE_KEY.fullmatch(key) else repr(key)
 
 
 def _is_int(v):
     return isinstance(v, int) and not isinstance(v, bool)
 
 
+def c_int_range(lo, hi):
+    """A checker of an integer in ``[lo, hi]`` (an upper bound keeps a typo from asking for
+    10**12 steps or cells, which would exhaust the memory long after the scene loaded)."""
+    def check(path, v):
+        if not (_is_int(v) and lo <= v <= hi):
+            fail(path, v, f"expected an integer in [{lo}, {hi}]")
+        return v
+    return check
+
+
 def c_str(path, v):
     if not isinstance(v, str) or not v.strip():
         fail(path, v, "expected a non-empty string")
+    return v
+
+
+def c_name(path, v):
+    """A name shown in tables, titles and (sanitised) folder names: a non-empty printable
+    string of at most 100 characters (no NUL, newline or other control character)."""
+    if not isinstance(v, str) or not v.strip() or not v.isprintable() or len(v) > 100:
+        fail(path, v, "expected a name: non-empty printable text of at most 100 characters")
     return v
 
 
@@ -128,7 +170,7 @@ def check_table(path, table, schema, required=(), free=False):
             if free:
                 out[key] = value
                 continue
-            raise ValueError(f"{path}.{key}: unknown key (valid: {sorted(schema)})")
+            raise ValueError(f"{path}.{key_text(key)}: unknown key (valid: {sorted(schema)})")
         out[key] = schema[key](f"{path}.{key}", value)
     return out
 
@@ -146,7 +188,7 @@ def check_components(path, v, model):
     for c in items:
         if _is_int(c) and c in names.values():
             out.append(c)
-        elif c in names:
+        elif isinstance(c, str) and c in names:
             out.append(names[c])
         else:
             fail(path, v, f"unknown component {c!r}; valid: {sorted(names)}")

@@ -18,11 +18,16 @@ import numpy as np
 
 from .histories import DEFAULT_HISTORY, check_history
 from .regions import check_region
-from .schema import (COMPONENTS_1D, c_any, c_bool, c_enum, c_int1, c_nonneg, c_num, c_numlist, c_nu, c_pos,
-                     c_str, c_table, c_vec3, check_components, check_table, fail, is_num, require)
+from .schema import (COMPONENTS_1D, c_any, c_bool, c_enum, c_int_range, c_name, c_nonneg, c_num, c_numlist,
+                     c_nu, c_pos, c_str, c_table, c_vec3, check_components, check_table, fail, is_num, require)
 
-__all__ = ["MATERIAL_SCHEMAS", "MODEL_SCHEMAS", "LOAD_TYPES", "INTEGRATOR_NAMES", "check_material",
-           "check_model", "check_dirichlet", "check_load", "check_analysis"]
+__all__ = ["MATERIAL_SCHEMAS", "MODEL_SCHEMAS", "LOAD_TYPES", "INTEGRATOR_NAMES", "MAX_LOAD_STEPS", "MAX_TIME_STEPS",
+           "check_material", "check_model", "check_dirichlet", "check_load", "check_analysis"]
+
+# bounds on the work a scene may ask for: a typo (dt = 1e-300, load_steps = 10**9) is refused
+# when the scene loads, naming the key, instead of exhausting the memory hours later
+MAX_LOAD_STEPS = 100_000
+MAX_TIME_STEPS = 10_000_000
 
 _ENU = {"E": c_pos, "nu": c_nu}
 MATERIAL_SCHEMAS = {
@@ -39,10 +44,10 @@ LOAD_TYPES = ("point", "traction", "pressure", "follower_pressure", "body")
 INTEGRATOR_NAMES = ("hht", "bathe", "newmark", "central_difference", "forward_euler")
 
 _MOTION_SCHEMA = {"type": c_enum("rotation"), "axis": c_vec3, "center": c_vec3, "angle_deg": c_num}
-_STATIC = {"type": c_str, "load_steps": c_int1, "max_load_factor": c_pos, "stop_at_divergence": c_bool,
-           "solver": c_str, "note": c_str}
+_STATIC = {"type": c_str, "load_steps": c_int_range(1, MAX_LOAD_STEPS), "max_load_factor": c_pos,
+           "stop_at_divergence": c_bool, "solver": c_str, "note": c_str}
 _DYNAMIC = {"type": c_str, "dt": c_pos, "t_end": c_pos, "integrator": c_str, "integrator_options": c_table,
-            "lumped": c_bool, "dt_sweep": c_numlist, "store_every": c_int1, "note": c_str}
+            "lumped": c_bool, "dt_sweep": c_numlist, "store_every": c_int_range(1, MAX_TIME_STEPS), "note": c_str}
 
 
 def check_material(path, m):
@@ -51,7 +56,7 @@ def check_material(path, m):
     # the name selects the schema, so it is checked before the rest of the table
     require(path, m, ("name",), f"(in {path})")
     name = m["name"]
-    if name not in MATERIAL_SCHEMAS:
+    if not isinstance(name, str) or name not in MATERIAL_SCHEMAS:
         fail(f"{path}.name", name, f"unknown material; valid: {sorted(MATERIAL_SCHEMAS)}")
     schema = dict(MATERIAL_SCHEMAS[name], name=c_str, density=c_pos)
     req = [k for k in MATERIAL_SCHEMAS[name] if k != "fibres"]  # Guccione fibres default to x
@@ -67,7 +72,7 @@ def check_model(path, m, model):
 def check_dirichlet(path, d, model):
     """Validate a ``[[dirichlet]]`` entry; ``value`` becomes one float per component."""
     schema = {"region": check_region, "components": c_any, "value": c_any, "motion": c_any,
-              "scaled": c_bool, "name": c_str}
+              "scaled": c_bool, "name": c_name}
     d = check_table(path, d, schema, required=("region",))
     default = "xyz" if model == "fe" else list(COMPONENTS_1D[model])
     d["components"] = check_components(f"{path}.components", d.get("components", default), model)
@@ -100,7 +105,7 @@ def _check_dirichlet_value(path, v, n):
 def check_load(path, ld, model):
     """Validate a ``[[load]]`` entry; fills the default history and distribution."""
     schema = {"type": c_enum(*LOAD_TYPES), "region": check_region, "value": c_any, "history": check_history,
-              "distribute": c_enum("total", "per_node", "interpolate"), "name": c_str}
+              "distribute": c_enum("total", "per_node", "interpolate"), "name": c_name}
     ld = check_table(path, ld, schema, required=("type", "value"))
     kind = ld["type"]
     if model != "fe" and kind != "point":
@@ -127,7 +132,27 @@ def check_analysis(path, a):
         fail(f"{path}.integrator", a["integrator"], f"unknown integrator; valid: {list(INTEGRATOR_NAMES)}")
     if a["t_end"] < a["dt"]:
         fail(f"{path}.t_end", a["t_end"], f"must be >= dt = {a['dt']}")
+    _check_step_count(f"{path}.dt", a["dt"], a["t_end"])
     for i, dt in enumerate(a.get("dt_sweep", [])):
         if dt <= 0:
             fail(f"{path}.dt_sweep[{i}]", dt, "expected a time step > 0")
+        _check_step_count(f"{path}.dt_sweep[{i}]", dt, a["t_end"])
+    if "integrator_options" in a:
+        _check_integrator_options(f"{path}.integrator_options", a["integrator"], a["integrator_options"])
     return a
+
+
+def _check_step_count(path, dt, t_end):
+    n = t_end / dt
+    if not n <= MAX_TIME_STEPS:
+        fail(path, dt, f"t_end / dt = {n:.3g} time steps; at most {MAX_TIME_STEPS}")
+
+
+def _check_integrator_options(path, name, options):
+    """The options must configure the integrator (names and values checked by its constructor)."""
+    from ..refsolvers.dynamics import make_integrator
+
+    try:
+        make_integrator(name, **options)
+    except (ValueError, TypeError, ArithmeticError) as exc:
+        fail(path, options, f"not options of integrator {name!r}: {exc}")

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import copy
 
-from .schema import c_table
+from .schema import c_table, fail, key_text
 
 __all__ = ["VARIANT_KEYS", "apply_variant"]
 
@@ -19,27 +19,40 @@ VARIANT_KEYS = {"description", "material", "model", "mesh", "analysis", "dirichl
 
 def apply_variant(raw, variant, path):
     """``(merged raw scene, variant name)``; ``variant=None`` picks ``case.default_variant``
-    or else the first variant, and a scene without variants is returned as is."""
-    variants = raw.get("variants", {})
-    c_table("variants", variants)
+    or else the first variant, and a scene without variants is returned as is.
+
+    ValueError names the offending key (``variants.<name>.<key>``, ``case.default_variant``)
+    or the ``variant`` argument, with the value and the valid choices."""
+    variants = c_table("variants", raw.get("variants", {}))
+    case = raw.get("case", {})
     if variant is None:
-        variant = raw.get("case", {}).get("default_variant") or (next(iter(variants)) if variants else None)
+        default = case.get("default_variant") if isinstance(case, dict) else None
+        if default is not None and (not isinstance(default, str) or default not in variants):
+            fail("case.default_variant", default, f"not a variant of the scene; valid: {sorted(variants)}")
+        variant = default or (next(iter(variants)) if variants else None)
     if variant is None:
         return raw, None
-    if variant not in variants:
-        raise ValueError(f"variant {variant!r} of {path}: valid: {sorted(variants)}")
-    over = c_table(f"variants.{variant}", variants[variant])
+    if not isinstance(variant, str) or variant not in variants:
+        fail("variant", variant, f"not a variant of {path}; valid: {sorted(variants)}")
+    over = c_table(f"variants.{key_text(variant)}", variants[variant])
     # a deep copy: the merged tables are normalised in place by the validation
     out = copy.deepcopy({k: v for k, v in raw.items() if k != "variants"})
     for key, val in over.items():
+        where = f"variants.{key_text(variant)}.{key_text(key)}"
         if key not in VARIANT_KEYS:
-            raise ValueError(f"variants.{variant}.{key}: unknown key (valid: {sorted(VARIANT_KEYS)})")
+            raise ValueError(f"{where}: unknown key (valid: {sorted(VARIANT_KEYS)})")
         if key == "description":
             continue
         if key in ("dirichlet", "load", "monitor"):
-            out[key] = list(out.get(key, [])) + list(val)
+            if not isinstance(val, list):
+                fail(where, val, f"expected an array of tables ([[variants.{key_text(variant)}.{key}]]), "
+                     "appended to the scene's")
+            base = out.get(key, [])
+            out[key] = (list(base) if isinstance(base, list) else [base]) + list(val)
         elif key in ("paper", "case", "parameters"):
-            out[key] = {**out.get(key, {}), **val}
+            c_table(where, val)
+            base = out.get(key, {})
+            out[key] = {**base, **val} if isinstance(base, dict) else base  # a bad base is named later
         else:
             out[key] = copy.deepcopy(val)
     return out, variant

@@ -6,8 +6,10 @@ Conventions (every backend follows them, so vectors are interchangeable):
 * Cells follow meshio/VTK vertex order: ``"tetra"`` (4 vertices) or ``"hexahedron"``
   (8 vertices, bottom face 0-1-2-3 counter-clockwise seen from above, top face 4-7).
 * Cells are stored with positive orientation: a cell whose signed volume is negative only
-  because of its node order is reoriented on construction; a cell of (near) zero volume,
-  or a hexahedron whose corner Jacobians change sign (tangled), is refused.
+  because of its node order is reoriented on construction (``n_reoriented`` counts them);
+  a cell of (near) zero volume, a hexahedron whose corner Jacobians change sign (tangled),
+  or a folded mesh (an inverted cell overlapping its neighbour across a shared face, so
+  that reorienting it would count its volume twice) is refused, naming the cells.
 * Discretisation nodes: for ``P1`` and ``Q1`` they are the vertices; for ``P2`` the
   vertices come first, then one node per mesh edge, edges in lexicographic order of
   their sorted vertex pair ``(a, b)``, ``a < b``.
@@ -21,6 +23,8 @@ from functools import cached_property
 import numpy as np
 
 CELL_TYPES = {"tetra": 4, "hexahedron": 8}
+# |coordinate| above this: the cube of a cell size (its volume) may overflow a float
+MAX_COORDINATE = 1e100
 ELEMENTS = {"P1": "tetra", "P2": "tetra", "Q1": "hexahedron"}
 
 # Local faces with outward normals (right-hand rule) for positively oriented cells.
@@ -57,6 +61,43 @@ def hex_corner_jacobians(points, cells):
     return _hex_jacobians(points, cells, HEX_CORNERS)
 
 
+def folded_cell_pairs(points, cells, local_faces) -> np.ndarray:
+    """Pairs ``(i, j)`` of positively oriented cells that share a face and lie on the same side
+    of it (their outward normals of the shared face point the same way): the mesh folds over
+    itself there, shape (n_pairs, 2). Independent of the cells' node order once oriented."""
+    nf = len(local_faces)
+    faces = cells[:, local_faces].reshape(-1, local_faces.shape[1])
+    _, inv, counts = np.unique(np.sort(faces, axis=1), axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    idx = np.flatnonzero(counts[inv] == 2)
+    idx = idx[np.argsort(inv[idx], kind="stable")]
+    a, b = idx[0::2], idx[1::2]
+
+    def normals(f):
+        p = points[faces[f]]
+        if faces.shape[1] == 3:
+            return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        return np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1])  # quad: cross of the diagonals
+    same_side = np.einsum("ij,ij->i", normals(a), normals(b)) > 0
+    return np.column_stack([a[same_side] // nf, b[same_side] // nf])
+
+
+def _refuse_folds(points, cells, negative, local_faces):
+    """A mesh whose cells are oriented both ways may only differ in node order; where an
+    inverted cell overlaps its neighbour the mesh is folded (its volume counted twice): refused."""
+    if not negative.any() or negative.all():
+        return  # uniformly oriented (the shipped liver: all negative, a node-order convention)
+    pairs = folded_cell_pairs(points, cells, local_faces)
+    if len(pairs):
+        inverted = np.flatnonzero(negative)
+        named = inverted[np.isin(inverted, pairs)]
+        named = named if len(named) else np.unique(pairs)
+        raise ValueError(f"folded mesh: cells {named[:12].tolist()}{' ...' if len(named) > 12 else ''} are "
+                         f"inverted (negative volume) and overlap their neighbours across shared faces "
+                         f"({len(inverted)} of {len(cells)} cells inverted, {len(pairs)} overlapping faces); "
+                         f"fix the mesh: reorienting them would count the folded volume twice")
+
+
 @dataclass(frozen=True, eq=False)
 class Mesh:
     """A volume mesh of tetrahedra or hexahedra.
@@ -87,6 +128,10 @@ class Mesh:
         if not np.all(np.isfinite(pts)):
             bad = np.argwhere(~np.isfinite(pts))[0]
             raise ValueError(f"points[{bad[0]}, {bad[1]}] = {pts[tuple(bad)]} is not finite")
+        if pts.size and np.abs(pts).max() > MAX_COORDINATE:
+            bad = np.unravel_index(np.argmax(np.abs(pts)), pts.shape)
+            raise ValueError(f"points[{bad[0]}, {bad[1]}] = {pts[bad]:.3g}: coordinates beyond {MAX_COORDINATE:g} "
+                             f"(cell volumes would overflow; a unit mistake?)")
         cells = np.ascontiguousarray(self.cells, dtype=np.int64)
         nv = CELL_TYPES[self.cell_type]
         if cells.ndim != 2 or cells.shape[1] != nv or len(cells) == 0:
@@ -115,6 +160,7 @@ class Mesh:
                 raise ValueError(f"cells[{int(np.argmax(neg))}] has negative volume and reorient=False")
             cells = cells.copy()
             cells[neg] = cells[neg][:, [0, 2, 1, 3]]
+            _refuse_folds(pts, cells, neg, TET_FACES)
             return cells, int(neg.sum())
         dets = hex_corner_jacobians(pts, cells)
         scale = tol / 8.0
@@ -128,6 +174,7 @@ class Mesh:
             raise ValueError(f"cells[{int(np.argmax(neg))}] has negative volume and reorient=False")
         cells = cells.copy()
         cells[neg] = cells[neg][:, [4, 5, 6, 7, 0, 1, 2, 3]]
+        _refuse_folds(pts, cells, neg, HEX_FACES)
         return cells, int(neg.sum())
 
     # ------------------------------------------------------------------ topology

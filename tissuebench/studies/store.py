@@ -1,7 +1,9 @@
 """Atomic writes and provenance for result folders.
 
 A run writes into a temporary sibling folder and renames it into place at the end, so
-an interrupted or failed run never leaves a half-written result folder behind.
+an interrupted or failed run never leaves a half-written result folder behind; what a
+SIGKILL leaves (the hidden temporary folder) is removed by the next run into the same
+place. Output locations are checked before any work (:func:`check_output_location`).
 """
 from __future__ import annotations
 
@@ -13,46 +15,133 @@ import importlib.metadata
 import json
 import os
 import platform
+import re
 import shutil
 import subprocess
 import tempfile
+import time
 from pathlib import Path
 
 _PACKAGES = ("tissuebench", "numpy", "scipy", "ngsolve", "scikit-fem", "pyamg", "meshio", "pandas",
              "pyarrow", "pyvista", "matplotlib")
 
 
+def check_output_location(out: Path, overwrite: bool = False) -> None:
+    """Refuse, before any work, an output folder that cannot be written: a NUL byte in the
+    path, a path that is a file or lies under one, an unwritable parent, or an existing folder
+    without ``overwrite`` (FileExistsError). Other problems are ValueError naming ``out``."""
+    text = str(out)
+    if "\0" in text:
+        raise ValueError(f"--out = {text!r}: contains a NUL byte")
+    out = Path(out)
+    try:
+        exists, is_dir = out.exists(), out.is_dir()
+    except OSError as exc:  # a name too long, a loop of links ...
+        raise ValueError(f"--out = {out}: not a usable path ({exc})") from None
+    if exists and not is_dir:
+        raise ValueError(f"--out = {out}: exists and is not a folder")
+    if exists and not overwrite:
+        raise FileExistsError(f"output folder {out} exists; pass overwrite (--force) to replace it")
+    parent = next((p for p in out.absolute().parents if p.exists()), None)
+    if parent is None or not parent.is_dir():
+        raise ValueError(f"--out = {out}: {parent} is not a folder")
+    if not _writable(parent):
+        raise ValueError(f"--out = {out}: {parent} is not writable")
+
+
+def _writable(folder: Path) -> bool:
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            return True
+    except OSError:
+        return False
+
+
+def _leftover_pattern(name: str):
+    # .NAME.tmp-PID-xxxx (a run writing), .NAME.old-PID (the folder it replaces), and the
+    # .NAME.xxxxxxxx of earlier versions (mkdtemp's 8 random characters, no owner recorded)
+    return re.compile(rf"\.{re.escape(name)}\.(?:(?P<kind>tmp|old)-(?P<pid>\d+)(?:-.*)?|[a-z0-9_]{{8}})")
+
+
+def clean_leftovers(out: Path, min_age_s: float = 3600.0) -> list:
+    """Remove what killed runs into ``out`` left beside it: temporary folders of processes
+    that no longer run (and, older than ``min_age_s``, those of earlier versions). When ``out``
+    itself is missing because a run was killed between its two renames, the previous result
+    (``.NAME.old-PID``) is put back. Returns the paths removed."""
+    out = Path(out)
+    try:
+        entries = sorted(out.parent.iterdir()) if out.parent.is_dir() else []
+    except (OSError, ValueError):  # unreadable, a NUL byte: check_output_location says why
+        return []
+    pattern, removed = _leftover_pattern(out.name), []
+    for p in entries:
+        m = pattern.fullmatch(p.name)
+        if m is None or not p.is_dir():
+            continue
+        if m["pid"] is not None and int(m["pid"]) != os.getpid() and _alive(int(m["pid"])):
+            continue  # a run in progress
+        if m["pid"] is None and time.time() - p.stat().st_mtime < min_age_s:
+            continue
+        if m["kind"] == "old" and not out.exists():
+            p.rename(out)  # killed between the renames: the previous result comes back
+            continue
+        shutil.rmtree(p, ignore_errors=True)
+        removed.append(p)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, owned by someone else
+        return True
+    return True
+
+
 @contextlib.contextmanager
 def atomic_directory(out: Path, overwrite: bool = False):
-    """Yield a temporary folder that replaces ``out`` only if the block succeeds."""
+    """Yield a temporary folder that replaces ``out`` only if the block succeeds.
+
+    The temporary folder ``.NAME.tmp-PID-xxxx`` is removed when the block raises (Ctrl-C
+    included); a SIGKILL cannot be caught, so the next run into ``out`` removes it
+    (:func:`clean_leftovers`, by its dead PID)."""
     out = Path(out)
     if out.exists() and not overwrite:
         raise FileExistsError(f"output folder {out} exists; pass overwrite (--force) to replace it")
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    os.chmod(tmp, 0o755)  # mkdtemp makes it private; a result folder is meant to be shared
+    clean_leftovers(out)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-{os.getpid()}-", dir=out.parent))
     try:
+        os.chmod(tmp, 0o755)  # mkdtemp makes it private; a result folder is meant to be shared
         yield tmp
+        if out.exists():
+            old = out.with_name(f".{out.name}.old-{os.getpid()}")
+            shutil.rmtree(old, ignore_errors=True)
+            out.rename(old)
+            tmp.rename(out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            tmp.rename(out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    if out.exists():
-        old = out.with_name(f".{out.name}.old")
-        shutil.rmtree(old, ignore_errors=True)
-        out.rename(old)
-        tmp.rename(out)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        tmp.rename(out)
 
 
 def write_json_atomic(path: Path, data) -> None:
+    """Write ``data`` as JSON to ``path`` through a temporary file renamed into place
+    (removed when the write fails: a full disk leaves nothing behind)."""
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as fh:
-        json.dump(data, fh, indent=2, default=str)
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, path)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(data, fh, indent=2, default=str)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 @functools.lru_cache(maxsize=1)

@@ -142,7 +142,24 @@ def _newton_static(be, n_steps, target, monitors, progress, linear_solver, to_di
             states.append(u)
             row.update(monitors(u))
         rows.append(row)
-    return states, rows, res.status, res.message
+    status, message = res.status, res.message
+    if to_divergence and status == "stalled":
+        status, message = _divergence_verdict(res, message)
+    return states, rows, status, message
+
+
+def _divergence_verdict(res, message):
+    """A run "until Newton stops converging" measures a radius only if some increment
+    converged and the residual stayed finite; otherwise it is a failure, not a measurement."""
+    if not res.converged_increments:
+        return "failed", (f"no load increment converged (the first one, to load factor "
+                          f"{res.increments[0].load_factor:.6g}, already fails): no convergence radius; {message}")
+    # the residual at the start of an increment (a converged state, the next load) or of a
+    # converged one is the model's, not a diverging iterate's: non-finite means overflow
+    norms = [r for inc in res.increments for r in (inc.residual_norms if inc.converged else inc.residual_norms[:1])]
+    if not np.all(np.isfinite(norms)):
+        return "failed", f"non-finite residual (overflow in the material or the loads): {message}"
+    return "stalled", message
 
 
 # ============================================================================ FE dynamics
