@@ -19,7 +19,7 @@ import tomllib
 import meshio
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from _fuzz import Tally, dumps, mutate, names_a_key, vocabulary
@@ -114,14 +114,8 @@ def test_mutated_scenes_describe_or_name_the_key(case, folder, data):
     _verdict("scene describe", lambda: describe(path), SCENE_KEYS)
 
 
-# tissuebench/studies/spec.py still crashes on some specs (unhashable method names, `evaluation`
-# not a table, a case name too long for the file system, unprefixed scene errors): the fix is
-# the patch reliability_spec.patch of the reliability branch's report (spec.py was not ours to
-# edit). Once it is applied, remove the xfail and the phases (no shrinking: a failure is
-# expected, and shrinking it costs minutes).
-@pytest.mark.xfail(strict=True, reason="needs the spec.py patch (reliability report)")
 @pytest.mark.parametrize("preset", sorted(PRESETS))
-@settings(FUZZ, phases=[Phase.explicit, Phase.reuse, Phase.generate])
+@settings(FUZZ)
 @given(data=st.data())
 def test_mutated_sweep_specs_load_or_name_the_key(preset, folder, data):
     doc, _ = mutate(data, PRESETS[preset], SPEC_WORDS)

@@ -66,7 +66,8 @@ def test_between_stored_positions_pod_interp_beats_podi_beats_grassmann(interp):
     """Mean error at held-out load positions (5 stored, 4 modes, order 6), as measured on the
     shipped meshes: cornea PODI 1.8 %, Grassmann 7.1 %, POD + linear coefficients 0.02 %;
     liver PODI 5.0 %, Grassmann 6.3 %, POD + linear coefficients 4.2 %; nearest 11 % on both."""
-    expected = {"cornea_pinch-positions": (1.8e-2, 7.1e-2, 1.9e-4), "liver_palpation-positions": (5.0e-2, 6.3e-2, 4.2e-2)}
+    expected = {"cornea_pinch-positions": (1.8e-2, 7.1e-2, 1.9e-4),
+                "liver_palpation-positions": (5.0e-2, 6.3e-2, 4.2e-2)}
     for case, (podi, grassmann, linear) in expected.items():
         t = interp.loc[case, "mean_rel_l2"]
         assert t["podi n_modes=4 order=6"] == pytest.approx(podi, rel=0.1)

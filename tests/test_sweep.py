@@ -291,6 +291,7 @@ def test_cases_option_keeps_only_the_named_cases():
     spec = load_spec("anm_pod", resolution="paper", only=["liver_palpation", "liver_palpation-heldout"])
     units = expand_units(spec)
     assert {u.case["id"] for u in units} == {"liver_palpation", "liver_palpation-heldout"}
-    assert len(units) == 150 + 2 + 2 + 1 + 2  # anm_pod paper grid; heldout: anm_pod x2, pod_linear x2, nearest, pod_interp x2
+    # the anm_pod paper grid; held out: anm_pod x2, pod_linear x2, nearest, pod_interp x2
+    assert len(units) == 150 + 2 + 2 + 1 + 2
     with pytest.raises(ValueError, match="--cases = 'nope': not a case id"):
         load_spec("anm_pod", only=["nope"])

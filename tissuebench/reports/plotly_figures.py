@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from ..studies.metrics import TOLERANCES
-from .format import hz, percent, seconds
+from .format import percent, seconds
 
 __all__ = ["pareto_figure", "error_figure", "PALETTE"]
 

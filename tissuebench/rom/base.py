@@ -223,6 +223,9 @@ class OnlineModel(ABC):
     def attach_outputs(self, operators: Mapping[str, np.ndarray]) -> None:
         """Offline: reduce linear output functionals ``{name: c (n_dof,)}`` (``y = c @ u``)."""
         names = list(operators)
+        if not names:
+            self._outputs = ((), None, None, None)
+            return
         C = np.array([np.asarray(operators[n], float) for n in names]).reshape(len(names), -1)
         lin = self.output_map()
         fixed, _ = self.prescribed(None) if lin is not None else (None, None)

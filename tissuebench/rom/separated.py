@@ -230,4 +230,4 @@ class SeparatedSolution:
 
 
 # ------------------------------------------------------------------------ solver
-from .separated_solver import pgd_solve  # the algorithm; it imports the types above
+from .separated_solver import pgd_solve  # noqa: E402  (the algorithm; it imports the types above)

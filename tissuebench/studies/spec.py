@@ -39,11 +39,13 @@ from __future__ import annotations
 
 import hashlib
 import itertools
+import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..cases.scene import RESOLUTIONS, list_cases
+from ..cases.schema import key_text, value_text
 from ..rom import METHODS, method_class
 from .evaluation import EVALUATION_KINDS
 from .training import TRAINING_KINDS, case_scene
@@ -65,7 +67,7 @@ BACKENDS = ("skfem", "ngsolve")
 
 
 def _fail(path, value, what):
-    raise ValueError(f"{path} = {value!r}: {what}")
+    raise ValueError(f"{path} = {value_text(value)}: {what}")
 
 
 def _table(path, value, keys):
@@ -73,7 +75,7 @@ def _table(path, value, keys):
         _fail(path, value, "expected a table")
     for k in value:
         if k not in keys:
-            raise ValueError(f"{path}.{k}: unknown key (valid: {sorted(keys)})")
+            raise ValueError(f"{path}.{key_text(k)}: unknown key (valid: {sorted(keys)})")
     return value
 
 
@@ -121,7 +123,7 @@ def _check_case(i, c, resolution):
     if "name" not in c:
         raise ValueError(f"{path}.name: missing required key")
     name = c["name"]
-    if not isinstance(name, str) or (name not in list_cases() and not Path(name).is_file()):
+    if not isinstance(name, str) or (name not in list_cases() and not _is_file(name)):
         _fail(f"{path}.name", name, f"unknown case; valid: {list_cases()}")
     backend = c.get("backend", "skfem")
     if backend not in BACKENDS:
@@ -132,23 +134,31 @@ def _check_case(i, c, resolution):
     training = dict(_table(f"{path}.training", c.get("training", {"kind": "path"}), {"kind"} | set().union(
         *_TRAINING_KEYS.values())))
     kind = training.setdefault("kind", "path")
-    if kind not in TRAINING_KINDS:
+    if not isinstance(kind, str) or kind not in TRAINING_KINDS:
         _fail(f"{path}.training.kind", kind, f"valid: {list(TRAINING_KINDS)}")
     _table(f"{path}.training", training, {"kind"} | _TRAINING_KEYS[kind])
-    evaluation = dict(c.get("evaluation", {}))
+    evaluation = dict(_table(f"{path}.evaluation", c.get("evaluation", {}), {"kind"} | set().union(
+        *_EVALUATION_KEYS.values())))
     ekind = evaluation.setdefault("kind", kind if kind in EVALUATION_KINDS else "map")
-    if ekind not in EVALUATION_KINDS:
+    if not isinstance(ekind, str) or ekind not in EVALUATION_KINDS:
         _fail(f"{path}.evaluation.kind", ekind, f"valid: {list(EVALUATION_KINDS)}")
     _table(f"{path}.evaluation", evaluation, {"kind"} | _EVALUATION_KEYS[ekind])
-    entry = {"id": str(c.get("id", Path(name).stem)), "name": name, "variant": c.get("variant"),
+    cid = c.get("id", Path(name).stem)
+    if not (isinstance(cid, str) and re.fullmatch(r"[A-Za-z0-9_.-]+", cid) and cid not in (".", "..")):
+        _fail(f"{path}.id", cid, "a case id names a results folder: letters, digits, '_', '.', '-' only")
+    entry = {"id": cid, "name": name, "variant": c.get("variant"),
              "resolution": res, "backend": backend, "training": training, "evaluation": evaluation}
     if "mu" in c:
         entry["mu"] = _table(f"{path}.mu", c["mu"], set(c["mu"]) if isinstance(c["mu"], dict) else set())
-    try:
-        case_scene(entry)  # the scene must load and take the mu (their errors name the key)
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
+    _named(path, case_scene, entry)  # the scene must load and take the mu (their errors name the key)
     return entry
+
+
+def _is_file(name: str) -> bool:
+    try:
+        return Path(name).is_file()
+    except (OSError, ValueError):  # a NUL byte, a name too long for the file system
+        return False
 
 
 def _named(path, fn, *args):
@@ -189,11 +199,14 @@ def _check_method(i, m, cases, resolution):
     path = f"method[{i}]"
     _table(path, m, _METHOD)
     name = m.get("name")
-    if name not in METHODS:
+    if not isinstance(name, str) or name not in METHODS:
         _fail(f"{path}.name", name, f"unknown method; valid: {sorted(METHODS)}")
     cls = method_class(name)
     if resolution == "paper" and "paper" in m:  # the paper grid replaces grid/list; options merge
         paper = _table(f"{path}.paper", m["paper"], {"options", "grid", "list"})
+        for where, table in ((f"{path}.options", m), (f"{path}.paper.options", paper)):
+            if not isinstance(table.get("options", {}), dict):
+                _fail(where, table["options"], "expected a table")
         src, opath = {**paper, "options": {**m.get("options", {}), **paper.get("options", {})}}, f"{path}.paper"
     else:
         src, opath = m, path
@@ -238,7 +251,7 @@ def load_spec(spec_or_preset, resolution: str | None = None, only: list | None =
         raise ValueError(f"{path}: not valid TOML: {exc}") from None
     for key in raw:
         if key not in _TOP:
-            raise ValueError(f"{key}: unknown top-level key in {path} (valid: {sorted(_TOP)})")
+            raise ValueError(f"{key_text(key)}: unknown top-level key in {path} (valid: {sorted(_TOP)})")
     sweep = _table("sweep", raw.get("sweep", {}), _SWEEP)
     if resolution is not None and resolution not in RESOLUTIONS:
         _fail("resolution", resolution, f"valid: {list(RESOLUTIONS)}")

@@ -161,7 +161,8 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
             "offline_s": offline, "build_peak_bytes": int(peak), "model_bytes": _nbytes(model),
             "scene_hash": scene.content_hash(),
             **{k: evaluation.info.get(k) for k in ("reference_status", "reference_message",
-                                                     "reference_energy_growth")}, "model_info": json.dumps(_jsonable(getattr(model, "info", {}))),
+                                                     "reference_energy_growth")},
+            "model_info": json.dumps(_jsonable(getattr(model, "info", {}))),
             "_points": points.to_dict("records"), "_outputs": outputs.to_dict("records")}
 
 

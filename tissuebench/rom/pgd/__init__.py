@@ -10,6 +10,7 @@ from .projections import PrbProjection, SrbProjection, make_projection
 from .training import family_from_training, pgd_training
 from .vademecum import Vademecum, build_vademecum
 
-__all__ = ["PointLoadFamily", "anterior_nodes", "line_family", "nodal_areas", "surface_family", "Pgd", "PgdModel", "CuttingModel", "PgdCutting", "PgdSvk", "PgdSvkModel",
+__all__ = ["PointLoadFamily", "anterior_nodes", "line_family", "nodal_areas", "surface_family", "Pgd", "PgdModel",
+           "CuttingModel", "PgdCutting", "PgdSvk", "PgdSvkModel",
            "PrbProjection", "SrbProjection", "make_projection", "family_from_training", "pgd_training", "Vademecum",
            "build_vademecum"]

@@ -63,7 +63,8 @@ class CuttingModel(OnlineModel):
             K_qq = K_qq - enrichment.K_ud.T @ G
             self._G_rows = G  # rows at the contact give the load of psi: -G[rows]^T F
         self._gamma, self._S_measure = None, 1.0
-        if projection == "prb":  # doubly weak form: the enrichment does not depend on s, its s-integrals are gamma and |S|
+        # prb, the doubly weak form: the enrichment does not depend on s, its s-integrals are gamma and |S|
+        if projection == "prb":
             self._gamma, self._S_measure = proj.gamma, float(fam.weights.sum())
             K_bq, K_qq = proj.gamma[:, None] * K_bq, self._S_measure * K_qq
         n_e = K_qq.shape[0]
@@ -256,7 +257,7 @@ class PgdCutting(RomMethod):
             info["accessible_nodes"] = st.accessible
         fam = family_from_training(Training(backend=be, info=info), self.name)
         vad = build_vademecum(fam, self.n_modes, self.tol, self.max_fixed_point, self.fixed_point_tol, self.seed)
-        F_cut = self.F_cut or float((scene.methods.get("pgd_cutting", {}) or {}).get("F_cut_N", 3.0))
+        F_cut = self.F_cut or float(scene.paper.get("methods", {}).get("pgd_cutting", {}).get("F_cut_N", 3.0))
         enr = enrichment_operators(scene, be, st)
         if self.enrichment == "condensed":
             enr = condense(enr, fam.K)

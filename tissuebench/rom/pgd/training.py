@@ -84,7 +84,7 @@ def _line(training, scene, s_nodes):
         raise ValueError("pgd: a 1D scene needs training.system = the assembled poisson1d LineSystem")
     p = scene.model_params or {}
     if s_nodes is None:
-        s_nodes = (scene.methods.get("pgd", {}) or {}).get(f"s_nodes_{scene.resolution}")
+        s_nodes = scene.paper.get("methods", {}).get("pgd", {}).get(f"s_nodes_{scene.resolution}")
     k = float(p.get("conductivity", 1.0))
     # K is the stiffness of -k u''; the family's intensity q is that of the scene's [model]
     return line_family(system.K, np.asarray(scene.mesh.points)[:, 0], system.free, float(p.get("q", 1.0)),
