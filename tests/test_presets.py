@@ -90,3 +90,23 @@ def test_pod_galerkin_on_the_cube(tmp_path_factory):
         assert cube.loc[(case, "pod_newton n_modes=5"), "max_rel_l2"] < 1e-3
     # the linear model with the tangent at the origin cannot follow a 90 degree twist
     assert cube.loc[("cube-twist", "pod_linear n_modes=3"), "max_rel_l2"] > 0.1
+
+
+def test_pgd_cutting_preset(tmp_path_factory):
+    """The vademecum against the FE of the same cut (cornea_cut, ci: cut lengths 0 and 1 of
+    incision 0) and at held-out source positions (heat1d): srb beats prb at every mode count,
+    srb improves with modes, srb is exact once the modes span the space (heat1d, 49 modes),
+    the condensed enrichment removes the cut's error (ci strip: 13 positions)."""
+    pgd = _run("pgd_cutting", tmp_path_factory)
+    cut, heat = pgd.loc["cornea_cut"], pgd.loc["heat1d_source"]
+    opts = "pgd_cutting accessible=strip n_modes={} projection={} strip_rings=1"
+    for n in (1, 2, 4, 6, 10):
+        assert cut.loc[opts.format(n, "srb"), "max_rel_l2"] < cut.loc[opts.format(n, "prb"), "max_rel_l2"]
+        assert heat.loc[f"pgd n_modes={n} projection=srb", "max_rel_l2"] < \
+            heat.loc[f"pgd n_modes={n} projection=prb", "max_rel_l2"]
+    srb = [cut.loc[opts.format(n, "srb"), "max_rel_l2"] for n in (1, 2, 4, 6, 10)]
+    assert all(b <= a for a, b in zip(srb, srb[1:])) and srb[-1] < 0.1
+    assert heat.loc["pgd n_modes=49 projection=srb", "max_rel_l2"] < 1e-12
+    condensed = "pgd_cutting accessible=strip enrichment=condensed n_modes=10 projection=srb strip_rings=1"
+    assert cut.loc[condensed, "max_rel_l2"] < 1e-10
+    assert (cut["n_points"] == 2).all()  # the intact cornea and one cut length

@@ -132,6 +132,27 @@ def line_model(scene) -> LineModel:
              for i, d in enumerate(scene.dirichlet) for c in d["components"]]
     loads = []
     for i, ld in enumerate(scene.loads):
+        if ld["type"] == "point" and ld["distribute"] == "interpolate":
+            loads += [(np.array([node]), share, History(ld["history"]))
+                      for node, share in _interpolated_line_load(scene, i, ld, x[:, 0])]
+            continue
         idx = scene.select(f"load[{i}]", ld["region"], x)
         loads.append((idx, _per_node(ld, ld["value"], idx), History(ld["history"])))
     return LineModel(scene.model, scene.mesh, dict(scene.model_params), fixed, loads)
+
+
+def _interpolated_line_load(scene, i, ld, x):
+    """A point load at ``region.nearest[0]`` split between the two nodes of its element by the
+    linear shape functions (the source moves continuously between nodes)."""
+    if "nearest" not in ld["region"]:
+        raise ValueError(f"{scene.name}: load[{i}].distribute = 'interpolate' needs a 'nearest' point region")
+    s = float(ld["region"]["nearest"][0])
+    if ld["region"].get("frame") == "bbox":
+        s = x.min() + s * (x.max() - x.min())
+    if not x.min() <= s <= x.max():
+        raise ValueError(f"{scene.name}: load[{i}] at x = {s:g} lies outside the interval [{x.min():g}, {x.max():g}]")
+    order = np.argsort(x)
+    k = min(int(np.searchsorted(x[order], s, side="right")) - 1, len(x) - 2)
+    a, b = order[k], order[k + 1]
+    t = (s - x[a]) / (x[b] - x[a])
+    return [(int(a), (1.0 - t) * ld["value"]), (int(b), t * ld["value"])]

@@ -16,6 +16,13 @@ The case entry's ``evaluation`` table has a ``kind`` (default: the training's):
 ``map``         the reference at each parameter of ``mus = [{...}, ...]`` (any scene
                 parameters: ``position``, ``load_scale`` ...), one point per entry, each
                 reference run at the full path's last load factor.
+``cut_lengths`` a scalpel advancing node by node along an incision of the scene's ``[cut]``
+                (the cutting methods, whose model knows the incision strip): per cut length
+                ``c``, the model at ``{node: the scalpel tip, cut_length: c}`` against the
+                linear FE of the same cut mesh under the same contact force; the haptic
+                sequence timed is the scalpel's (``steps_per_length`` steps per length, the
+                online enrichment included), and the reference step is the full FE step of a
+                cut (assembly, factorisation, solve) timed here, in the same process.
 
 Each point carries the model's ``mu``, the reference full field (None where there is
 none), the reference monitors, and the abscissa used for validity radii (``x``: load
@@ -23,6 +30,7 @@ factor, distance to the nearest stored position, or time).
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,7 +40,8 @@ from .training import lattice_positions, positional_scene, reference_states
 
 __all__ = ["EVALUATION_KINDS", "EvaluationPoint", "Evaluation", "build_evaluation"]
 
-EVALUATION_KINDS = ("path", "positions", "trajectory", "map")
+EVALUATION_KINDS = ("path", "positions", "trajectory", "map", "cut_lengths")
+NEEDS_MODEL = ("cut_lengths",)  # built after the model: the incision strip is the model's
 
 
 @dataclass
@@ -55,6 +64,8 @@ class Evaluation:
     state0: dict | None = None
     reference_steps: dict = field(default_factory=dict)  # reference: for timing a full step in process
     info: dict = field(default_factory=dict)
+    timing_mus: list | None = None  # the haptic sequence to time, when the evaluation defines one
+    reference_step_s: float | None = None  # the full step, when the evaluation timed it itself
 
 
 def _monitors(ref, key, value) -> dict:
@@ -143,10 +154,35 @@ def _map(scene, case, spec):
     return Evaluation("map", "index", points, reference_steps=first or {})
 
 
-def build_evaluation(case: dict, scene) -> Evaluation:
-    """The :class:`Evaluation` of a case entry (module docstring)."""
+def _cut_lengths(scene, case, spec, model):
+    """Per cut length of the model's incision: the linear FE of the same cut mesh (module docstring)."""
+    from ..refsolvers.backends import make_backend
+    from ..rom.pgd.reference import cut_problem, linear_reference
+
+    strip = getattr(model, "strip", None)
+    if strip is None:
+        raise ValueError(f"evaluation.kind = 'cut_lengths' needs a cutting model (one with an incision strip); "
+                         f"{model.name!r} has none")
+    points, full_steps = [], []
+    for c in range(strip.max_cut_length + 1):
+        t0 = time.perf_counter()
+        be = make_backend(case["backend"], cut_problem(scene, strip, c, model.force))
+        u, times = linear_reference(be)
+        full_steps.append(time.perf_counter() - t0)
+        points.append(EvaluationPoint({"node": int(strip.tip(c)), "cut_length": c}, u, {}, float(c)))
+    per_length = int(spec.get("steps_per_length", 20))
+    return Evaluation("cut_lengths", "cut_length", points, info={"max_cut_length": strip.max_cut_length},
+                      timing_mus=[p.mu for p in points for _ in range(per_length)],
+                      reference_step_s=float(np.median(full_steps)))
+
+
+def build_evaluation(case: dict, scene, model=None) -> Evaluation:
+    """The :class:`Evaluation` of a case entry (module docstring); ``model`` for the kinds
+    in :data:`NEEDS_MODEL`."""
     spec = dict(case.get("evaluation") or {})
     kind = spec.pop("kind", case["training"]["kind"])
+    if kind == "cut_lengths":
+        return _cut_lengths(scene, case, spec, model)
     if kind == "path":
         ev = _path(scene, case, spec)
     elif kind == "positions":

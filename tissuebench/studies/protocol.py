@@ -92,14 +92,19 @@ def drive(model, evaluation, history=None) -> Driven:
 
 
 def _timing_sequence(model, evaluation, history, n, seed):
+    if evaluation.timing_mus:
+        return list(evaluation.timing_mus)
     if evaluation.kind == "trajectory":
         return _trajectory_mus(evaluation, history)
     mus = [p.mu for p in evaluation.points]
     if model.kind == "map":
         # fresh parameters every step, uniform over the evaluation's range of each one (a tool
-        # moves continuously: a model must not be timed on parameters it has cached)
+        # moves continuously: a model must not be timed on parameters it has cached); integer
+        # parameters (node ids) are drawn from the evaluation's own points instead
         rng = np.random.default_rng(seed)
         keys = sorted(mus[0])
+        if any(isinstance(m[k], (int, np.integer)) and not isinstance(m[k], bool) for m in mus for k in keys):
+            return [mus[i] for i in rng.integers(0, len(mus), size=max(n, 1))]
         lo = {k: min(m[k] for m in mus) for k in keys}
         hi = {k: max(m[k] for m in mus) for k in keys}
         return [{k: float(rng.uniform(lo[k], hi[k])) for k in keys} for _ in range(max(n, 1))]
@@ -175,6 +180,8 @@ _REFERENCE_STEP: dict = {}  # (scene hash, backend, samples) -> seconds, measure
 def reference_step_seconds(evaluation, backend: str = "skfem", samples: int = 3) -> float:
     """Median wall time [s] of the reference's own step (module docstring, 3), measured once per
     process and scene; NaN when the evaluation has no reference run to step from."""
+    if evaluation.reference_step_s is not None:
+        return float(evaluation.reference_step_s)
     ctx = evaluation.reference_steps
     if not ctx:
         return float("nan")

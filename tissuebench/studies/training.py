@@ -16,8 +16,9 @@ A case entry of a sweep spec names what its methods learn from (``training``) wi
                 velocities, ``{time, load_factor}`` per state, the dynamics system, the
                 load history and dt; ``runs = [{load_scale = 0.5}, ...]`` adds runs of
                 the scene at other parameters (one trajectory id per run).
-``operators``   no snapshots: the backend (FE) or the dynamics system (1D models) only,
-                for methods that build from operators (PGD).
+``operators``   no snapshots: the backend (FE), or the assembled 1D model (its dynamics
+                system for a dynamic scene), and the scene in ``info["scene"]``, for methods
+                that build from operators (PGD).
 
 Every training carries the scene's linear output functionals (``Training.outputs``).
 Reference runs go through the content-hashed cache (:mod:`.reference.cache`).
@@ -29,6 +30,7 @@ import numpy as np
 from ..cases import load
 from ..cases.monitors import linear_outputs
 from ..refsolvers.backends import make_backend
+from ..refsolvers.line_models import assemble_line_model
 from ..rom import Training
 from .reference import cached_solve, dynamics_system
 
@@ -123,11 +125,15 @@ def _trajectory(scene, case, spec, info):
 
 
 def _operators(scene, case, spec, info):
+    # the scene itself travels with the operators: a method that builds from them (PGD) reads
+    # its geometry ([cut], the accessible surface, the 1D model's parameters)
+    info = {**info, "scene": scene}
     if scene.is_fe:
         pb = scene.to_problem()
         return Training(backend=make_backend(case["backend"], pb), outputs=_outputs(scene, pb), info=info)
-    return Training(system=dynamics_system(scene) if scene.analysis["type"] == "dynamic" else None,
-                    info={**info, "line_model": scene.line_model()})
+    if scene.analysis["type"] == "dynamic":
+        return Training(system=dynamics_system(scene), info=info)
+    return Training(system=assemble_line_model(scene.line_model()), info=info)
 
 
 _BUILDERS = {"path": _path, "positions": _positions, "trajectory": _trajectory, "operators": _operators}

@@ -24,7 +24,7 @@ import pandas as pd
 from threadpoolctl import threadpool_limits
 
 from ..rom import make_method, method_class
-from .evaluation import build_evaluation
+from .evaluation import NEEDS_MODEL, build_evaluation
 from .metrics import output_rows, point_rows, summarise_points
 from .protocol import blas_info, calibration_seconds, drive, reference_step_seconds, time_latency
 from .store import code_hash, git_commit, package_versions
@@ -136,8 +136,11 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
     p = unit.protocol
     scene = case_scene(unit.case)
     training = build_training(unit.case, scene)
-    evaluation = build_evaluation(unit.case, scene)
+    needs_model = unit.case["evaluation"].get("kind") in NEEDS_MODEL
+    evaluation = None if needs_model else build_evaluation(unit.case, scene)
     model, offline, peak = _build(unit, training)
+    if needs_model:
+        evaluation = build_evaluation(unit.case, scene, model)
     if training.outputs:
         model.attach_outputs(training.outputs)
     history = training.history or (scene.history if evaluation.kind == "trajectory" else None)
