@@ -255,17 +255,23 @@ def list_cases() -> list[str]:
     return sorted(p.stem for p in CATALOGUE_DIR.glob("*.toml"))
 
 
-def _resolve_path(name_or_path) -> Path:
+def resolve_toml(name_or_path, folder: Path, what: str, names) -> Path:
+    """The TOML file a name or path means: anything that looks like a path is one
+    (FileNotFoundError naming it when absent); a bare word is ``folder/<word>.toml``
+    (ValueError listing ``names()`` when there is none)."""
     p = Path(name_or_path)
-    # anything that looks like a path is one; a bare word is a catalogue case name
     if p.suffix == ".toml" or p.parent != Path("."):
         if not p.is_file():
-            raise FileNotFoundError(f"scene file {p} does not exist")
+            raise FileNotFoundError(f"{what} file {p} does not exist")
         return p
-    cand = CATALOGUE_DIR / f"{name_or_path}.toml"
+    cand = folder / f"{name_or_path}.toml"
     if not cand.is_file():
-        raise ValueError(f"unknown case {str(name_or_path)!r}; valid: {list_cases()}")
+        raise ValueError(f"unknown {what} {str(name_or_path)!r}; valid: {names()}")
     return cand
+
+
+def _resolve_path(name_or_path) -> Path:
+    return resolve_toml(name_or_path, CATALOGUE_DIR, "case", list_cases)
 
 
 def _check_mesh(raw, resolution, model):

@@ -44,7 +44,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..cases.scene import RESOLUTIONS, list_cases
+from ..cases.scene import RESOLUTIONS, list_cases, resolve_toml
 from ..cases.schema import key_text, value_text
 from ..rom import METHODS, method_class
 from .evaluation import EVALUATION_KINDS
@@ -106,15 +106,7 @@ def list_presets() -> list[tuple[str, str]]:
 
 
 def _resolve(spec_or_preset) -> Path:
-    p = Path(spec_or_preset)
-    if p.suffix == ".toml" or p.parent != Path("."):
-        if not p.is_file():
-            raise FileNotFoundError(f"sweep spec {p} does not exist")
-        return p
-    cand = PRESETS_DIR / f"{spec_or_preset}.toml"
-    if not cand.is_file():
-        raise ValueError(f"unknown preset {str(spec_or_preset)!r}; valid: {[n for n, _ in list_presets()]}")
-    return cand
+    return resolve_toml(spec_or_preset, PRESETS_DIR, "preset", lambda: [n for n, _ in list_presets()])
 
 
 def _check_case(i, c, resolution):

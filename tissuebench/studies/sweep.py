@@ -20,7 +20,7 @@ from .executors import check_executor, execute
 from .metrics import TOLERANCES, pareto_front
 from .results import ResultsStore, read_units
 from .spec import SweepSpec, expand_units
-from .store import provenance
+from .store import check_output_location, provenance
 
 __all__ = ["SweepSummary", "run_sweep", "check_output_folder", "write_derived"]
 
@@ -37,29 +37,13 @@ class SweepSummary:
 
 
 def check_output_folder(out: Path, resume: bool) -> None:
-    """Refuse an unusable output location before any work (exists as a file, unwritable parent,
-    a folder with results without ``resume``)."""
+    """Refuse an unusable output location before any work (:func:`~.store.check_output_location`),
+    and a folder that holds a sweep without ``resume``."""
+    check_output_location(out, overwrite=True)
     out = Path(out)
-    if "\0" in str(out):
-        raise ValueError(f"--out = {str(out)!r}: contains a NUL byte")
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out = {out}: exists and is not a folder")
-    parent = out if out.exists() else next((p for p in out.parents if p.exists()), Path("."))
-    if not parent.is_dir():
-        raise ValueError(f"--out = {out}: {parent} is not a folder")
-    if not _writable(parent):
-        raise ValueError(f"--out = {out}: {parent} is not writable")
     if out.is_dir() and any(out.glob("case=*")) and not resume:
         raise FileExistsError(f"results folder {out} holds a sweep; pass --resume to continue it, "
                               "or choose another --out")
-
-
-def _writable(folder: Path) -> bool:
-    try:
-        with tempfile.TemporaryFile(dir=folder):
-            return True
-    except OSError:
-        return False
 
 
 def _plan(units, store, resume, log):
