@@ -30,6 +30,8 @@ from tissuebench.studies.describe import describe
 from tissuebench.studies.reference.plan import plan_for
 from tissuebench.studies.spec import PRESETS_DIR, expand_units, load_spec
 
+pytestmark = pytest.mark.fuzz
+
 SCENES = {name: tomllib.loads((CATALOGUE_DIR / f"{name}.toml").read_text()) for name in list_cases()}
 PRESETS = {p.stem: tomllib.loads(p.read_text()) for p in sorted(PRESETS_DIR.glob("*.toml"))}
 SCENE_WORDS = vocabulary(*SCENES.values())
