@@ -102,6 +102,7 @@ def test_pgd_cutting_preset(tmp_path_factory):
     opts = "pgd_cutting accessible=strip n_modes={} projection={} strip_rings=1"
     for n in (1, 2, 4, 6, 10):
         assert cut.loc[opts.format(n, "srb"), "max_rel_l2"] < cut.loc[opts.format(n, "prb"), "max_rel_l2"]
+    for n in (1, 2, 5, 10):
         assert heat.loc[f"pgd n_modes={n} projection=srb", "max_rel_l2"] < \
             heat.loc[f"pgd n_modes={n} projection=prb", "max_rel_l2"]
     srb = [cut.loc[opts.format(n, "srb"), "max_rel_l2"] for n in (1, 2, 4, 6, 10)]
