@@ -25,7 +25,6 @@ NGSolve conventions met here (checked by ``tests/test_ngsolve_backend.py``):
 from __future__ import annotations
 
 import contextlib
-import time
 from functools import cached_property
 
 import netgen.meshing as nm
@@ -36,6 +35,7 @@ import scipy.sparse as sp
 from ..materials import Guccione, LinearElastic, MooneyRivlin, NeoHookean, SaintVenantKirchhoff
 from ..problem import BodyForce, FollowerPressure, SurfaceTraction
 from ..quadrature import default_order, facet_rule, mass_order, volume_rule
+from ..sparse_direct import NgsolveSparseSolver
 from .base import Backend
 
 TET_TO_NG = np.array([1, 0, 2, 3])  # netgen vertex k of a tet = VTK vertex TET_TO_NG[k]
@@ -175,60 +175,6 @@ class _CsrTransfer:
         n = len(self.perm)
         return sp.csr_matrix((vals[self.order] * self.factor, self.indices.copy(), self.indptr.copy()),
                              shape=(n, n))
-
-
-# ---------------------------------------------------------------- linear solver
-class NgsolveDirectSolver:
-    """Sparse direct solve of a scipy CSR system with NGSolve's own factorisations.
-
-    Parameters
-    ----------
-    symmetric : bool or None
-        None: test ``|K - K^T| <= 1e-12 |K|`` (max norms) on each solve.
-    inverse : str or None
-        Force an NGSolve inverse type; default ``"sparsecholesky"`` (LDL^T) for symmetric
-        K, else ``"umfpack"`` (falls back to ``"sparsecholesky"`` if unavailable).
-    """
-
-    def __init__(self, symmetric=None, inverse=None):
-        self.symmetric, self.inverse = symmetric, inverse
-
-    def _inverse_type(self, K):
-        if self.inverse:
-            return self.inverse
-        sym = self.symmetric
-        if sym is None:
-            scale = abs(K).max() if K.nnz else 0.0
-            sym = K.nnz == 0 or abs(K - K.T).max() <= 1e-12 * scale
-        return "sparsecholesky" if sym else "umfpack"
-
-    def solve(self, K, b):
-        """Return ``(x, info)`` for square CSR ``K`` and ``b`` of shape (n,) or (n, k)."""
-        K = sp.csr_matrix(K)
-        n = K.shape[0]
-        t0 = time.perf_counter()
-        coo = K.tocoo()
-        A = ngs.la.SparseMatrixd.CreateFromCOO(coo.row.astype(np.int64), coo.col.astype(np.int64),
-                                               coo.data.astype(float), n, n)
-        kind = self._inverse_type(K)
-        with ngs.TaskManager():
-            try:
-                Ainv = A.Inverse(inverse=kind)
-            except Exception:  # umfpack missing in this build
-                kind = "sparsecholesky"
-                Ainv = A.Inverse(inverse=kind)
-        factor_s = time.perf_counter() - t0
-        bb = np.asarray(b, dtype=float)
-        cols = bb.reshape(n, -1)
-        x = np.empty_like(cols)
-        bv, xv = A.CreateColVector(), A.CreateColVector()
-        for j in range(cols.shape[1]):
-            bv.FV().NumPy()[:] = cols[:, j]
-            xv.data = Ainv * bv
-            x[:, j] = xv.FV().NumPy()
-        info = {"solver": "ngsolve-direct", "iterations": 1, "factor_s": factor_s,
-                "inverse": kind, "solve_s": time.perf_counter() - t0 - factor_s}
-        return x.reshape(bb.shape), info
 
 
 # ---------------------------------------------------------------- the backend
@@ -490,7 +436,8 @@ class NgsolveBackend(Backend):
         return self._mass.copy()
 
     def make_linear_solver(self, name="direct", **options):
-        """``"direct"``: :class:`NgsolveDirectSolver`; other names: the shared solvers."""
+        """``"direct"``: NGSolve's sparse Cholesky/UMFPACK (:class:`NgsolveSparseSolver`,
+        also ``"cholesky"`` on every backend); other names: the shared solvers."""
         if name == "direct":
-            return NgsolveDirectSolver(**options)
+            return NgsolveSparseSolver(**options)
         return super().make_linear_solver(name, **options)
