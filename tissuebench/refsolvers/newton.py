@@ -50,7 +50,7 @@ class NewtonOptions:
     strict: bool = False
     linear_solver: str = "direct"
     linear_solver_options: dict = field(default_factory=dict)
-    forcing_max: float = 1e-3
+    forcing_max: float = 1e-4
 
     def __post_init__(self):
         if not (isinstance(self.forcing_max, (int, float)) and 0 < self.forcing_max < 1):
@@ -207,7 +207,7 @@ def _newton_increment(backend, solver, u_start, lam, opts):
         inc.factor_s += float(info.get("factor_s", 0.0))
         inc.linear_iterations += int(info.get("iterations", 1))
         inc.iterations = it
-        res_prev = res
+        res_prev = _norm(rhs)  # at the first iteration the prescribed-value jump is the residual
         u_new, res_new, step = _update(backend, eq, u, du, du_c, res, opts)
         inc.residual_s += time.perf_counter() - t2
         if u_new is None:
