@@ -101,15 +101,18 @@ class NgsolveSparseSolver(LinearSolver):
     reuse : bool
         Keep the NGSolve matrix and its factorisation object; a matrix with the same
         pattern is copied into it and refactorised by ``Update()`` (same ordering).
-    taskmanager : bool
-        Factorise inside NGSolve's TaskManager (threads of ``ngsolve.SetNumThreads``).
+    taskmanager : bool or None
+        Factorise inside NGSolve's TaskManager (threads of ``ngsolve.SetNumThreads``);
+        None: for systems of at least :attr:`TASKMANAGER_MIN_DOFS` unknowns only (entering
+        it costs 0.1 s on a loaded machine, more than a 600-dof factorisation).
     """
 
     name = "cholesky"
+    TASKMANAGER_MIN_DOFS = 20000
 
-    def __init__(self, symmetric=None, inverse=None, reuse: bool = True, taskmanager: bool = True):
+    def __init__(self, symmetric=None, inverse=None, reuse: bool = True, taskmanager=None):
         self.symmetric, self.inverse = symmetric, inverse
-        self.reuse, self.taskmanager = bool(reuse), bool(taskmanager)
+        self.reuse, self.taskmanager = bool(reuse), taskmanager
         self.reset()
 
     def reset(self):
@@ -131,7 +134,8 @@ class NgsolveSparseSolver(LinearSolver):
         """Refactorise in place (same pattern and inverse type) or build matrix and inverse anew."""
         import ngsolve as ngs
 
-        tm = ngs.TaskManager() if self.taskmanager else _Null()
+        use_tm = K.shape[0] >= self.TASKMANAGER_MIN_DOFS if self.taskmanager is None else self.taskmanager
+        tm = ngs.TaskManager() if use_tm else _Null()
         same = self.reuse and self._inv is not None and self._pattern.matches(K)
         kind = self._inverse_type(K, same)
         if same and kind == self._requested:
