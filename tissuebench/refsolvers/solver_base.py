@@ -3,7 +3,8 @@
 A solver is an object with ``solve(K, b, rtol=None) -> (x, info)`` for a square SciPy
 CSR ``K`` (free dofs only) and ``b`` of shape (n,) (direct solvers also (n, k)).
 ``info`` holds at least ``solver``, ``iterations``, ``factor_s`` (seconds spent on
-factorisation or preconditioner setup) and ``solve_s`` (the rest). ``rtol`` is the
+factorisation or preconditioner setup; ``factor_cpu_s`` the process CPU time of it) and
+``solve_s`` (the rest). ``rtol`` is the
 relative residual a Krylov solver must reach (Newton's forcing term); direct solvers
 ignore it. Solvers keep state between calls (orderings, factorisations, AMG
 hierarchies) and ``reset()`` drops it.
