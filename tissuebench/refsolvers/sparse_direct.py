@@ -21,7 +21,8 @@ import time
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from .solver_base import LinearSolver, LinearSolverError, SparsityPattern, canonical_csr
+from .solver_base import (LinearSolver, LinearSolverError, SparsityPattern, canonical_csr,
+                          idle_core)
 
 
 class _OrderedLU:
@@ -103,8 +104,9 @@ class NgsolveSparseSolver(LinearSolver):
         pattern is copied into it and refactorised by ``Update()`` (same ordering).
     taskmanager : bool or None
         Factorise inside NGSolve's TaskManager (threads of ``ngsolve.SetNumThreads``);
-        None: for systems of at least :attr:`TASKMANAGER_MIN_DOFS` unknowns only (entering
-        it costs 0.1 s on a loaded machine, more than a 600-dof factorisation).
+        None: for systems of at least :attr:`TASKMANAGER_MIN_DOFS` unknowns, and only while
+        a core is idle (:func:`~tissuebench.refsolvers.solver_base.idle_core`; entering it
+        costs 0.1 s on a loaded machine, more than a 600-dof factorisation).
     """
 
     name = "cholesky"
@@ -134,7 +136,10 @@ class NgsolveSparseSolver(LinearSolver):
         """Refactorise in place (same pattern and inverse type) or build matrix and inverse anew."""
         import ngsolve as ngs
 
-        use_tm = K.shape[0] >= self.TASKMANAGER_MIN_DOFS if self.taskmanager is None else self.taskmanager
+        if self.taskmanager is None:
+            use_tm = K.shape[0] >= self.TASKMANAGER_MIN_DOFS and idle_core()
+        else:
+            use_tm = self.taskmanager
         tm = ngs.TaskManager() if use_tm else _Null()
         same = self.reuse and self._inv is not None and self._pattern.matches(K)
         kind = self._inverse_type(K, same)

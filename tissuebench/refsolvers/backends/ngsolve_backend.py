@@ -39,6 +39,7 @@ import scipy.sparse as sp
 from ..materials import Guccione, LinearElastic, MooneyRivlin, NeoHookean, SaintVenantKirchhoff
 from ..problem import BodyForce, FollowerPressure, SurfaceTraction
 from ..quadrature import default_order, facet_rule, mass_order, volume_rule
+from ..solver_base import idle_core
 from ..sparse_direct import NgsolveSparseSolver
 from .base import Backend
 
@@ -217,8 +218,9 @@ class NgsolveBackend(Backend):
     problem : Problem
     threads : int or None
         Assemble inside NGSolve's TaskManager (None: NGSolve's default thread count for
-        meshes of at least :attr:`TASKMANAGER_MIN_CELLS` cells, serial below; 1: no
-        TaskManager; n > 1: ``SetNumThreads(n)``, a process-wide setting).
+        meshes of at least :attr:`TASKMANAGER_MIN_CELLS` cells while a core is idle
+        (:func:`~tissuebench.refsolvers.solver_base.idle_core`, checked per call), serial
+        otherwise; 1: no TaskManager; n > 1: ``SetNumThreads(n)``, a process-wide setting).
     realcompile : bool or None
         Compile the energy of f_int and K_t to C++ (NGSolve's ``realcompile``, with the
         ``ngscxx`` installed beside the interpreter). None: for meshes of at least
@@ -330,8 +332,11 @@ class NgsolveBackend(Backend):
         return W.Compile() if compile else W
 
     def _tm(self):
-        """TaskManager context for assembly (a no-op with ``threads=1``)."""
-        return contextlib.nullcontext() if self._threads == 1 else ngs.TaskManager()
+        """TaskManager context for assembly (a no-op with ``threads=1`` or, by default, when
+        no core is idle)."""
+        if self._threads == 1 or (self._threads is None and not idle_core()):
+            return contextlib.nullcontext()
+        return ngs.TaskManager()
 
     # ------------------------------------------------------------ internal
     def internal_force(self, u):
