@@ -64,6 +64,10 @@ class DirectSolver(LinearSolver):
 
     def factorize(self, K):
         """LU factors of ``K`` with ``.solve(b)``, reusing the ordering if the pattern matches."""
+        return self._factorize(K)[0]
+
+    def _factorize(self, K):
+        """(factors, ``"reused"`` or ``"computed"`` ordering)."""
         K = canonical_csr(K)
         reuse = self.reuse_ordering and self._q is not None and self._pattern.matches(K)
         try:
@@ -82,7 +86,7 @@ class DirectSolver(LinearSolver):
 
     def solve(self, K, b, rtol=None):
         t0, c0 = time.perf_counter(), time.process_time()
-        lu, symbolic = self.factorize(K)
+        lu, symbolic = self._factorize(K)
         t1, c1 = time.perf_counter(), time.process_time()
         x = lu.solve(np.asarray(b, float))
         return x, {"solver": "scipy-splu", "iterations": 1, "factor_s": t1 - t0, "factor_cpu_s": c1 - c0,
