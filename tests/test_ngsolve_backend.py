@@ -305,3 +305,35 @@ def test_direct_solver_spd_and_nonsymmetric():
     assert np.linalg.norm(x - x0) <= 1e-10 * np.linalg.norm(x0)
     X, _ = solver.solve(K, np.stack([rhs, 2 * rhs], 1))
     np.testing.assert_allclose(X[:, 1], 2 * x0, rtol=0, atol=1e-9)
+
+
+# ---------------------------------------------------------------- compiled energy
+@pytest.mark.slow
+def test_realcompiled_energy_gives_the_interpreted_operators():
+    """C++-compiled energy (realcompile): f_int and K_t equal the interpreted ones to round-off."""
+    from tissuebench.refsolvers.backends.ngsolve_backend import compiler_available
+
+    if not compiler_available():
+        pytest.skip("no C++ compiler / ngscxx")
+    plain = backend("P1", "mooney_rivlin", n=(3, 2, 2))
+    compiled = NgsolveBackend(plain.problem, realcompile=True)
+    assert compiled.compiled and not plain.compiled
+    u = random_u(plain, seed=7)
+    f0, f1 = plain.internal_force(u), compiled.internal_force(u)
+    assert np.abs(f1 - f0).max() <= 1e-13 * np.abs(f0).max()
+    K0, K1 = plain.tangent(u), compiled.tangent(u)
+    assert abs(K1 - K0).max() <= 1e-13 * abs(K0).max()
+
+
+def test_realcompile_failure_is_a_warning_and_falls_back(monkeypatch):
+    from tissuebench.refsolvers.backends import ngsolve_backend as nb
+
+    monkeypatch.setattr(nb.sys, "executable", "/nonexistent/bin/python")
+    monkeypatch.setenv("PATH", "/nonexistent")
+    assert not nb.compiler_available()
+    plain = backend("P1", "mooney_rivlin", n=(2, 1, 1))
+    with pytest.warns(RuntimeWarning, match="realcompile failed"):
+        b = NgsolveBackend(plain.problem, realcompile=True)
+    assert not b.compiled
+    u = random_u(b, seed=8)
+    np.testing.assert_allclose(b.internal_force(u), plain.internal_force(u), rtol=0, atol=1e-14)

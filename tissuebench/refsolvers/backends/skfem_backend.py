@@ -13,6 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 import skfem
 
+from ..materials import Material
 from ..quadrature import default_order, facet_rule, mass_order, volume_rule
 from ..problem import BodyForce, FollowerPressure, SurfaceTraction
 from .base import Backend
@@ -38,6 +39,42 @@ class _Pattern:
     def assemble(self, element_matrices):
         data = np.bincount(self.scatter, weights=element_matrices.ravel(), minlength=len(self.indices))
         return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
+
+
+def _total_lagrangian(material):
+    """True if ``stress_and_tangent`` is the base class's push-forward of ``pk2``: then the
+    element matrices are built from S and dS/dE directly, without the 81-component dP/dF."""
+    return type(material).stress_and_tangent is Material.stress_and_tangent
+
+
+def _tl_element_tangents(F, S, CC, grad, dx):
+    """Element tangents from the second Piola-Kirchhoff stress and its tangent.
+
+    ``K_aibk = sum_q dx (delta_ik g_aJ S_JL g_bL + F_iI g_aJ CC_IJKL F_kK g_bL)``: the same
+    contraction as ``g A g`` with ``A = dP/dF`` (:func:`~..materials._pk1_tangent`), done as
+    B D B^T with B (3 n_loc, 9) so that no (n_cells, n_qp, 3, 3, 3, 3) product is formed.
+
+    Parameters
+    ----------
+    F, S : ndarray, shape (e, q, 3, 3)
+    CC : ndarray, shape (e, q, 3, 3, 3, 3)
+    grad : ndarray, shape (e, q, n_loc, 3)
+        Reference shape-function gradients.
+    dx : ndarray, shape (e, q)
+
+    Returns
+    -------
+    ndarray, shape (e, 3 n_loc, 3 n_loc)
+    """
+    e, q, n = grad.shape[:3]
+    B = np.einsum("eqiI,eqaJ->eqaiIJ", F, grad).reshape(e * q, 3 * n, 9)
+    D = (CC * dx[:, :, None, None, None, None]).reshape(e * q, 9, 9)
+    K = np.matmul(np.matmul(B, D), B.transpose(0, 2, 1)).reshape(e, q, 3 * n, 3 * n).sum(axis=1)
+    geo = np.einsum("eq,eqaJ,eqJL,eqbL->eab", dx, grad, S, grad, optimize=True)
+    K = K.reshape(e, n, 3, n, 3)
+    for i in range(3):  # delta_ik: the geometric term on the diagonal of each 3x3 block
+        K[:, :, i, :, i] += geo
+    return K.reshape(e, 3 * n, 3 * n)
 
 
 class _CellKernel:
@@ -118,12 +155,18 @@ class SkfemBackend(Backend):
 
     def _element_tangents(self, u):
         F = self._k.deformation_gradient(self._check_u(u))
-        P, A = self.problem.material.stress_and_tangent(F)
         G = self._k.grad * self._k.dx[:, :, None, None]
-        Ke = np.einsum("eqaJ,eqiJkL,eqbL->eaibk", G, A, self._k.grad, optimize=True)
+        mat = self.problem.material
+        if _total_lagrangian(mat):
+            S, CC = mat.pk2(F, tangent=True)
+            P, Ke = F @ S, _tl_element_tangents(F, S, CC, self._k.grad, self._k.dx)
+        else:  # the material gives dP/dF itself
+            P, A = mat.stress_and_tangent(F)
+            Ke = np.einsum("eqaJ,eqiJkL,eqbL->eaibk", G, A, self._k.grad, optimize=True)
+            n = Ke.shape[1] * 3
+            Ke = Ke.reshape(len(Ke), n, n)
         fe = np.einsum("eqiJ,eqaJ->eai", P, G, optimize=True)
-        n = Ke.shape[1] * 3
-        return fe.reshape(len(fe), -1), Ke.reshape(len(Ke), n, n)
+        return fe.reshape(len(fe), -1), Ke
 
     def tangent(self, u):
         return self.pattern.assemble(self._element_tangents(u)[1])

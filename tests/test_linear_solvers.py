@@ -1,0 +1,187 @@
+"""Linear solvers: reuse of orderings, factorisations and AMG hierarchies is exact when the
+sparsity pattern is identical and refused when it differs; AMG-CG reaches its tolerance;
+the forcing term follows Eisenstat-Walker."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from tissuebench.cases.bar import bar_tension
+from tissuebench.refsolvers import make_backend
+from tissuebench.refsolvers.linear_solvers import (AmgCgSolver, DirectSolver, LinearSolverError, SparsityPattern,
+                                                   forcing_term, make_linear_solver, rigid_body_modes)
+
+
+@pytest.fixture(scope="module")
+def bar():
+    return bar_tension("ci")
+
+
+def _tangent(bar, stretch, shear=0.0):
+    """Free-dof tangent of the ci bar at a homogeneous stretch (plus a small shear)."""
+    pb = bar.problem
+    be = make_backend("skfem", pb)
+    x = pb.nodes
+    u = np.zeros(pb.ndof)
+    u[0::3] = stretch * x[:, 0]
+    u[1::3] = shear * x[:, 0]
+    free = pb.free_dofs
+    return be.tangent(u)[free][:, free].tocsr()
+
+
+@pytest.fixture(scope="module")
+def tangents(bar):
+    """Two tangents with one pattern, and the first with an extra coupling (new pattern)."""
+    K1, K2 = _tangent(bar, 0.1), _tangent(bar, 0.25, 0.05)
+    n = K1.shape[0]
+    extra = sp.coo_matrix(([1e-3 * abs(K1).max()] * 2, ([0, n - 1], [n - 1, 0])), shape=K1.shape)
+    K3 = (K1 + extra).tocsr()
+    assert K3.nnz == K1.nnz + 2
+    return K1, K2, K3
+
+
+def _rhs(n, seed=0):
+    return np.random.default_rng(seed).standard_normal(n)
+
+
+def _relres(K, x, b):
+    return np.linalg.norm(K @ x - b) / np.linalg.norm(b)
+
+
+# ---------------------------------------------------------------- patterns and forcing term
+def test_sparsity_pattern_matches_exactly_and_tests_symmetry(tangents):
+    K1, K2, K3 = tangents
+    pat = SparsityPattern()
+    assert not pat.matches(K1)
+    pat.store(K1)
+    assert pat.matches(K1) and pat.matches(K2) and not pat.matches(K3)
+    assert pat.is_symmetric(K2)
+    N = K2.copy()
+    N.data[5] *= 1.0 + 1e-9  # one entry off: K is no longer symmetric
+    assert abs(N - N.T).max() > 1e-12 * abs(N).max() and not pat.is_symmetric(N)
+
+
+def test_forcing_term_eisenstat_walker():
+    assert forcing_term(1.0, None, None, 1e-12, eta_max=1e-3) == 1e-3  # first iteration
+    # choice 2: 0.9 (res / res_prev)^2
+    assert forcing_term(1e-3, 1e-1, 1e-3, 1e-15, eta_max=0.5) == pytest.approx(0.9e-4)
+    # safeguard: not below 0.9 eta_prev^2 when that exceeds 0.1
+    assert forcing_term(1e-3, 1.0, 0.4, 1e-15, eta_max=0.5) == pytest.approx(0.9 * 0.16)
+    # floor: no more accuracy than 0.5 tol / res
+    assert forcing_term(1e-6, 1.0, 1e-3, 1e-9, eta_max=0.5) == pytest.approx(5e-4)
+    assert forcing_term(1e-12, 1.0, 1e-3, 1e-9, eta_max=1e-2) == 1e-2  # capped
+
+
+# ---------------------------------------------------------------- direct solvers
+def test_superlu_reuses_ordering_only_for_the_same_pattern(tangents):
+    K1, K2, K3 = tangents
+    b = _rhs(K1.shape[0])
+    solver = DirectSolver()
+    for K, expected in [(K1, "computed"), (K2, "reused"), (K3, "computed"), (K3, "reused"), (K1, "computed")]:
+        x, info = solver.solve(K, b)
+        assert info["symbolic"] == expected
+        fresh = spla.splu(K.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(b)
+        assert np.abs(x - fresh).max() <= 1e-10 * np.abs(fresh).max()
+        assert _relres(K, x, b) <= 1e-12
+    # the reused ordering factorises with exactly the fill of the fresh minimum-degree ordering
+    solver.reset()
+    lu_fresh = solver.factorize(K2)
+    lu_reused = solver.factorize(K2)
+    assert lu_fresh.q is None and lu_reused.q is not None  # the second one ran on the stored ordering
+    assert lu_reused.lu.L.nnz + lu_reused.lu.U.nnz == lu_fresh.lu.L.nnz + lu_fresh.lu.U.nnz
+
+
+@pytest.mark.ngsolve
+def test_ngsolve_cholesky_refactorises_in_place_only_for_the_same_pattern(tangents):
+    K1, K2, K3 = tangents
+    b = _rhs(K1.shape[0], 1)
+    solver = make_linear_solver("cholesky", taskmanager=False)
+    for K, expected in [(K1, "computed"), (K2, "reused"), (K3, "computed"), (K3, "reused"), (K2, "computed")]:
+        x, info = solver.solve(K, b)
+        assert info["symbolic"] == expected and info["inverse"] == "sparsecholesky"
+        assert _relres(K, x, b) <= 1e-12
+    # same pattern, values no longer symmetric: a new factorisation of another type
+    N = K2.copy()
+    N.data *= 1.0 + 0.01 * np.random.default_rng(4).random(N.nnz)
+    x, info = solver.solve(N, b)
+    assert info["symbolic"] == "computed" and info["inverse"] == "umfpack"
+    assert _relres(N, x, b) <= 1e-12
+
+
+# ---------------------------------------------------------------- AMG-CG
+def _amg(bar, **kw):
+    pb = bar.problem
+    return AmgCgSolver(coords=pb.nodes, free_dofs=pb.free_dofs, **kw)
+
+
+def test_rigid_body_modes_are_the_zero_energy_modes_of_the_unconstrained_tangent(bar):
+    pb = bar.problem
+    K = make_backend("skfem", pb).tangent(np.zeros(pb.ndof))
+    B = rigid_body_modes(pb.nodes)
+    assert np.abs(K @ B).max() <= 1e-10 * abs(K).max() * np.abs(B).max()
+    assert np.linalg.matrix_rank(B) == 6
+
+
+@pytest.mark.parametrize("rtol", [1e-3, 1e-8, 1e-11])
+def test_amg_cg_reaches_its_tolerance(bar, tangents, rtol):
+    K = tangents[1]
+    b = _rhs(K.shape[0], 2)
+    x, info = _amg(bar).solve(K, b, rtol=rtol)
+    assert info["solver"] == "amg-cg" and info["rtol"] == rtol
+    assert _relres(K, x, b) <= rtol and info["relative_residual"] == pytest.approx(_relres(K, x, b))
+    exact = spla.spsolve(K.tocsc(), b)
+    # CG error bound: |x - x*| <= cond(K) rtol |x*|; with the tangent's condition well below 1e4
+    assert np.linalg.norm(x - exact) <= 1e4 * rtol * np.linalg.norm(exact)
+
+
+def test_amg_cg_fixed_rtol_overrides_the_callers(bar, tangents):
+    K = tangents[0]
+    _, info = _amg(bar, rtol=1e-10).solve(K, _rhs(K.shape[0]), rtol=1e-2)
+    assert info["rtol"] == 1e-10 and info["relative_residual"] <= 1e-10
+
+
+def test_amg_hierarchy_reused_for_the_same_pattern_rebuilt_for_another(bar, tangents):
+    K1, K2, K3 = tangents
+    b = _rhs(K1.shape[0], 3)
+    solver = _amg(bar)
+    for K, expected in [(K1, "built"), (K1, "reused"), (K2, "reused"), (K3, "built"), (K3, "reused")]:
+        x, info = solver.solve(K, b, rtol=1e-9)
+        assert info["hierarchy"] == expected
+        assert _relres(K, x, b) <= 1e-9
+    # reuse on the same matrix: the very same preconditioned iterations, hence the same x
+    solver.reset()
+    x_built, _ = solver.solve(K2, b, rtol=1e-9)
+    x_reused, info = solver.solve(K2, b, rtol=1e-9)
+    assert info["hierarchy"] == "reused"
+    np.testing.assert_array_equal(x_reused, x_built)
+
+
+def test_amg_rebuilds_an_aged_hierarchy_and_on_symmetry_change(bar, tangents):
+    K1, K2, _ = tangents
+    b = _rhs(K1.shape[0], 5)
+    solver = _amg(bar, rebuild_factor=1.0)
+    solver.solve(_tangent(bar, 0.0), b, rtol=1e-9)  # same pattern as K1, K2
+    # the hierarchy of the unstretched tangent needs more iterations per decade on K2
+    _, aged = solver.solve(K2, b, rtol=1e-9)
+    _, info = solver.solve(K2, b, rtol=1e-9)
+    assert aged["hierarchy"] == "reused" and info["hierarchy"] == "built"
+    assert info["iterations"] < aged["iterations"]
+    N = K2.copy()
+    N.data *= 1.0 + 0.01 * np.random.default_rng(6).random(N.nnz)
+    x, info = solver.solve(N, b, rtol=1e-9)
+    assert info["hierarchy"] == "built" and info["solver"] == "amg-gmres"
+    assert _relres(N, x, b) <= 1e-9
+
+
+def test_amg_cg_failure_is_an_error_not_a_nan(bar, tangents):
+    K = tangents[1]
+    solver = _amg(bar, maxiter=2)
+    with pytest.raises(LinearSolverError, match="no convergence"):
+        solver.solve(K, _rhs(K.shape[0]), rtol=1e-12)
+
+
+@pytest.mark.parametrize("kw", [{"rtol": 0.0}, {"rtol": 1.5}, {"maxiter": 0}, {"rebuild_factor": 0.5}])
+def test_amg_cg_bad_options(kw):
+    name = next(iter(kw))
+    with pytest.raises(ValueError, match=name):
+        AmgCgSolver(**kw)
