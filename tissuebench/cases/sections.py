@@ -1,6 +1,7 @@
 """Validation of the physical sections of a scene: material, model, dirichlet, load, analysis.
 
-``[material]`` (FE only): name (linear | svk | neo_hookean | mooney_rivlin | guccione),
+``[material]`` (FE only): name (linear | svk | neo_hookean | neo_hookean_decoupled | mooney_rivlin |
+guccione),
 its parameters, density (optional, > 0), fibres (Guccione, optional 3-vector).
 ``[model]`` (1D models only): the discrete model's parameters.
 ``[[dirichlet]]``: region, components ("xyz" or list), value (number or one per
@@ -26,7 +27,7 @@ __all__ = ["MATERIAL_SCHEMAS", "MODEL_SCHEMAS", "LOAD_TYPES", "INTEGRATOR_NAMES"
 
 _ENU = {"E": c_pos, "nu": c_nu}
 MATERIAL_SCHEMAS = {
-    "linear": _ENU, "svk": _ENU, "neo_hookean": _ENU,
+    "linear": _ENU, "svk": _ENU, "neo_hookean": _ENU, "neo_hookean_decoupled": _ENU,
     "mooney_rivlin": {"mu1": c_pos, "mu2": c_nonneg, "kappa": c_pos},
     "guccione": {"C": c_pos, "bf": c_pos, "bt": c_pos, "bfs": c_pos, "kappa": c_pos, "fibres": c_vec3},
 }

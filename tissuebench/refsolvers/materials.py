@@ -13,6 +13,8 @@ Definitions follow SPEC.md exactly (lambda, mu are the Lame constants):
 * linear elastic: W = lambda/2 (tr eps)^2 + mu eps:eps, eps = sym(F - I)
 * Saint Venant-Kirchhoff: W = lambda/2 (tr E)^2 + mu E:E, E = (C - I)/2
 * compressible neo-Hookean: W = mu/2 (I1 - 3) - mu ln J + lambda/2 (ln J)^2
+* decoupled compressible neo-Hookean (deal.II code gallery, Cook's membrane):
+  W = mu/2 (J^-2/3 I1 - 3) + kappa/4 (J^2 - 1 - 2 ln J), kappa = E / (3 (1 - 2 nu))
 * compressible Mooney-Rivlin: W = mu1/2 (J^-2/3 I1 - 3) + mu2/2 (J^-4/3 I2 - 3) + kappa/2 (J-1)^2
 * Guccione: W = C/2 (exp(Q) - 1) + kappa/2 (J - 1)^2 with Q in fibre axes.
 
@@ -200,6 +202,34 @@ class NeoHookean(_EnuMaterial, _InvariantMaterial):
 
 
 @dataclass(frozen=True)
+class NeoHookeanDecoupled(_EnuMaterial, _InvariantMaterial):
+    """Decoupled compressible neo-Hookean: W = mu/2 (J^-2/3 I1 - 3) + kappa/4 (J^2 - 1 - 2 ln J).
+
+    The isochoric/volumetric split of the deal.II code gallery's Cook membrane
+    (``Quasi_static_Finite_strain_Compressible_Elasticity``, Pelteret and McBride 2016)
+    with the small-strain moduli of (E, nu): mu = E / (2 (1 + nu)) and the bulk modulus
+    kappa = lambda + 2/3 mu = 2 mu (1 + nu) / (3 (1 - 2 nu)).
+    """
+
+    name = "neo_hookean_decoupled"
+
+    @property
+    def bulk_modulus(self) -> float:
+        return self.E / (3 * (1 - 2 * self.nu))
+
+    def _derivs(self, I1, I2, J):
+        mu, k = self.lame[1], self.bulk_modulus
+        z = np.zeros_like(J)
+        Jm23 = J ** (-2 / 3)
+        W = 0.5 * mu * (Jm23 * I1 - 3) + 0.25 * k * (J**2 - 1 - 2 * np.log(J))
+        W1 = 0.5 * mu * Jm23
+        W1J = -mu / 3 * Jm23 / J
+        WJ = W1J * I1 + 0.5 * k * (J - 1 / J)
+        WJJ = 5 * mu / 9 * Jm23 / J**2 * I1 + 0.5 * k * (1 + 1 / J**2)
+        return W, W1, z, WJ, W1J, z, WJJ
+
+
+@dataclass(frozen=True)
 class MooneyRivlin(_InvariantMaterial):
     """Compressible Mooney-Rivlin: mu1/2 (J^-2/3 I1 - 3) + mu2/2 (J^-4/3 I2 - 3) + kappa/2 (J-1)^2."""
 
@@ -294,7 +324,8 @@ class Guccione(_InvariantMaterial):
         return S, CC
 
 
-MATERIALS = {cls.name: cls for cls in (LinearElastic, SaintVenantKirchhoff, NeoHookean, MooneyRivlin, Guccione)}
+MATERIALS = {cls.name: cls for cls in (LinearElastic, SaintVenantKirchhoff, NeoHookean, NeoHookeanDecoupled,
+                                       MooneyRivlin, Guccione)}
 
 
 def make_material(name, **params) -> Material:
