@@ -18,18 +18,47 @@ import math
 
 import numpy as np
 import pytest
+from _fe_helpers import (
+    BACKEND_PARAMS,
+    ELEMENTS,
+    MATERIAL_NAMES,
+    element_mesh,
+    fitted_order,
+    l2_error,
+    material_set,
+    on_box_boundary,
+    on_plane,
+    solve,
+)
 from scipy.optimize import brentq
 
-from _fe_helpers import (BACKEND_PARAMS, CELL_OF, ELEMENTS, MATERIAL_NAMES, element_mesh, fitted_order,
-                         l2_error, material_set, on_box_boundary, on_plane, solve)
+from tissuebench.cases.cook import (
+    CORNER,
+    COUPLED_LIMIT,
+    DEALII_PLANE_STRAIN_LIMIT,
+    DEALII_PLANE_STRAIN_Q1,
+    DEALII_SLAB_LIMIT,
+    DEALII_SLAB_Q1,
+    MIDPOINT,
+    printed_half_unit,
+)
+from tissuebench.cases.cook import cook_problem as _cook_problem
+from tissuebench.cases.cook import cook_tip as _cook_tip
 from tissuebench.cases.meshes import box_mesh
 from tissuebench.refsolvers.backends import make_backend
-from tissuebench.refsolvers.materials import (LinearElastic, MooneyRivlin, NeoHookean, NeoHookeanDecoupled,
-                                              SaintVenantKirchhoff)
-from tissuebench.refsolvers.mesh import Mesh
-from tissuebench.refsolvers.problem import Dirichlet, FollowerPressure, Problem, SurfaceTraction
-
-ALL = lambda x: np.ones(len(x), dtype=bool)  # noqa: E731
+from tissuebench.refsolvers.materials import (
+    LinearElastic,
+    MooneyRivlin,
+    NeoHookean,
+    NeoHookeanDecoupled,
+    SaintVenantKirchhoff,
+)
+from tissuebench.refsolvers.problem import (
+    Dirichlet,
+    FollowerPressure,
+    Problem,
+    SurfaceTraction,
+)
 
 # A fixed non-symmetric displacement gradient of size ~1e-3 and a translation.
 A_PATCH = 1e-3 * np.array([[1.0, 0.4, -0.3],
@@ -391,53 +420,19 @@ def test_newton_converges_quadratically(backend):
 
 
 # =========================================================================== 7. Cook's membrane
-COOK_MU, COOK_NU = 0.4225, 0.3  # MPa (N/mm^2); lengths in mm, forces in N
-COOK_E = 2 * COOK_MU * (1 + COOK_NU)
-COOK_CORNER, COOK_MIDPOINT = (48.0, 60.0, 0.0), (48.0, 52.0, 0.0)
-
-# deal.II code gallery, Quasi_static_Finite_strain_Compressible_Elasticity (J-P. Pelteret and
-# A. McBride 2016, doi:10.5281/zenodo.1228964), README "Tip y-displacement (in mm)", Q1 column, for the
-# decoupled neo-Hookean (mu = 422.5 kPa, nu = 0.3, 1 N total shear traction, 1 mm thick, 2x2x2 Gauss):
-# * since commit 7f3b249 (2021): plane strain (u_z = 0 on both faces), midpoint (48, 52) of the
-#   loaded edge; Q2 column 14.30 (2), 14.65, 14.71, 14.73, 14.74 (32), 14.74 (64).
-DEALII_PLANE_STRAIN_Q1 = {2: "8.638", 4: "12.07", 8: "13.86", 16: "14.49", 32: "14.67", 64: "14.72"}
-DEALII_PLANE_STRAIN_LIMIT = 14.74
-# * 2015-2021 README: top corner (48, 60), and both faces z = +-0.5 traction-free: the code meant to
-#   fix u_z there but tagged the faces with center()[0] instead of center()[2] (fixed in a587098,
-#   2021), so the 1 mm slab was free, a plane-stress-like state. Q2 column 12.19 (1), 13.83, 14.22,
-#   14.30, 14.32, 14.33 (32), 14.33 (64): the 14.33 mm quoted for Cook's membrane.
-DEALII_SLAB_Q1 = {1: "5.15", 2: "8.72", 4: "12.02", 8: "13.61", 16: "14.13", 32: "14.28", 64: "14.32"}
-COOK_REFERENCE = 14.33  # mm, DEALII_SLAB_Q1's Q2 limit
-# The SPEC's coupled neo-Hookean in plane strain at the corner (our own converged number, see
-# test_cook_neo_hookean_converges_fine): P2 16x16 13.568, Q1 32x32 13.538.
-COOK_COUPLED_LIMIT = 13.57
+# Geometry, load and the deal.II code gallery's tables (with their provenance): tissuebench.cases.cook
+COOK_REFERENCE = DEALII_SLAB_LIMIT  # 14.33 mm, the figure quoted for this benchmark
+_printed_half_unit = printed_half_unit
 
 
 def cook_problem(n, element, material=None, traction=1.0 / 16.0, plane_strain=True):
-    """Trapezoid (0,0),(48,44),(48,60),(0,44) mm, one element 1 mm thick, left edge clamped,
-    dead shear traction 1/16 MPa on the right edge (height 16 mm): 1 N per mm of thickness,
-    i.e. 1 N total for the 1 mm slab. ``plane_strain``: u_z = 0 everywhere; else both faces
-    z = 0, 1 are free (the deal.II gallery's 2015-2021 slab). Default material: the SPEC's
-    coupled compressible neo-Hookean."""
-    m = box_mesh((1.0, 1.0, 1.0), (n, n, 1), CELL_OF[element])
-    xi, eta, z = m.points.T
-    pts = np.stack([48 * xi, 44 * xi + 44 * eta - 28 * xi * eta, z], axis=1)
-    mesh = Mesh(pts, m.cells, m.cell_type)
-    mat = material or NeoHookean(E=COOK_E, nu=COOK_NU)
-    bcs = [Dirichlet(on_plane(0, 0.0))] + ([Dirichlet(ALL, (2,))] if plane_strain else [])
-    return Problem(mesh, mat, element, bcs, [SurfaceTraction(on_plane(0, 48.0), np.array([0.0, traction, 0.0]))])
+    return _cook_problem(n, element, material or "coupled", traction, plane_strain)
 
 
-def cook_tip(pb, backend, point=COOK_CORNER):
-    """u_y (mm) of the node at ``point`` after one Newton solve."""
-    _, res = solve(pb, backend)
-    i = int(np.flatnonzero(np.all(np.abs(pb.nodes - point) < 1e-9, axis=1))[0])
-    return float(res.u[3 * i + 1])
-
-
-def _printed_half_unit(text):
-    """Half a unit of the last printed digit of a table entry: its rounding tolerance."""
-    return 0.5 * 10.0 ** -len(text.split(".")[1])
+def cook_tip(pb, backend, point=CORNER):
+    """u_y (mm) of the node at ``point`` after one strict Newton solve."""
+    tip, res = _cook_tip(pb, backend, point, strict=True)
+    return tip
 
 
 def _richardson(coarse, fine, order=2):
@@ -460,11 +455,10 @@ def test_cook_linear_plane_strain_matches_published_codes(n, rel, backend):
 _cook_cache: dict = {}
 
 
-def _cook(n, element, backend, material="coupled", plane_strain=True, point=COOK_CORNER):
+def _cook(n, element, backend, material="coupled", plane_strain=True, point=CORNER):
     key = (n, element, backend, material, plane_strain, point)
     if key not in _cook_cache:
-        mat = NeoHookeanDecoupled(E=COOK_E, nu=COOK_NU) if material == "decoupled" else None
-        _cook_cache[key] = cook_tip(cook_problem(n, element, mat, plane_strain=plane_strain), backend, point)
+        _cook_cache[key] = cook_tip(cook_problem(n, element, material, plane_strain=plane_strain), backend, point)
     return _cook_cache[key]
 
 
@@ -490,7 +484,7 @@ def test_cook_neo_hookean_converges_fine(backend):
         assert all(b > a for a, b in zip(seq, seq[1:])), seq
         assert abs(seq[-1] - seq[-2]) <= tol * seq[-1], seq
     assert abs(p2[-1] - q1[-1]) <= 0.005 * p2[-1], (p2, q1)
-    assert p2[-1] == pytest.approx(COOK_COUPLED_LIMIT, rel=1e-3), p2
+    assert p2[-1] == pytest.approx(COUPLED_LIMIT, rel=1e-3), p2
 
 
 @pytest.mark.parametrize("backend", BACKEND_PARAMS)
@@ -500,7 +494,7 @@ def test_cook_decoupled_plane_strain_matches_dealii_q1_column(backend):
     printed digits (an independent code on the same mesh)."""
     for n in (2, 4, 8, 16):
         ref = DEALII_PLANE_STRAIN_Q1[n]
-        tip = _cook(n, "Q1", backend, "decoupled", point=COOK_MIDPOINT)
+        tip = _cook(n, "Q1", backend, "decoupled", point=MIDPOINT)
         assert abs(tip - float(ref)) <= _printed_half_unit(ref), (n, tip, ref)
 
 
@@ -508,7 +502,7 @@ def test_cook_decoupled_plane_strain_matches_dealii_q1_column(backend):
 def test_cook_decoupled_plane_strain_p2_converges_to_dealii_limit(backend):
     """P2 2x2, 4x4, 8x8 at the midpoint: monotone from below, 8x8 within 0.6 % of the
     gallery's converged Q2 value 14.74 mm (measured 14.670, -0.47 %)."""
-    tips = [_cook(n, "P2", backend, "decoupled", point=COOK_MIDPOINT) for n in (2, 4, 8)]
+    tips = [_cook(n, "P2", backend, "decoupled", point=MIDPOINT) for n in (2, 4, 8)]
     assert all(b > a for a, b in zip(tips, tips[1:])), tips
     assert tips[-1] < DEALII_PLANE_STRAIN_LIMIT
     assert tips[-1] == pytest.approx(DEALII_PLANE_STRAIN_LIMIT, rel=6e-3), tips
@@ -518,9 +512,9 @@ def test_cook_decoupled_plane_strain_p2_converges_to_dealii_limit(backend):
 @pytest.mark.parametrize("backend", BACKEND_PARAMS)
 def test_cook_decoupled_plane_strain_fine(backend):
     """P2 16x16 within 0.2 % of 14.74 mm (measured 14.718); Q1 32x32 rounds to 14.67."""
-    tip = _cook(16, "P2", backend, "decoupled", point=COOK_MIDPOINT)
+    tip = _cook(16, "P2", backend, "decoupled", point=MIDPOINT)
     assert tip == pytest.approx(DEALII_PLANE_STRAIN_LIMIT, rel=2e-3), tip
-    q1 = _cook(32, "Q1", backend, "decoupled", point=COOK_MIDPOINT)
+    q1 = _cook(32, "Q1", backend, "decoupled", point=MIDPOINT)
     assert abs(q1 - 14.67) <= _printed_half_unit(DEALII_PLANE_STRAIN_Q1[32]), q1
 
 

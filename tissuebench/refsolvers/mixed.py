@@ -212,7 +212,7 @@ def static_run(problem, backend, n_steps, target, monitors, needs_force=False, p
     p = res.u[mb.n_u:]
     info = {"formulation": "mixed u-p, Taylor-Hood P2-P1", "bulk_modulus": bulk_modulus,
             "pressure_min": float(p.min()), "pressure_max": float(p.max())}
-    return dict(status=res.status, message=res.message, table=pd.DataFrame(rows),
-                steps=np.array([0.0] + [r["load_factor"] for r in rows if r["converged"]]),
-                displacement=np.array(states).reshape(len(states), -1, 3), points=nodes, cells=cell_nodes,
-                cell_type=problem.mesh.cell_type, components=("x", "y", "z"), info=info)
+    return {"status": res.status, "message": res.message, "table": pd.DataFrame(rows),
+            "steps": np.array([0.0] + [r["load_factor"] for r in rows if r["converged"]]),
+            "displacement": np.array(states).reshape(len(states), -1, 3), "points": nodes, "cells": cell_nodes,
+            "cell_type": problem.mesh.cell_type, "components": ("x", "y", "z"), "info": info}

@@ -95,7 +95,7 @@ class SkfemMixedForms:
 
     def lagrangian(self, z):
         """Integral of L over the reference volume."""
-        F, J, FiT, ph = self._state(np.asarray(z, float))
+        F, J, _, ph = self._state(np.asarray(z, float))
         mat = self.be.problem.material
         dens = mat.energy(F) - mat.volumetric(J)[0] + ph * (J - 1) - 0.5 * self.inv_kappa * ph**2
         return float(np.sum(self.k.dx * dens))
