@@ -1,7 +1,7 @@
 """Taylor-Hood forms of the mixed u-p formulation with scikit-fem bases and NumPy kernels.
 
-Same Lagrangian as :mod:`.mixed_ngsolve`, L = W(F) - U(J) + p (J - 1) - p^2 / (2 kappa),
-differentiated by hand (with cof F = J F^-T):
+Same Lagrangian as :mod:`.mixed_ngsolve`, L = W(F) - U(J) + p (J - 1) - p^2 / (2 kappa)
+(U kept with ``keep_penalty``), differentiated by hand (with cof F = J F^-T):
 
 * f_u = int (P - U' cof F + p cof F) : grad N_a,   g = int M_b (J - 1 - p / kappa)
 * A = dP/dF - U'' J^2 F^-T (x) F^-T + (p - U') J (F^-T_iJ F^-T_kL - F^-T_iL F^-T_kJ)
@@ -28,10 +28,13 @@ class SkfemMixedForms:
     be : SkfemBackend
     bulk_modulus : float or None
         None: incompressible; a number: perturbed Lagrangian with that modulus.
+    keep_penalty : bool
+        Keep U in the density (see :class:`~tissuebench.refsolvers.mixed.MixedBackend`).
     """
 
-    def __init__(self, be, bulk_modulus=None):
+    def __init__(self, be, bulk_modulus=None, keep_penalty=False):
         self.be, self.k = be, be._k
+        self.drop_u = 0.0 if keep_penalty else 1.0
         self.inv_kappa = 0.0 if bulk_modulus is None else 1.0 / float(bulk_modulus)
         mesh = be.problem.mesh
         basis = skfem.Basis(be._skmesh, skfem.ElementTetP1(), quadrature=volume_rule("P2", be._order))
@@ -70,7 +73,7 @@ class SkfemMixedForms:
         """[f_u; g], shape (n_u + n_p,)."""
         F, J, FiT, ph = self._state(np.asarray(z, float))
         _, dU, _ = self.be.problem.material.volumetric(J)
-        P = self.be.problem.material.stress(F) + ((ph - dU) * J)[..., None, None] * FiT
+        P = self.be.problem.material.stress(F) + ((ph - self.drop_u * dU) * J)[..., None, None] * FiT
         return self._scatter(self._vectors(P, J, ph))
 
     def force_and_tangent(self, z):
@@ -78,7 +81,7 @@ class SkfemMixedForms:
         F, J, FiT, ph = self._state(np.asarray(z, float))
         mat = self.be.problem.material
         P, A = mat.stress_and_tangent(F)
-        _, dU, d2U = mat.volumetric(J)
+        _, dU, d2U = (self.drop_u * v for v in mat.volumetric(J))
         s = ((ph - dU) * J)[..., None, None]
         cof = J[..., None, None] * FiT
         P = P + s * FiT
@@ -97,5 +100,5 @@ class SkfemMixedForms:
         """Integral of L over the reference volume."""
         F, J, _, ph = self._state(np.asarray(z, float))
         mat = self.be.problem.material
-        dens = mat.energy(F) - mat.volumetric(J)[0] + ph * (J - 1) - 0.5 * self.inv_kappa * ph**2
+        dens = mat.energy(F) - self.drop_u * mat.volumetric(J)[0] + ph * (J - 1) - 0.5 * self.inv_kappa * ph**2
         return float(np.sum(self.k.dx * dens))
