@@ -117,11 +117,11 @@ def _beam(divisions=(3, 1, 1), material="guccione", loads=None, seed=0):
 
 
 @pytest.mark.parametrize("backend", BACKEND_PARAMS)
-@pytest.mark.parametrize("bulk_modulus,keep_penalty", [(None, False), (5.0, False), (None, True)])
-def test_mixed_tangent_matches_finite_differences(bulk_modulus, keep_penalty, backend):
+@pytest.mark.parametrize("bulk_modulus,penalty_weight", [(None, 0.0), (5.0, 0.0), (None, 0.3)])
+def test_mixed_tangent_matches_finite_differences(bulk_modulus, penalty_weight, backend):
     """K (internal, and internal minus the follower-pressure tangent) against central FD
     along random directions of (u, p): relative error <= 1e-6."""
-    mb = MixedBackend(_beam(), backend, bulk_modulus, keep_penalty)
+    mb = MixedBackend(_beam(), backend, bulk_modulus, penalty_weight)
     rng = np.random.default_rng(1)
     z = np.concatenate([0.02 * rng.standard_normal(mb.n_u), 0.1 * rng.standard_normal(mb.n_p)])
     assert mb.min_jacobian(z) > 0.5
@@ -140,13 +140,13 @@ def test_mixed_tangent_matches_finite_differences(bulk_modulus, keep_penalty, ba
 
 # =========================================================================== 3. backends
 @pytest.mark.ngsolve
-@pytest.mark.parametrize("keep_penalty", [False, True])
-def test_mixed_backends_agree(keep_penalty):
+@pytest.mark.parametrize("penalty_weight", [0.0, 0.3])
+def test_mixed_backends_agree(penalty_weight):
     """Follower pressure on a Guccione beam with a random fibre per cell, 2 increments:
     the symbolic (NGSolve) and hand-derived (scikit-fem) forms give the same u and p."""
     pb = _beam(loads=[FollowerPressure(on_plane(2, 0.0), 0.02)])
-    a = solve_mixed(pb, "skfem", n_increments=2, rtol=1e-12, strict=True, keep_penalty=keep_penalty)
-    b = solve_mixed(pb, "ngsolve", n_increments=2, rtol=1e-12, strict=True, keep_penalty=keep_penalty)
+    a = solve_mixed(pb, "skfem", n_increments=2, rtol=1e-12, strict=True, penalty_weight=penalty_weight)
+    b = solve_mixed(pb, "ngsolve", n_increments=2, rtol=1e-12, strict=True, penalty_weight=penalty_weight)
     assert np.abs(a.u).max() > 0.1  # clearly nonlinear: tip moves > 10 % of the height
     assert np.abs(a.u - b.u).max() <= 1e-9 * np.abs(a.u).max()
     assert np.abs(a.p - b.p).max() <= 1e-9 * np.abs(a.p).max()
@@ -181,6 +181,8 @@ def test_bad_input():
         MixedBackend(Problem(pb.mesh, SaintVenantKirchhoff(E=1.0, nu=0.3), "P2", pb.dirichlet), "skfem")
     with pytest.raises(ValueError, match="bulk_modulus"):
         MixedBackend(pb, "skfem", bulk_modulus=-1.0)
+    with pytest.raises(ValueError, match="penalty_weight"):
+        MixedBackend(pb, "skfem", penalty_weight=1.5)
     with pytest.raises(ValueError, match="linear_solver"):
         MixedBackend(pb, "skfem").make_linear_solver("amg-cg")
     with pytest.raises(NotImplementedError):

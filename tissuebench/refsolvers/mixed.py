@@ -9,7 +9,7 @@ Lagrange multiplier p, continuous and piecewise linear (Taylor-Hood, inf-sup sta
     L(u, p) = int [W(F) - U(J) + p (J - 1) - p^2 / (2 kappa)] dV - external work,
 
 the last term only with a finite ``bulk_modulus`` (perturbed Lagrangian; the default None
-imposes J = 1); ``keep_penalty`` keeps U(J) as well, a stabilisation that leaves the
+imposes J = 1); ``penalty_weight`` w keeps w U(J) as well, a stabilisation that leaves the
 constraint, and so the converged limit, unchanged. With W = C/2 (exp Q - 1) + kappa/2 (J - 1)^2 (Guccione) this is the
 incompressible Guccione law of Land et al. 2015; p is the mean (Kirchhoff) stress.
 
@@ -65,23 +65,27 @@ class MixedBackend(Backend):
     backend : {"ngsolve", "skfem"}
     bulk_modulus : float or None
         None: incompressible (J = 1); a number > 0: perturbed Lagrangian with that modulus.
-    keep_penalty : bool
-        Keep the material's volumetric penalty U(J) beside the constraint (Land et al. 2014,
-        IEEE TBME 62: "Improving the stability of cardiac mechanical simulations"). The
-        constraint still holds (the L2 projection of J - 1 on the pressure space is zero),
-        so the limit is the incompressible one; U only damps the part of J - 1 the P1
-        pressure cannot see, which otherwise lets det F collapse inside a cell under large
-        inflation (the ventricle stalls at 7.3 kPa of 10 with min det F = 0.09 at 7 kPa).
+    penalty_weight : float
+        Fraction w in [0, 1] of the material's volumetric penalty U(J) kept beside the
+        constraint (in the spirit of Land et al. 2014, IEEE TBME 62, "Improving the stability
+        of cardiac mechanical simulations"). The constraint still holds (the L2 projection of
+        J - 1 on the pressure space is zero), so the limit is the incompressible one; w U only
+        damps the part of J - 1 the P1 pressure cannot see, which with w = 0 lets det F
+        collapse inside a cell under large inflation (the ventricle stalls at 7.3 kPa of 10,
+        min det F = 0.09 at 7 kPa). w = 1 locks again on coarse meshes (beam (10, 2, 2):
+        3.887 mm against 4.116 with w = 0).
     """
 
     name = "mixed"
 
-    def __init__(self, problem, backend="ngsolve", bulk_modulus=None, keep_penalty=False):
+    def __init__(self, problem, backend="ngsolve", bulk_modulus=None, penalty_weight=0.0):
         if problem.element != "P2":
             raise ValueError(f"element={problem.element!r}: the mixed formulation is Taylor-Hood P2-P1, use 'P2'")
         problem.material.volumetric(np.ones(1))  # TypeError for materials without a volumetric part
         if bulk_modulus is not None and not (math.isfinite(bulk_modulus) and bulk_modulus > 0):
             raise ValueError(f"bulk_modulus must be None or a finite number > 0, got {bulk_modulus!r}")
+        if not (isinstance(penalty_weight, (int, float)) and 0.0 <= penalty_weight <= 1.0):
+            raise ValueError(f"penalty_weight must be a number in [0, 1], got {penalty_weight!r}")
         self.displacement_backend = make_backend(backend, problem)
         super().__init__(MixedLayout(problem))
         if self.displacement_backend.name == "ngsolve":
@@ -90,7 +94,7 @@ class MixedBackend(Backend):
             from .backends.mixed_skfem import SkfemMixedForms as Forms
         else:
             raise ValueError(f"backend={backend!r}: the mixed formulation runs on 'ngsolve' or 'skfem'")
-        self.forms = Forms(self.displacement_backend, bulk_modulus, keep_penalty)
+        self.forms = Forms(self.displacement_backend, bulk_modulus, penalty_weight)
         self.n_u, self.n_p = self.problem.n_u, self.problem.n_p
 
     def split(self, z):
@@ -134,14 +138,13 @@ class MixedBackend(Backend):
         raise NotImplementedError("element quantities are not defined for the mixed formulation")
 
     def make_linear_solver(self, name="direct", **options):
-        """SuperLU with a COLAMD column ordering: the mixed tangent is indefinite (zero pressure
-        block), and the partial pivoting this needs ruins a symmetric (A + A^T) ordering
-        (20k-dof beam: COLAMD 3.5 s, MMD(A + A^T) > 5 min, NGSolve's UMFPACK 19 s)."""
+        """:class:`~.saddle_solver.SaddlePointSolver` (the tangent is indefinite): LDL^T of the
+        regularised symmetric part + GMRES, falling back to SuperLU (COLAMD)."""
         if name != "direct":
             raise ValueError(f"linear_solver={name!r}: the mixed formulation needs 'direct' (indefinite tangent)")
-        from .linear_solvers import DirectSolver
+        from .saddle_solver import SaddlePointSolver
 
-        return DirectSolver(**{"permc_spec": "COLAMD", **options})
+        return SaddlePointSolver(self.n_p, **options)
 
 
 @dataclass
@@ -161,21 +164,21 @@ class MixedResult:
         return self.status == "success"
 
 
-def solve_mixed(problem, backend="ngsolve", load_factor=1.0, bulk_modulus=None, keep_penalty=False,
+def solve_mixed(problem, backend="ngsolve", load_factor=1.0, bulk_modulus=None, penalty_weight=0.0,
                 **newton_options) -> MixedResult:
     """Load-stepped Newton on the mixed u-p system of ``problem`` (see :class:`MixedBackend`).
 
     ``newton_options`` are :class:`~.newton.NewtonOptions` fields (``n_increments``,
     ``rtol``, ``strict`` ...). A stall is a status of the result, as for :func:`newton_solve`.
     """
-    mb = MixedBackend(problem, backend, bulk_modulus, keep_penalty)
+    mb = MixedBackend(problem, backend, bulk_modulus, penalty_weight)
     res = newton_solve(mb, load_factor, **newton_options)
     u, p = mb.split(res.u)
     return MixedResult(res.status, res.message, u.copy(), p.copy(), res.load_factor, res)
 
 
 def static_run(problem, backend, n_steps, target, monitors, needs_force=False, progress=None,
-               bulk_modulus=None, keep_penalty=False) -> dict:
+               bulk_modulus=None, penalty_weight=0.0) -> dict:
     """A static reference run of ``problem`` with the mixed formulation, in the shape of the
     scene runner's output (:mod:`.reference`): table, stored states, fields.
 
@@ -202,7 +205,7 @@ def static_run(problem, backend, n_steps, target, monitors, needs_force=False, p
     """
     import pandas as pd
 
-    mb = MixedBackend(problem, backend, bulk_modulus, keep_penalty)
+    mb = MixedBackend(problem, backend, bulk_modulus, penalty_weight)
     res = newton_solve(mb, target, n_increments=n_steps, max_increment=1.0 / n_steps, progress=progress)
     states, rows, k = [np.zeros(mb.n_u)], [], 0
     for inc in res.increments:
@@ -219,7 +222,8 @@ def static_run(problem, backend, n_steps, target, monitors, needs_force=False, p
         rows.append(row)
     nodes, cell_nodes = problem.layout
     p = res.u[mb.n_u:]
-    info = {"formulation": "mixed u-p, Taylor-Hood P2-P1", "bulk_modulus": bulk_modulus, "keep_penalty": keep_penalty,
+    info = {"formulation": "mixed u-p, Taylor-Hood P2-P1", "bulk_modulus": bulk_modulus,
+            "penalty_weight": penalty_weight,
             "pressure_min": float(p.min()), "pressure_max": float(p.max())}
     return {"status": res.status, "message": res.message, "table": pd.DataFrame(rows),
             "steps": np.array([0.0] + [r["load_factor"] for r in rows if r["converged"]]),

@@ -2,7 +2,7 @@
 
 The Lagrangian density (per reference volume) is
 
-    L(u, p) = W(F) - U(J) + p (J - 1) - p^2 / (2 kappa)     (- U(J) dropped with keep_penalty)
+    L(u, p) = W(F) - (1 - w) U(J) + p (J - 1) - p^2 / (2 kappa)     (w: ``penalty_weight``)
 
 with U the volumetric part of the material (:meth:`Material.volumetric`), p a continuous
 P1 field and u the P2 displacement of the :class:`~.ngsolve_backend.NgsolveBackend` it
@@ -46,11 +46,11 @@ class NgsolveMixedForms:
     be : NgsolveBackend
     bulk_modulus : float or None
         None: incompressible; a number: perturbed Lagrangian with that modulus.
-    keep_penalty : bool
-        Keep U in the density (see :class:`~tissuebench.refsolvers.mixed.MixedBackend`).
+    penalty_weight : float
+        Fraction w of U kept in the density (see :class:`~tissuebench.refsolvers.mixed.MixedBackend`).
     """
 
-    def __init__(self, be, bulk_modulus=None, keep_penalty=False):
+    def __init__(self, be, bulk_modulus=None, penalty_weight=0.0):
         self.be = be
         mesh = be.ngmesh
         fes_p = ngs.H1(mesh, order=1)
@@ -71,8 +71,8 @@ class NgsolveMixedForms:
         J = ngs.Det(F)
         mat = be.problem.material
         dens = energy_cf(mat, F, be._fibre) + p * (J - 1)
-        if not keep_penalty:
-            dens = dens - volumetric_cf(mat, J)
+        if penalty_weight != 1.0:
+            dens = dens - (1.0 - float(penalty_weight)) * volumetric_cf(mat, J)
         if bulk_modulus is not None:
             dens = dens - p * p / (2.0 * float(bulk_modulus))
         self.form = ngs.BilinearForm(self.space, symmetric=True)

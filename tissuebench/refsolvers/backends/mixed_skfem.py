@@ -1,7 +1,7 @@
 """Taylor-Hood forms of the mixed u-p formulation with scikit-fem bases and NumPy kernels.
 
 Same Lagrangian as :mod:`.mixed_ngsolve`, L = W(F) - U(J) + p (J - 1) - p^2 / (2 kappa)
-(U kept with ``keep_penalty``), differentiated by hand (with cof F = J F^-T):
+(with (1 - w) U, w = ``penalty_weight``), differentiated by hand (with cof F = J F^-T):
 
 * f_u = int (P - U' cof F + p cof F) : grad N_a,   g = int M_b (J - 1 - p / kappa)
 * A = dP/dF - U'' J^2 F^-T (x) F^-T + (p - U') J (F^-T_iJ F^-T_kL - F^-T_iL F^-T_kJ)
@@ -28,13 +28,13 @@ class SkfemMixedForms:
     be : SkfemBackend
     bulk_modulus : float or None
         None: incompressible; a number: perturbed Lagrangian with that modulus.
-    keep_penalty : bool
-        Keep U in the density (see :class:`~tissuebench.refsolvers.mixed.MixedBackend`).
+    penalty_weight : float
+        Fraction w of U kept in the density (see :class:`~tissuebench.refsolvers.mixed.MixedBackend`).
     """
 
-    def __init__(self, be, bulk_modulus=None, keep_penalty=False):
+    def __init__(self, be, bulk_modulus=None, penalty_weight=0.0):
         self.be, self.k = be, be._k
-        self.drop_u = 0.0 if keep_penalty else 1.0
+        self.drop_u = 1.0 - float(penalty_weight)
         self.inv_kappa = 0.0 if bulk_modulus is None else 1.0 / float(bulk_modulus)
         mesh = be.problem.mesh
         basis = skfem.Basis(be._skmesh, skfem.ElementTetP1(), quadrature=volume_rule("P2", be._order))
