@@ -187,3 +187,25 @@ def test_bad_input():
         MixedBackend(pb, "skfem").make_linear_solver("amg-cg")
     with pytest.raises(NotImplementedError):
         MixedBackend(pb, "skfem").mass()
+
+
+# =========================================================================== 6. linear solver
+@pytest.mark.parametrize("use_ngsolve", [pytest.param(True, marks=pytest.mark.ngsolve), False])
+@pytest.mark.parametrize("asymmetry", [0.0, 1e-3])
+def test_saddle_point_solver(asymmetry, use_ngsolve):
+    """[[A, B^T], [B, 0]] with A SPD (+ a small asymmetric part): the solution of the
+    regularised-LDL^T + GMRES path (or the SuperLU fallback) has a relative residual <= 1e-10."""
+    import scipy.sparse as sp
+
+    from tissuebench.refsolvers.saddle_solver import SaddlePointSolver
+
+    rng = np.random.default_rng(3)
+    n_u, n_p = 60, 12
+    R = sp.random(n_u, n_u, density=0.1, random_state=4)
+    A = R @ R.T + sp.eye(n_u) + asymmetry * sp.random(n_u, n_u, density=0.05, random_state=5)
+    B = sp.random(n_p, n_u, density=0.3, random_state=6) + sp.eye(n_p, n_u)
+    K = sp.bmat([[A, B.T], [B, None]], format="csr")
+    b = rng.standard_normal(n_u + n_p)
+    x, info = SaddlePointSolver(n_p, use_ngsolve=use_ngsolve).solve(K, b)
+    assert np.linalg.norm(K @ x - b) <= 1e-10 * np.linalg.norm(b), info
+    assert info["solver"] == ("ldlt-gmres" if use_ngsolve else "scipy-splu-colamd")
