@@ -2,6 +2,7 @@
 
 ``lame_from(E, nu)``: Lame constants; ``principal_stress`` / ``uniaxial_closed_form``:
 first Piola-Kirchhoff stresses of F = diag(l1, l2, l2) for SVK, compressible neo-Hookean
+the decoupled neo-Hookean (mu/2 (J^-2/3 I1 - 3) + kappa/4 (J^2 - 1 - 2 ln J))
 and compressible Mooney-Rivlin (W = mu1/2 (J^-2/3 I1 - 3) + mu2/2 (J^-4/3 I2 - 3) + kappa/2 (J - 1)^2),
 and the homogeneous uniaxial state with traction-free sides.
 """
@@ -12,7 +13,7 @@ import math
 import numpy as np
 from scipy.optimize import brentq
 
-from tissuebench.refsolvers.materials import MooneyRivlin, NeoHookean, SaintVenantKirchhoff
+from tissuebench.refsolvers.materials import MooneyRivlin, NeoHookean, NeoHookeanDecoupled, SaintVenantKirchhoff
 
 
 def lame_from(E, nu):
@@ -32,6 +33,14 @@ def principal_stress(material, l1, l2):
         lam, mu = lame_from(material.E, material.nu)
         lnJ = math.log(l1 * l2 * l2)
         return mu * (l1 - 1 / l1) + lam * lnJ / l1, mu * (l2 - 1 / l2) + lam * lnJ / l2
+    if isinstance(material, NeoHookeanDecoupled):
+        mu = material.E / (2 * (1 + material.nu))
+        k = material.E / (3 * (1 - 2 * material.nu))
+        l = np.array([l1, l2, l2])
+        J, I1 = l.prod(), (l ** 2).sum()
+        # dW/dl_i = mu J^-2/3 (l_i - I1/(3 l_i)) + kappa/2 (J^2 - 1) / l_i
+        dW = mu * J ** (-2 / 3) * (l - I1 / (3 * l)) + 0.5 * k * (J**2 - 1) / l
+        return dW[0], dW[1]
     if isinstance(material, MooneyRivlin):
         m1, m2, k = material.mu1, material.mu2, material.kappa
         l = np.array([l1, l2, l2])

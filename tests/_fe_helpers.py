@@ -96,15 +96,16 @@ def fitted_order(h, err):
 def material_set(fibres=None):
     """One instance per registered material (moderate, comparable stiffness ~1)."""
     from tissuebench.refsolvers.materials import (Guccione, LinearElastic, MooneyRivlin, NeoHookean,
-                                                  SaintVenantKirchhoff)
+                                                  NeoHookeanDecoupled, SaintVenantKirchhoff)
     f = np.array([1.0, 1.0, 0.0]) / np.sqrt(2.0) if fibres is None else fibres
     return {
         "linear": LinearElastic(E=1.0, nu=0.3),
         "svk": SaintVenantKirchhoff(E=1.0, nu=0.3),
         "neo_hookean": NeoHookean(E=1.0, nu=0.3),
+        "neo_hookean_decoupled": NeoHookeanDecoupled(E=1.0, nu=0.3),
         "mooney_rivlin": MooneyRivlin(mu1=0.2, mu2=0.15, kappa=2.0),
         "guccione": Guccione(C=0.2, bf=8.0, bt=2.0, bfs=4.0, kappa=2.0, fibres=f),
     }
 
 
-MATERIAL_NAMES = ["linear", "svk", "neo_hookean", "mooney_rivlin", "guccione"]
+MATERIAL_NAMES = ["linear", "svk", "neo_hookean", "neo_hookean_decoupled", "mooney_rivlin", "guccione"]

@@ -49,7 +49,8 @@ def rel(a, b):
 
 # ---------------------------------------------------------------- derivatives
 @pytest.mark.parametrize("element", ELEMENTS)
-@pytest.mark.parametrize("material", ["linear", "svk", "neo_hookean", "mooney_rivlin", "guccione"])
+@pytest.mark.parametrize("material", ["linear", "svk", "neo_hookean", "neo_hookean_decoupled", "mooney_rivlin",
+                                      "guccione"])
 def test_tangent_matches_fd_of_internal_force(element, material):
     b = backend(element, material)
     u = random_u(b)
@@ -66,7 +67,7 @@ def test_tangent_matches_fd_of_internal_force(element, material):
 
 
 @pytest.mark.parametrize("element", ELEMENTS)
-@pytest.mark.parametrize("material", ["mooney_rivlin", "guccione", "svk"])
+@pytest.mark.parametrize("material", ["mooney_rivlin", "guccione", "svk", "neo_hookean_decoupled"])
 def test_internal_force_matches_fd_of_energy(element, material):
     b = backend(element, material)
     u = random_u(b)

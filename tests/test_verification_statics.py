@@ -8,7 +8,9 @@ Every test asserts a number with its tolerance stated next to it:
 4. cross-verification scikit-fem vs NGSolve on the same mesh for every material/element;
 5. consistent tangents against central finite differences (f_int and follower pressure);
 6. quadratic convergence of Newton on a large-rotation SVK cantilever;
-7. Cook's membrane (compressible neo-Hookean, plane strain) under refinement.
+7. Cook's membrane under refinement: the coupled neo-Hookean (13.57 mm) and the deal.II code
+   gallery's decoupled neo-Hookean (plane strain 14.74 mm, free slab 14.33 mm), same numbers as
+   the gallery's own Q1 tables.
 """
 from __future__ import annotations
 
@@ -18,15 +20,36 @@ import numpy as np
 import pytest
 
 from _closed_forms import lame_from, principal_stress, uniaxial_closed_form
-from _fe_helpers import (BACKEND_PARAMS, CELL_OF, ELEMENTS, MATERIAL_NAMES, element_mesh, fitted_order,
+from _fe_helpers import (BACKEND_PARAMS, ELEMENTS, MATERIAL_NAMES, element_mesh, fitted_order,
                          l2_error, material_set, on_box_boundary, on_plane, solve)
+
+from tissuebench.cases.cook import (
+    CORNER,
+    COUPLED_LIMIT,
+    DEALII_PLANE_STRAIN_LIMIT,
+    DEALII_PLANE_STRAIN_Q1,
+    DEALII_SLAB_LIMIT,
+    DEALII_SLAB_Q1,
+    MIDPOINT,
+    printed_half_unit,
+)
+from tissuebench.cases.cook import cook_problem as _cook_problem
+from tissuebench.cases.cook import cook_tip as _cook_tip
 from tissuebench.cases.meshes import box_mesh
 from tissuebench.refsolvers.backends import make_backend
-from tissuebench.refsolvers.materials import LinearElastic, MooneyRivlin, NeoHookean, SaintVenantKirchhoff
-from tissuebench.refsolvers.mesh import Mesh
-from tissuebench.refsolvers.problem import Dirichlet, FollowerPressure, Problem, SurfaceTraction
-
-ALL = lambda x: np.ones(len(x), dtype=bool)  # noqa: E731
+from tissuebench.refsolvers.materials import (
+    LinearElastic,
+    MooneyRivlin,
+    NeoHookean,
+    NeoHookeanDecoupled,
+    SaintVenantKirchhoff,
+)
+from tissuebench.refsolvers.problem import (
+    Dirichlet,
+    FollowerPressure,
+    Problem,
+    SurfaceTraction,
+)
 
 # A fixed non-symmetric displacement gradient of size ~1e-3 and a translation.
 A_PATCH = 1e-3 * np.array([[1.0, 0.4, -0.3],
@@ -157,7 +180,7 @@ def test_l2_convergence_same_nodal_solution_on_both_backends(element):
 
 
 # =========================================================================== 3. uniaxial stretch
-def testuniaxial_closed_forms_independent_numbers():
+def test_uniaxial_closed_forms_independent_numbers():
     """The hand-written stresses agree with the materials' strain energies (central FD of W)
     and with the published neo-Hookean numbers (E=1, nu=0.3, lambda1=1.5)."""
     nh = NeoHookean(E=1.0, nu=0.3)
@@ -169,7 +192,7 @@ def testuniaxial_closed_forms_independent_numbers():
     assert P11 == pytest.approx(1.2 * (1.2**2 - 1) / 2, rel=1e-12)
     assert 0.5 * (l2**2 - 1) == pytest.approx(-0.3 * 0.5 * (1.2**2 - 1), rel=1e-12)
     # d W(diag(l1, l2, l3)) / d l_i from the package's energy vs the hand derivation
-    for mat in (svk, nh, MooneyRivlin(mu1=0.5, mu2=0.6, kappa=10.0)):
+    for mat in (svk, nh, MooneyRivlin(mu1=0.5, mu2=0.6, kappa=10.0), NeoHookeanDecoupled(E=1.0, nu=0.3)):
         l1, s, h = 1.3, 0.9, 1e-6
         W = lambda a, b, c, m=mat: float(m.energy(np.diag([a, b, c])[None, None])[0, 0])  # noqa: E731
         dW1 = (W(l1 + h, s, s) - W(l1 - h, s, s)) / (2 * h)
@@ -180,7 +203,8 @@ def testuniaxial_closed_forms_independent_numbers():
 
 UNIAXIAL = [("svk", SaintVenantKirchhoff(E=1.0, nu=0.3), 1.2),
             ("neo_hookean", NeoHookean(E=1.0, nu=0.3), 1.5),
-            ("mooney_rivlin", MooneyRivlin(mu1=0.5, mu2=0.6, kappa=10.0), 1.3)]
+            ("mooney_rivlin", MooneyRivlin(mu1=0.5, mu2=0.6, kappa=10.0), 1.3),
+            ("neo_hookean_decoupled", NeoHookeanDecoupled(E=1.0, nu=0.3), 1.5)]
 
 
 @pytest.mark.parametrize("backend", BACKEND_PARAMS)
@@ -351,27 +375,24 @@ def test_newton_converges_quadratically(backend):
 
 
 # =========================================================================== 7. Cook's membrane
-COOK_MU, COOK_NU = 0.4225, 0.3  # MPa (N/mm^2); lengths in mm, forces in N
-COOK_REFERENCE = 14.33  # mm, vertical tip displacement quoted in the brief
+# Geometry, load and the deal.II code gallery's tables (with their provenance): tissuebench.cases.cook
+COOK_REFERENCE = DEALII_SLAB_LIMIT  # 14.33 mm, the figure quoted for this benchmark
+_printed_half_unit = printed_half_unit
 
 
-def cook_problem(n, element, material=None, traction=1.0 / 16.0):
-    """Trapezoid (0,0),(48,44),(48,60),(0,44) mm, one element 1 mm thick, plane strain
-    (u_z = 0 everywhere), left edge clamped, dead shear traction 1/16 MPa on the right
-    edge (height 16 mm): 1 N per mm of thickness, i.e. 1 N total for the 1 mm slab."""
-    m = box_mesh((1.0, 1.0, 1.0), (n, n, 1), CELL_OF[element])
-    xi, eta, z = m.points.T
-    pts = np.stack([48 * xi, 44 * xi + 44 * eta - 28 * xi * eta, z], axis=1)
-    mesh = Mesh(pts, m.cells, m.cell_type)
-    mat = material or NeoHookean(E=2 * COOK_MU * (1 + COOK_NU), nu=COOK_NU)
-    return Problem(mesh, mat, element, [Dirichlet(on_plane(0, 0.0)), Dirichlet(ALL, (2,))],
-                   [SurfaceTraction(on_plane(0, 48.0), np.array([0.0, traction, 0.0]))])
+def cook_problem(n, element, material=None, traction=1.0 / 16.0, plane_strain=True):
+    return _cook_problem(n, element, material or "coupled", traction, plane_strain)
 
 
-def cook_tip(pb, backend):
-    _, res = solve(pb, backend)
-    i = int(np.flatnonzero(np.all(np.abs(pb.nodes - [48.0, 60.0, 0.0]) < 1e-9, axis=1))[0])
-    return float(res.u[3 * i + 1])
+def cook_tip(pb, backend, point=CORNER):
+    """u_y (mm) of the node at ``point`` after one strict Newton solve."""
+    tip, res = _cook_tip(pb, backend, point, strict=True)
+    return tip
+
+
+def _richardson(coarse, fine, order=2):
+    """Limit of a sequence converging as h^order from values at h and h/2."""
+    return fine + (fine - coarse) / (2**order - 1)
 
 
 @pytest.mark.parametrize("backend", BACKEND_PARAMS)
@@ -389,16 +410,16 @@ def test_cook_linear_plane_strain_matches_published_codes(n, rel, backend):
 _cook_cache: dict = {}
 
 
-def _cook(n, element, backend):
-    key = (n, element, backend)
+def _cook(n, element, backend, material="coupled", plane_strain=True, point=CORNER):
+    key = (n, element, backend, material, plane_strain, point)
     if key not in _cook_cache:
-        _cook_cache[key] = cook_tip(cook_problem(n, element), backend)
+        _cook_cache[key] = cook_tip(cook_problem(n, element, material, plane_strain=plane_strain), backend, point)
     return _cook_cache[key]
 
 
 @pytest.mark.parametrize("backend", BACKEND_PARAMS)
 def test_cook_neo_hookean_converges(backend):
-    """P2 2x2, 4x4, 8x8: monotone increase, last two within 2 %."""
+    """Coupled energy, P2 2x2, 4x4, 8x8: monotone increase, last two within 2 %."""
     tips = [_cook(n, "P2", backend) for n in (2, 4, 8)]
     assert all(b > a for a, b in zip(tips, tips[1:])), tips
     assert abs(tips[-1] - tips[-2]) <= 0.02 * tips[-1], tips
@@ -408,21 +429,71 @@ def test_cook_neo_hookean_converges(backend):
 @pytest.mark.slow
 @pytest.mark.parametrize("backend", BACKEND_PARAMS)
 def test_cook_neo_hookean_converges_fine(backend):
-    """P2 up to 16x16 and Q1 up to 32x32: monotone from below, last two within 0.5 % (P2)
-    and 1.5 % (Q1), P2 and Q1 finest meshes within 0.5 % of each other."""
+    """Coupled energy, P2 up to 16x16 and Q1 up to 32x32: monotone from below, last two within
+    0.5 % (P2) and 1.5 % (Q1), P2 and Q1 finest meshes within 0.5 % of each other, and the
+    P2 16x16 corner value is the documented 13.57 mm to 0.1 %: 5.3 % below the 14.33 mm of the
+    decoupled energy on the free slab, the coupled energy's own plane-strain figure."""
     p2 = [_cook(n, "P2", backend) for n in (2, 4, 8, 16)]
     q1 = [_cook(n, "Q1", backend) for n in (4, 8, 16, 32)]
     for seq, tol in ((p2, 0.005), (q1, 0.015)):
         assert all(b > a for a, b in zip(seq, seq[1:])), seq
         assert abs(seq[-1] - seq[-2]) <= tol * seq[-1], seq
     assert abs(p2[-1] - q1[-1]) <= 0.005 * p2[-1], (p2, q1)
+    assert p2[-1] == pytest.approx(COUPLED_LIMIT, rel=1e-3), p2
+
+
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+def test_cook_decoupled_plane_strain_matches_dealii_q1_column(backend):
+    """Decoupled neo-Hookean, plane strain, midpoint of the loaded edge, Q1 with 2x2x2 Gauss
+    (the gallery's element and rule) on 2x2 .. 16x16: every value rounds to the gallery's
+    printed digits (an independent code on the same mesh)."""
+    for n in (2, 4, 8, 16):
+        ref = DEALII_PLANE_STRAIN_Q1[n]
+        tip = _cook(n, "Q1", backend, "decoupled", point=MIDPOINT)
+        assert abs(tip - float(ref)) <= _printed_half_unit(ref), (n, tip, ref)
+
+
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+def test_cook_decoupled_plane_strain_p2_converges_to_dealii_limit(backend):
+    """P2 2x2, 4x4, 8x8 at the midpoint: monotone from below, 8x8 within 0.6 % of the
+    gallery's converged Q2 value 14.74 mm (measured 14.670, -0.47 %)."""
+    tips = [_cook(n, "P2", backend, "decoupled", point=MIDPOINT) for n in (2, 4, 8)]
+    assert all(b > a for a, b in zip(tips, tips[1:])), tips
+    assert tips[-1] < DEALII_PLANE_STRAIN_LIMIT
+    assert tips[-1] == pytest.approx(DEALII_PLANE_STRAIN_LIMIT, rel=6e-3), tips
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="the plane-strain compressible neo-Hookean Cook membrane of the SPEC "
-                   "converges to ~13.57 mm on both backends (P2 16x16: 13.568, Q1 32x32: 13.538), 5.3 % "
-                   "below the quoted 14.33 mm; the plane-stress slab gives ~14.15 mm. The reference number "
-                   "does not belong to this model; see the report.")
-def test_cook_neo_hookean_reference_value():
-    tip = _cook(16, "P2", "skfem")
-    assert tip == pytest.approx(COOK_REFERENCE, rel=0.01), tip
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+def test_cook_decoupled_plane_strain_fine(backend):
+    """P2 16x16 within 0.2 % of 14.74 mm (measured 14.718); Q1 32x32 rounds to 14.67."""
+    tip = _cook(16, "P2", backend, "decoupled", point=MIDPOINT)
+    assert tip == pytest.approx(DEALII_PLANE_STRAIN_LIMIT, rel=2e-3), tip
+    q1 = _cook(32, "Q1", backend, "decoupled", point=MIDPOINT)
+    assert abs(q1 - 14.67) <= _printed_half_unit(DEALII_PLANE_STRAIN_Q1[32]), q1
+
+
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+def test_cook_neo_hookean_reference_value(backend):
+    """The 14.33 mm: decoupled neo-Hookean on the free 1 mm slab (faces z = 0, 1 traction-free),
+    top corner, Q1 (one hexahedron through the thickness, as the gallery). 1x1 .. 16x16 round
+    to the gallery's 2015 Q1 column, and the Richardson limit (h^2) of 8x8 and 16x16 is within
+    0.5 % of 14.33 mm (measured 14.303). P2 tetrahedra are not used on the free slab: their
+    asymmetric layer triggers out-of-plane buckling of the thin plate (u_z ~ 16 mm at 4x4)."""
+    tips = {}
+    for n in (1, 2, 4, 8, 16):
+        ref = DEALII_SLAB_Q1[n]
+        tips[n] = _cook(n, "Q1", backend, "decoupled", plane_strain=False)
+        assert abs(tips[n] - float(ref)) <= _printed_half_unit(ref), (n, tips[n], ref)
+    assert _richardson(tips[8], tips[16]) == pytest.approx(COOK_REFERENCE, rel=5e-3), tips
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+def test_cook_neo_hookean_reference_value_fine(backend):
+    """Q1 32x32 on the free slab rounds to 14.28, and the Richardson limit of 16x16 and 32x32
+    is 14.33 mm to 0.1 % (measured 14.327; adding 64x64, 14.3182 -> 14.32, gives 14.332)."""
+    q1 = {n: _cook(n, "Q1", backend, "decoupled", plane_strain=False) for n in (16, 32)}
+    for n, tip in q1.items():
+        assert abs(tip - float(DEALII_SLAB_Q1[n])) <= _printed_half_unit(DEALII_SLAB_Q1[n]), (n, tip)
+    assert _richardson(q1[16], q1[32]) == pytest.approx(COOK_REFERENCE, rel=1e-3), q1

@@ -1,6 +1,7 @@
 """Validation of the physical sections of a scene: material, model, dirichlet, load, analysis.
 
-``[material]`` (FE only): name (linear | svk | neo_hookean | mooney_rivlin | guccione),
+``[material]`` (FE only): name (linear | svk | neo_hookean | neo_hookean_decoupled | mooney_rivlin |
+guccione),
 its parameters, density (optional, > 0), fibres (Guccione, optional 3-vector).
 ``[model]`` (1D models only): the discrete model's parameters.
 ``[[dirichlet]]``: region, components ("xyz" or list), value (number or one per
@@ -9,8 +10,10 @@ component) or motion (``{type = "rotation", axis, center, angle_deg}``), scaled 
 value, distribute ("total" | "per_node" | "interpolate", point loads: "interpolate" puts one
 point force at the region's ``nearest`` point, spread on the nodes of its cell by the shape
 functions, so the load moves continuously with the point), history.
-``[analysis]``: type static (load_steps, max_load_factor, stop_at_divergence) or
-dynamic (dt, t_end, integrator, integrator_options, lumped, dt_sweep).
+``[analysis]``: type static (load_steps, max_load_factor, stop_at_divergence, formulation:
+"displacement" (default) | "mixed": incompressible u-p Taylor-Hood P2-P1, J = 1 imposed by a
+pressure field, the material's volumetric penalty unused, see :mod:`tissuebench.refsolvers.mixed`)
+or dynamic (dt, t_end, integrator, integrator_options, lumped, dt_sweep).
 """
 from __future__ import annotations
 
@@ -31,7 +34,7 @@ MAX_TIME_STEPS = 10_000_000
 
 _ENU = {"E": c_pos, "nu": c_nu}
 MATERIAL_SCHEMAS = {
-    "linear": _ENU, "svk": _ENU, "neo_hookean": _ENU,
+    "linear": _ENU, "svk": _ENU, "neo_hookean": _ENU, "neo_hookean_decoupled": _ENU,
     "mooney_rivlin": {"mu1": c_pos, "mu2": c_nonneg, "kappa": c_pos},
     "guccione": {"C": c_pos, "bf": c_pos, "bt": c_pos, "bfs": c_pos, "kappa": c_pos, "fibres": c_vec3},
 }
@@ -45,7 +48,8 @@ INTEGRATOR_NAMES = ("hht", "bathe", "newmark", "central_difference", "forward_eu
 
 _MOTION_SCHEMA = {"type": c_enum("rotation"), "axis": c_vec3, "center": c_vec3, "angle_deg": c_num}
 _STATIC = {"type": c_str, "load_steps": c_int_range(1, MAX_LOAD_STEPS), "max_load_factor": c_pos,
-           "stop_at_divergence": c_bool, "solver": c_str, "note": c_str}
+           "stop_at_divergence": c_bool, "solver": c_str, "formulation": c_enum("displacement", "mixed"),
+           "note": c_str}
 _DYNAMIC = {"type": c_str, "dt": c_pos, "t_end": c_pos, "integrator": c_str, "integrator_options": c_table,
             "lumped": c_bool, "dt_sweep": c_numlist, "store_every": c_int_range(1, MAX_TIME_STEPS), "note": c_str}
 

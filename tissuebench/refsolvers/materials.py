@@ -13,6 +13,8 @@ Definitions follow SPEC.md exactly (lambda, mu are the Lame constants):
 * linear elastic: W = lambda/2 (tr eps)^2 + mu eps:eps, eps = sym(F - I)
 * Saint Venant-Kirchhoff: W = lambda/2 (tr E)^2 + mu E:E, E = (C - I)/2
 * compressible neo-Hookean: W = mu/2 (I1 - 3) - mu ln J + lambda/2 (ln J)^2
+* decoupled compressible neo-Hookean (deal.II code gallery, Cook's membrane):
+  W = mu/2 (J^-2/3 I1 - 3) + kappa/4 (J^2 - 1 - 2 ln J), kappa = E / (3 (1 - 2 nu))
 * compressible Mooney-Rivlin: W = mu1/2 (J^-2/3 I1 - 3) + mu2/2 (J^-4/3 I2 - 3) + kappa/2 (J-1)^2
 * Guccione: W = C/2 (exp(Q) - 1) + kappa/2 (J - 1)^2 with Q in fibre axes.
 
@@ -79,6 +81,15 @@ class Material:
     @property
     def is_linear(self) -> bool:
         return False
+
+    def volumetric(self, J):
+        """(U, dU/dJ, d2U/dJ2) of the volumetric part U(J) of W, arrays shaped like ``J``.
+
+        An incompressible (mixed u-p) formulation drops U and imposes J = 1 with a Lagrange
+        multiplier instead; W - U is then the energy it keeps. Defined for the models of
+        nearly incompressible solids (neo-Hookean, Mooney-Rivlin, Guccione).
+        """
+        raise TypeError(f"material {self.name!r} has no volumetric part for an incompressible formulation")
 
     def validate_for_mesh(self, n_cells: int) -> None:
         """Check per-cell data (fibres) against the mesh; no-op for isotropic materials."""
@@ -198,6 +209,44 @@ class NeoHookean(_EnuMaterial, _InvariantMaterial):
         W = 0.5 * mu * (I1 - 3) - mu * lnJ + 0.5 * lam * lnJ**2
         return W, 0.5 * mu + z, z, (-mu + lam * lnJ) / J, z, z, (mu + lam * (1 - lnJ)) / J**2
 
+    def volumetric(self, J):
+        """U = lambda/2 (ln J)^2: the incompressible limit keeps mu/2 (I1 - 3) - mu ln J."""
+        lam, lnJ = self.lame[0], np.log(J)
+        return 0.5 * lam * lnJ**2, lam * lnJ / J, lam * (1 - lnJ) / J**2
+
+
+@dataclass(frozen=True)
+class NeoHookeanDecoupled(_EnuMaterial, _InvariantMaterial):
+    """Decoupled compressible neo-Hookean: W = mu/2 (J^-2/3 I1 - 3) + kappa/4 (J^2 - 1 - 2 ln J).
+
+    The isochoric/volumetric split of the deal.II code gallery's Cook membrane
+    (``Quasi_static_Finite_strain_Compressible_Elasticity``, Pelteret and McBride 2016)
+    with the small-strain moduli of (E, nu): mu = E / (2 (1 + nu)) and the bulk modulus
+    kappa = lambda + 2/3 mu = 2 mu (1 + nu) / (3 (1 - 2 nu)).
+    """
+
+    name = "neo_hookean_decoupled"
+
+    @property
+    def bulk_modulus(self) -> float:
+        return self.E / (3 * (1 - 2 * self.nu))
+
+    def _derivs(self, I1, I2, J):
+        mu, k = self.lame[1], self.bulk_modulus
+        z = np.zeros_like(J)
+        Jm23 = J ** (-2 / 3)
+        W = 0.5 * mu * (Jm23 * I1 - 3) + 0.25 * k * (J**2 - 1 - 2 * np.log(J))
+        W1 = 0.5 * mu * Jm23
+        W1J = -mu / 3 * Jm23 / J
+        WJ = W1J * I1 + 0.5 * k * (J - 1 / J)
+        WJJ = 5 * mu / 9 * Jm23 / J**2 * I1 + 0.5 * k * (1 + 1 / J**2)
+        return W, W1, z, WJ, W1J, z, WJJ
+
+    def volumetric(self, J):
+        """U = kappa/4 (J^2 - 1 - 2 ln J)."""
+        k = self.bulk_modulus
+        return 0.25 * k * (J**2 - 1 - 2 * np.log(J)), 0.5 * k * (J - 1 / J), 0.5 * k * (1 + 1 / J**2)
+
 
 @dataclass(frozen=True)
 class MooneyRivlin(_InvariantMaterial):
@@ -222,6 +271,14 @@ class MooneyRivlin(_InvariantMaterial):
         WJ = -m1 / 3 * J ** (-5 / 3) * I1 - 2 * m2 / 3 * J ** (-7 / 3) * I2 + k * (J - 1)
         WJJ = 5 * m1 / 9 * J ** (-8 / 3) * I1 + 14 * m2 / 9 * J ** (-10 / 3) * I2 + k
         return W, W1, W2, WJ, W1J, W2J, WJJ
+
+    def volumetric(self, J):
+        """U = kappa/2 (J - 1)^2."""
+        return _quadratic_penalty(self.kappa, J)
+
+
+def _quadratic_penalty(kappa, J):
+    return 0.5 * kappa * (J - 1) ** 2, kappa * (J - 1), kappa + np.zeros_like(J)
 
 
 def _fibre_tensor(f, bf, bt, bfs):
@@ -276,6 +333,10 @@ class Guccione(_InvariantMaterial):
         k = self.kappa
         return 0.5 * k * (J - 1) ** 2, z, z, k * (J - 1), z, z, k + z
 
+    def volumetric(self, J):
+        """U = kappa/2 (J - 1)^2: the incompressible limit keeps C/2 (exp(Q) - 1)."""
+        return _quadratic_penalty(self.kappa, J)
+
     def energy(self, F):
         E = 0.5 * (np.swapaxes(F, -1, -2) @ F - _I)
         Q = np.einsum("...IJ,...IJKL,...KL->...", E, self._D(F), E)
@@ -294,7 +355,8 @@ class Guccione(_InvariantMaterial):
         return S, CC
 
 
-MATERIALS = {cls.name: cls for cls in (LinearElastic, SaintVenantKirchhoff, NeoHookean, MooneyRivlin, Guccione)}
+MATERIALS = {cls.name: cls for cls in (LinearElastic, SaintVenantKirchhoff, NeoHookean, NeoHookeanDecoupled,
+                                       MooneyRivlin, Guccione)}
 
 
 def make_material(name, **params) -> Material:

@@ -41,7 +41,8 @@ import ngsolve as ngs
 import numpy as np
 import scipy.sparse as sp
 
-from ..materials import Guccione, LinearElastic, MooneyRivlin, NeoHookean, SaintVenantKirchhoff
+from ..materials import (Guccione, LinearElastic, MooneyRivlin, NeoHookean, NeoHookeanDecoupled,
+                         SaintVenantKirchhoff)
 from ..problem import BodyForce, FollowerPressure, SurfaceTraction
 from ..quadrature import default_order, facet_rule, mass_order, volume_rule
 from ..solver_base import idle_core
@@ -127,6 +128,9 @@ def energy_cf(material, F, fibre=None):
     if isinstance(material, SaintVenantKirchhoff):
         lam, mu = material.lame
         return 0.5 * lam * ngs.Trace(E) ** 2 + mu * ngs.InnerProduct(E, E)
+    if isinstance(material, NeoHookeanDecoupled):  # before NeoHookean: not a subclass, but keep it explicit
+        mu, kappa = material.lame[1], material.bulk_modulus
+        return 0.5 * mu * (J ** (-2 / 3) * ngs.Trace(C) - 3) + 0.25 * kappa * (J ** 2 - 1 - 2 * ngs.log(J))
     if isinstance(material, NeoHookean):
         lam, mu = material.lame
         return 0.5 * mu * (ngs.Trace(C) - 3) - mu * ngs.log(J) + 0.5 * lam * ngs.log(J) ** 2

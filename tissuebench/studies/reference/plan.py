@@ -68,6 +68,11 @@ def _static(scene, causes, reasons):
     reasons.append(("Newton-Raphson with load stepping", "; ".join(causes)
                     + f": K_t assembled every iteration, {a.get('load_steps', 1)} initial increments "
                       f"up to load factor {a.get('max_load_factor', 1.0):g}, step cutting on failure"))
+    if a.get("formulation") == "mixed":
+        reasons.append(("mixed u-p formulation (Taylor-Hood P2-P1)", "analysis.formulation = 'mixed': "
+                        "incompressible, J = 1 imposed by a pressure field; the material's volumetric "
+                        "penalty is not used"))
+        return dict(linear=False, mass=None, tangent="per_iteration", algorithm="newton_solve:mixed")
     if a.get("stop_at_divergence"):
         reasons.append(("run until Newton stops converging", "the last converged load factor is "
                         "the measured radius of convergence, reported as status 'stalled'"))

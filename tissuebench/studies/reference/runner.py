@@ -87,6 +87,8 @@ def _monitor_fn(scene, pb, be):
 def _static(scene, plan, be, progress, linear_solver):
     a = scene.analysis
     n_steps, target = int(a.get("load_steps", 1)), float(a.get("max_load_factor", 1.0))
+    if plan.algorithm == "newton_solve:mixed":
+        return _mixed_static(scene, be, n_steps, target, progress)
     monitors = _monitor_fn(scene, be.problem, be)
     if plan.linear:
         states, rows, status, message = _linear_static(be, n_steps, target, monitors, progress)
@@ -97,6 +99,16 @@ def _static(scene, plan, be, progress, linear_solver):
     steps = np.array([0.0] + [r["load_factor"] for r in rows if r["converged"]])
     return dict(status=status, message=message, table=pd.DataFrame(rows), steps=steps, displacement=disp,
                 **_fields(be.problem))
+
+
+def _mixed_static(scene, be, n_steps, target, progress):
+    """The u-p Taylor-Hood run of ``refsolvers.mixed`` on the displacement backend's problem."""
+    from ...refsolvers.mixed import static_run
+
+    pb = be.problem
+    return static_run(pb, be.name, n_steps, target, lambda u, f: scene.evaluate_monitors(pb, u, f),
+                      needs_force=any(m["quantity"] in ("reaction_force", "nominal_stress", "moment")
+                                      for m in scene.monitors), progress=progress)
 
 
 def _linear_static(be, n_steps, target, monitors, progress):
