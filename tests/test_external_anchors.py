@@ -84,3 +84,22 @@ def test_anchor_table_bad_input():
         external_anchors("ci", "fenics")
     with pytest.raises(ValueError, match="unknown"):
         external_anchors("ci", cases=["cook"])
+
+
+def test_verify_command_writes_the_anchor_table_beside_a_sweep(tmp_path, capsys):
+    """``tissuebench verify RESULTS`` computes the anchors (the analytic ones here: none may
+    fail to compute) and stores them as RESULTS/_anchors.parquet, which the report reads and
+    the unit reader ignores."""
+    import pandas as pd
+
+    from tissuebench.cli import main
+    from tissuebench.studies.results import read_units
+
+    assert main(["verify", str(tmp_path), "--cases", "clamped_beam,cube_tension_twist"]) == 0
+    table = pd.read_parquet(tmp_path / "_anchors.parquet")
+    assert set(table["case"]) == {"clamped_beam", "cube_tension_twist"}
+    assert (table["verdict"] == "in").all(), table[["quantity", "ours", "how"]]
+    assert "clamped_beam" in capsys.readouterr().out
+    assert read_units(tmp_path).empty
+    assert main(["verify", str(tmp_path / "missing")]) == 2
+    assert main(["verify", "--cases", "nope"]) == 2

@@ -13,6 +13,9 @@
                                             self-contained HTML: which method for which scene
 ``tissuebench check RESULTS --baseline FILE [--update-baseline] [--junit OUT.xml]``
                                             regression gate on error and latency ratios
+``tissuebench verify [RESULTS] [--resolution ci|paper] [--backend B] [--cases C,D]``
+                                            external anchors (Cook, Land et al.); written to
+                                            RESULTS/_anchors.parquet for the report
 
 Exit codes: 0 success, 1 the run finished with a numerical failure (stored) or its results
 could not be written (a full disk: nothing stored), 2 bad input (including an output location
@@ -63,6 +66,12 @@ def _parser():
     chk.add_argument("--baseline", type=Path, required=True, help="baseline TOML (e.g. baselines/ci.toml)")
     chk.add_argument("--update-baseline", action="store_true", help="rewrite the baseline from the results")
     chk.add_argument("--junit", type=Path, default=None, help="also write JUnit XML here")
+    ver = sub.add_parser("verify", help="our values against the external anchors (Cook, Land et al., analytic)")
+    ver.add_argument("results", type=Path, nargs="?", default=None,
+                     help="a sweep's results folder: the table goes to RESULTS/_anchors.parquet (the report shows it)")
+    ver.add_argument("--resolution", default="ci", choices=["ci", "paper"])
+    ver.add_argument("--backend", default="ngsolve", choices=["ngsolve", "skfem"])
+    ver.add_argument("--cases", default=None, help="only these anchor cases (comma-separated)")
     desc = sub.add_parser("describe", help="what a run of CASE models, and why")
     desc.add_argument("case")
     desc.add_argument("--variant", default=None)
@@ -220,6 +229,32 @@ def _cache(args) -> int:
     return 0
 
 
+def _verify(args) -> int:
+    from .reports.anchors import external_anchors
+    from .studies.results import write_table
+
+    if args.results is not None and not args.results.is_dir():
+        raise FileNotFoundError(f"results: {args.results} is not a folder")
+    cases = None if args.cases is None else [c.strip() for c in args.cases.split(",") if c.strip()]
+    table = external_anchors(args.resolution, args.backend, cases)
+    with _pd_display():
+        print(table[["case", "quantity", "unit", "ours", "anchor", "low", "high", "verdict"]].to_string(index=False))
+    if args.results is not None:
+        write_table(table, args.results / "_anchors.parquet")
+        print(f"verify: {len(table)} anchors written to {args.results / '_anchors.parquet'}")
+    bad = table[(table["verdict"] != "in") & table["expected_in"]]
+    for _, r in bad.iterrows():
+        print(f"verify: {r['case']} {r['quantity']}: {r['ours']:.6g} outside [{r['low']:.6g}, {r['high']:.6g}] "
+              f"({r['how']})", file=sys.stderr)
+    return 1 if len(bad) else 0
+
+
+def _pd_display():
+    import pandas as pd
+
+    return pd.option_context("display.width", 200, "display.max_colwidth", 40)
+
+
 def main(argv=None) -> int:
     from .studies.results import SweepLocked
 
@@ -245,6 +280,8 @@ def main(argv=None) -> int:
             return _check(args)
         if args.command == "report":
             return _report(args)
+        if args.command == "verify":
+            return _verify(args)
         return _run(args)
     except (ValueError, TypeError, FileExistsError, FileNotFoundError, SweepLocked) as exc:
         return _error(exc)

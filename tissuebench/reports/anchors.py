@@ -168,7 +168,7 @@ def _clamped_beam_exact(res):
 
 
 def _cube_stress(res, backend):
-    from ..refsolvers.reference import solve
+    from ..studies.reference import solve
 
     r = solve("cube_tension_twist", backend=backend, resolution=res, variant="tension")
     return float(r.table["nominal_stress_kPa"].dropna().iloc[-1]), f"P1 penalty, {res} mesh"

@@ -54,6 +54,14 @@ def _write_table(table, path: Path) -> None:
     os.replace(tmp, path)
 
 
+def write_table(frame: pd.DataFrame, path) -> None:
+    """Write a DataFrame as Parquet atomically (a side table of a results folder, e.g.
+    ``_anchors.parquet``: names starting with ``_`` are not read as unit rows)."""
+    import pyarrow as pa
+
+    _write_table(pa.Table.from_pandas(frame, preserve_index=False), Path(path))
+
+
 class ResultsStore:
     """A results folder being written by one sweep (see the module docstring)."""
 
