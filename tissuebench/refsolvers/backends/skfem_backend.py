@@ -82,9 +82,9 @@ class SkfemCellKernel(CellKernel):
 
     def energies_and_forces(self, u_loc):
         F = self.deformation_gradient(u_loc)
-        W = np.einsum("eq,eq->e", self.dx, self.material.energy(F))
-        fe = np.einsum("eqiJ,eqaJ->eai", self.material.stress(F), self._G, optimize=True)
-        return W, fe.reshape(len(fe), -1)
+        W, P = self.material.energy_and_stress(F)
+        fe = np.einsum("eqiJ,eqaJ->eai", P, self._G, optimize=True)
+        return np.einsum("eq,eq->e", self.dx, W), fe.reshape(len(fe), -1)
 
     def forces_and_tangents(self, u_loc):
         F = self.deformation_gradient(u_loc)

@@ -1,0 +1,287 @@
+"""``"wsc"``: the weighted-skinning + cubature ROM as a registered trajectory method.
+
+Offline (:meth:`Wsc.build`): handles by furthest-point sampling, skinning weights, the
+subspace and its Dirichlet part, the cubature rule (``bgbc`` without snapshots, ``nnls``
+from training trajectories, ``full``), the reduced mass ``U^T M U`` and the reduced loads.
+Online (:class:`WscModel`): ``start`` projects the initial state and factorises the step
+matrix for ``dt``; ``step({"time", "load_factor"})`` advances one implicit step in the
+subspace; the step result carries the full reduced vector ``q`` (``u = U q``, prescribed
+values included).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..base import OnlineModel, RomMethod, StepResult, Training, check_parameters, register
+from .cubature import bgbc_cubature, cell_centroids, full_cubature
+from .handles import furthest_point_sampling, resolve_count
+from .loads import ReducedLoads
+from .nnls import nnls_cubature
+from .reduced import CubatureForces
+from .stepper import SCHEMES, SOLVERS, ReducedStepper, make_scheme
+from .subspace import MassProjector, Subspace
+from .weights import skinning_weights
+
+__all__ = ["Wsc", "WscModel", "CUBATURES"]
+
+CUBATURES = ("bgbc", "nnls", "full")
+
+
+def _positive(name, value, integer=False):
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    if not ok or not np.isfinite(value) or value <= 0 or (integer and int(value) != value):
+        kind = "an integer >= 1" if integer else "a finite number > 0"
+        raise ValueError(f"wsc option {name} must be {kind}, got {value!r}")
+    return int(value) if integer else float(value)
+
+
+@register
+class Wsc(RomMethod):
+    """Weighted skinning subspace + cubature, implicit dynamics (wsc-skinning-cubature).
+
+    Options
+    -------
+    handles : int or float
+        Number of free handles, or a fraction in (0, 1) of the mesh vertices (paper: 1-5 %).
+    support : float
+        Skinning support radius in units of the handles' covering radius (> 1).
+    cubature : {"bgbc", "nnls", "full"}
+        Cubature rule (see :mod:`.cubature`, :mod:`.nnls`).
+    cubature_elements : int or float
+        Sample elements (budget), or a fraction of the elements (paper: 5-7.5 %).
+    cubature_support : float
+        BGBC weight-function radius in units of the samples' covering radius (> 1).
+    nnls_tol : float or None
+        Largest accepted relative fit error of the NNLS rule on held-out snapshots (None:
+        any, reported only).
+    integrator : {"backward_euler", "newmark", "hht"}
+        Reduced time integrator (the paper's: backward Euler); ``alpha`` for HHT.
+    solver : {"lbfgs", "newton"}
+    rtol, max_iter, memory : Newton/L-BFGS tolerance, iteration cap, L-BFGS pairs.
+    linear_solver : {"auto", "dense", "sparse"}
+        Solves with the step matrix (auto: dense up to 2000 reduced dofs).
+    track_energy : bool
+        Kinetic and strain energy and the support work in every step's info (energy drift).
+    seed : int
+        Seed of the first handle and the first sample element.
+    """
+
+    name = "wsc"
+    kind = "trajectory"
+    nested = ()
+    training_kinds = ("operators", "trajectory")
+
+    def __init__(self, handles=0.03, support=2.0, cubature="bgbc", cubature_elements=0.0625,
+                 cubature_support=2.0, nnls_tol=0.05, integrator="backward_euler", alpha=-0.05,
+                 solver="lbfgs", rtol=1e-6, max_iter=50, memory=8, linear_solver="auto",
+                 track_energy=False, seed=0):
+        if isinstance(handles, bool) or not isinstance(handles, (int, float, np.integer, np.floating)) \
+                or not handles > 0:
+            raise ValueError(f"wsc option handles must be a count >= 1 or a fraction in (0, 1), got {handles!r}")
+        if isinstance(cubature_elements, bool) or not isinstance(cubature_elements, (int, float, np.integer,
+                                                                                     np.floating)) \
+                or not cubature_elements > 0:
+            raise ValueError(f"wsc option cubature_elements must be a count >= 1 or a fraction in (0, 1), "
+                             f"got {cubature_elements!r} (a zero budget integrates nothing)")
+        for name, val in (("support", support), ("cubature_support", cubature_support)):
+            if _positive(name, val) <= 1.0:
+                raise ValueError(f"wsc option {name} = {val!r} must exceed 1 (a node may lie a covering radius "
+                                 "away from every handle or sample)")
+        if cubature not in CUBATURES:
+            raise ValueError(f"wsc option cubature = {cubature!r}: expected one of {CUBATURES}")
+        if integrator not in SCHEMES:
+            raise ValueError(f"wsc option integrator = {integrator!r}: expected one of {SCHEMES}")
+        if solver not in SOLVERS:
+            raise ValueError(f"wsc option solver = {solver!r}: expected one of {SOLVERS}")
+        if linear_solver not in ("auto", "dense", "sparse"):
+            raise ValueError(f"wsc option linear_solver = {linear_solver!r}: expected auto, dense or sparse")
+        if nnls_tol is not None:
+            _positive("nnls_tol", nnls_tol)
+        self.scheme = make_scheme(integrator, alpha)
+        self.options = dict(handles=handles, support=float(support), cubature=cubature,
+                            cubature_elements=cubature_elements, cubature_support=float(cubature_support),
+                            nnls_tol=nnls_tol, integrator=integrator, alpha=alpha, solver=solver,
+                            rtol=_positive("rtol", rtol), max_iter=_positive("max_iter", max_iter, True),
+                            memory=_positive("memory", memory, True), linear_solver=linear_solver,
+                            track_energy=bool(track_energy), seed=int(seed))
+
+    # ------------------------------------------------------------------ offline
+    def build(self, training: Training) -> "WscModel":
+        o = self.options
+        be = training.backend
+        if be is None:
+            raise ValueError("wsc.build: training.backend is required (element kernels, mass, loads)")
+        pb = be.problem
+        timings, tic = {}, time.perf_counter()
+        mesh = pb.mesh
+        vertices = mesh.points
+        groups = _dirichlet_groups(pb)
+        group_vertices = [g[g < mesh.n_vertices] for g in groups]
+        n_free_vertices = mesh.n_vertices - len(np.unique(np.concatenate(group_vertices))) if groups else \
+            mesh.n_vertices
+        k = resolve_count(o["handles"], mesh.n_vertices, "handles")
+        if k > n_free_vertices:
+            raise ValueError(f"handles = {o['handles']!r} ({k}) exceeds the {n_free_vertices} vertices outside the "
+                             "Dirichlet sets")
+        fps = furthest_point_sampling(vertices, k, o["seed"], sources=group_vertices)
+        timings["handles_s"] = time.perf_counter() - tic
+        tic = time.perf_counter()
+        radius = o["support"] * fps.covering_radius
+        W = skinning_weights(pb.nodes, vertices[fps.indices], radius, groups)
+        sub = Subspace(pb.nodes, W, len(groups), pb.fixed_dofs)
+        _check_prescribed_affine(sub, pb)
+        M = be.mass()
+        removed = sub.remove_redundancy(M)
+        timings["weights_s"] = time.perf_counter() - tic
+        tic = time.perf_counter()
+        budget = resolve_count(o["cubature_elements"], mesh.n_cells, "cubature_elements")
+        cub = self._cubature(o, budget, be, sub, training)
+        timings["cubature_s"] = time.perf_counter() - tic
+        tic = time.perf_counter()
+        M_q = sp.csr_matrix(sub.U.T @ (M @ sub.U))
+        loads = ReducedLoads(sub, be)
+        forces = CubatureForces(sub, be, cub)
+        linear = o["linear_solver"]
+        if linear == "auto":
+            linear = "dense" if sub.n_z <= 2000 else "sparse"
+        stepper = ReducedStepper(sub, forces, M_q, loads, self.scheme, o["solver"], o["rtol"], o["max_iter"],
+                                 o["memory"], linear)
+        timings["operators_s"] = time.perf_counter() - tic
+        info = {"handles": k, "boundary_handles": len(groups), "n_q": sub.n_q, "n_z": sub.n_z,
+                "redundant_removed": removed,
+                "covering_radius": fps.covering_radius, "separation": fps.separation, "support_radius": radius,
+                "cubature": cub.scheme, "cubature_elements": cub.size, "cubature_info": cub.info,
+                "linear_solver": linear, "offline": timings, "handle_vertices": fps.indices,
+                "mesh": {"vertices": mesh.n_vertices, "cells": mesh.n_cells}}
+        model = WscModel(sub, stepper, pb, info, M, track_energy=o["track_energy"], dt=training.dt,
+                         envelope=_envelope(training) if cub.scheme == "nnls" else {})
+        if training.outputs:
+            model.attach_outputs(training.outputs)
+        return model
+
+    def _cubature(self, o, budget, be, sub, training):
+        pb = be.problem
+        if o["cubature"] == "full":
+            return full_cubature(pb.mesh.n_cells)
+        volumes = be.cell_kernel().volumes
+        centroids = cell_centroids(pb.mesh.points, pb.mesh.cells)
+        if o["cubature"] == "bgbc":
+            return bgbc_cubature(centroids, volumes, budget, o["seed"], o["cubature_support"])
+        return nnls_cubature(sub, be, training, budget, centroids, o["nnls_tol"], o["seed"])
+
+
+def _dirichlet_groups(pb):
+    """Node sets of the Dirichlet entries (a node constrained by several: the last one)."""
+    owner = np.full(len(pb.nodes), -1)
+    for g, d in enumerate(pb.dirichlet):
+        dofs = d.resolve(pb.nodes)[0]
+        owner[np.unique(dofs // 3)] = g
+    return [np.flatnonzero(owner == g) for g in range(len(pb.dirichlet)) if np.any(owner == g)]
+
+
+def _check_prescribed_affine(sub, pb):
+    for lam in (0.5, 1.0):
+        res = sub.constraint_residual(pb.prescribed_values(lam))
+        if res > 1e-8:
+            raise ValueError(f"wsc: the prescribed displacement at load factor {lam} is not affine on its Dirichlet "
+                             f"set (relative residual {res:.2e}); the boundary handles cannot impose it")
+
+
+def _envelope(training):
+    if not training.parameters:
+        return {}
+    lam = training.parameter_values("load_factor")
+    return {"load_factor": (float(lam.min()), float(lam.max()))}
+
+
+class WscModel(OnlineModel):
+    """Online WSC model (trajectory): see the module docstring."""
+
+    name = "wsc"
+    kind = "trajectory"
+
+    def __init__(self, subspace, stepper, problem, info, mass, track_energy=False, dt=None, envelope=None):
+        self.sub, self.stepper, self.problem, self.info = subspace, stepper, problem, info
+        self._mass, self._projector = mass, None
+        self.track_energy = track_energy
+        self._dt, self._envelope = dt, dict(envelope or {})
+        self._linear_presc = not any(d.motion is not None for d in problem.dirichlet)
+        if self._linear_presc:  # g(lam) = lam g1 + g0: q_b affine in lam, precomputed
+            g0 = problem.prescribed_values(0.0)
+            self._qb0 = subspace.prescribed_q(g0)
+            self._qb1 = subspace.prescribed_q(problem.prescribed_values(1.0) - g0)
+        self.started = False
+
+    @property
+    def n_reduced(self) -> int:
+        return self.sub.n_q
+
+    @property
+    def envelope(self) -> dict:
+        return dict(self._envelope)
+
+    def prescribed_q(self, lam) -> np.ndarray:
+        if self._linear_presc:
+            return self._qb0 + lam * self._qb1
+        return self.sub.prescribed_q(self.problem.prescribed_values(lam))
+
+    # ------------------------------------------------------------------ start
+    def project(self, u) -> tuple[np.ndarray, np.ndarray]:
+        """(z, q_b) of the mass-orthogonal projection of a full field u (ndof,) on the subspace."""
+        if self._projector is None:
+            self._projector = MassProjector(self.sub, self._mass)
+        return self._projector.project(u)
+
+    def start(self, mu0=None, state0=None, dt=None):
+        dt = self._dt if dt is None else dt
+        if dt is None or not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"wsc.start: dt must be a time step > 0 (none given and none in the training), got {dt!r}")
+        self._dt = float(dt)
+        lam0 = float(mu0.get("load_factor", 0.0)) if mu0 else 0.0
+        self.t = float(mu0.get("time", 0.0)) if mu0 else 0.0
+        nz, nb = self.sub.n_z, 12 * self.sub.n_groups
+        if state0 is None:
+            z0, v0, qb0, vb0 = np.zeros(nz), np.zeros(nz), self.prescribed_q(lam0), np.zeros(nb)
+        else:
+            z0, qb0 = self.project(state0["u"])
+            v0, vb0 = self.project(state0.get("v", np.zeros(self.sub.ndof)))
+        self.stepper.start(z0, v0, qb0, vb0, lam0, self._dt)
+        self.reaction_work, self._support0 = 0.0, None
+        if self.track_energy:
+            self._support0 = self.stepper.support_force()
+        self.started = True
+
+    # ------------------------------------------------------------------ step
+    def step(self, mu) -> StepResult:
+        mu = check_parameters(mu, ("time", "load_factor"), self.name)
+        if not self.started:
+            self.start()
+        lam = float(mu["load_factor"])
+        qb_old = self.stepper.qb
+        ok, message, info = self.stepper.step(lam, self.prescribed_q(lam))
+        if not ok:
+            return StepResult(None, "failed", f"t={mu['time']:.6g}: {message}", info, mu)
+        self.t = float(mu["time"])
+        if self.track_energy:
+            support = self.stepper.support_force()
+            self.reaction_work += 0.5 * float((self._support0 + support) @ (self.stepper.qb - qb_old))
+            self._support0 = support
+            info["kinetic_energy"], info["strain_energy"] = self.stepper.energies()
+            info["reaction_work"] = self.reaction_work
+        status = "ok"
+        lo, hi = self._envelope.get("load_factor", (-np.inf, np.inf))
+        if not lo - 1e-12 <= lam <= hi + 1e-12:
+            status = "extrapolation"
+        return StepResult(self.stepper.q.copy(), status, "", info, mu)
+
+    # ------------------------------------------------------------------ outputs
+    def output_map(self):
+        return np.arange(self.sub.ndof), self.sub.U
+
+    def reconstruct(self, result: StepResult) -> np.ndarray:
+        if result.q is None:
+            raise ValueError(f"wsc.reconstruct: the step failed ({result.message}); no state")
+        return self.sub.displacement(result.q)
