@@ -129,7 +129,8 @@ class Wsc(RomMethod):
         fps = furthest_point_sampling(vertices, k, o["seed"], sources=group_vertices)
         timings["handles_s"] = time.perf_counter() - tic
         tic = time.perf_counter()
-        radius = o["support"] * fps.covering_radius
+        # every vertex a handle (covering radius 0): any radius interpolates; half the separation
+        radius = o["support"] * (fps.covering_radius if fps.covering_radius > 0 else 0.5 * fps.separation)
         W = skinning_weights(pb.nodes, vertices[fps.indices], radius, groups)
         sub = Subspace(pb.nodes, W, len(groups), pb.fixed_dofs)
         _check_prescribed_affine(sub, pb)
