@@ -251,3 +251,10 @@ def test_a_step_the_reduced_solver_cannot_converge_is_a_failed_result(small_mode
         model.reconstruct(res)
     with pytest.raises(ValueError, match=r"parameter 'load_factor' missing"):
         model.step({"time": 0.1})
+    # the paper's capped iteration keeps the step and says so
+    capped = make_method("wsc", handles=10, cubature="full", max_iter=1, rtol=1e-14,
+                         on_max_iter="accept").build(Training(backend=be))
+    capped.start(dt=0.05)
+    res = capped.step({"time": 0.05, "load_factor": 0.5})
+    assert res.status == "ok" and res.q is not None and not res.info["converged"]
+    assert "kept unconverged" in res.message and res.info["residual"] > 0

@@ -62,7 +62,12 @@ class Wsc(RomMethod):
     solver : {"lbfgs", "newton"}
     rtol, max_iter, memory : Newton/L-BFGS tolerance, iteration cap, L-BFGS pairs.
     linear_solver : {"auto", "dense", "sparse"}
-        Solves with the step matrix (auto: dense up to 2000 reduced dofs).
+        Solves with the step matrix (auto: dense inverse up to 5000 reduced dofs).
+    on_max_iter : {"fail", "accept"}
+        A step that reaches ``max_iter`` fails (default), or is kept with its residual
+        reported (``info["converged"] = False``): the paper stops its iteration "when the
+        residual decreases to a desired threshold, or after exceeding a maximum number of
+        iterations".
     track_energy : bool
         Kinetic and strain energy and the support work in every step's info (energy drift).
     seed : int
@@ -77,7 +82,7 @@ class Wsc(RomMethod):
     def __init__(self, handles=0.03, support=2.0, cubature="bgbc", cubature_elements=0.0625,
                  cubature_support=2.0, nnls_tol=0.05, integrator="backward_euler", alpha=-0.05,
                  solver="lbfgs", rtol=1e-6, max_iter=50, memory=8, linear_solver="auto",
-                 track_energy=False, seed=0):
+                 on_max_iter="fail", track_energy=False, seed=0):
         if isinstance(handles, bool) or not isinstance(handles, (int, float, np.integer, np.floating)) \
                 or not handles > 0:
             raise ValueError(f"wsc option handles must be a count >= 1 or a fraction in (0, 1), got {handles!r}")
@@ -98,6 +103,8 @@ class Wsc(RomMethod):
             raise ValueError(f"wsc option solver = {solver!r}: expected one of {SOLVERS}")
         if linear_solver not in ("auto", "dense", "sparse"):
             raise ValueError(f"wsc option linear_solver = {linear_solver!r}: expected auto, dense or sparse")
+        if on_max_iter not in ("fail", "accept"):
+            raise ValueError(f"wsc option on_max_iter = {on_max_iter!r}: expected 'fail' or 'accept'")
         if nnls_tol is not None:
             _positive("nnls_tol", nnls_tol)
         self.scheme = make_scheme(integrator, alpha)
@@ -106,6 +113,7 @@ class Wsc(RomMethod):
                             nnls_tol=nnls_tol, integrator=integrator, alpha=alpha, solver=solver,
                             rtol=_positive("rtol", rtol), max_iter=_positive("max_iter", max_iter, True),
                             memory=_positive("memory", memory, True), linear_solver=linear_solver,
+                            on_max_iter=on_max_iter,
                             track_energy=bool(track_energy), seed=int(seed))
 
     # ------------------------------------------------------------------ offline
@@ -147,9 +155,10 @@ class Wsc(RomMethod):
         forces = CubatureForces(sub, be, cub)
         linear = o["linear_solver"]
         if linear == "auto":
-            linear = "dense" if sub.n_z <= 2000 else "sparse"
+            # measured (cube, 3006 dofs): dense inverse 2.2 ms per solve, sparse LU 6.4 ms (80 % fill)
+            linear = "dense" if sub.n_z <= 5000 else "sparse"
         stepper = ReducedStepper(sub, forces, M_q, loads, self.scheme, o["solver"], o["rtol"], o["max_iter"],
-                                 o["memory"], linear)
+                                 o["memory"], linear, accept_unconverged=o["on_max_iter"] == "accept")
         timings["operators_s"] = time.perf_counter() - tic
         info = {"handles": k, "boundary_handles": len(groups), "n_q": sub.n_q, "n_z": sub.n_z,
                 "redundant_removed": removed,
@@ -276,7 +285,8 @@ class WscModel(OnlineModel):
         lo, hi = self._envelope.get("load_factor", (-np.inf, np.inf))
         if not lo - 1e-12 <= lam <= hi + 1e-12:
             status = "extrapolation"
-        return StepResult(self.stepper.q.copy(), status, "", info, mu)
+        note = "" if info.get("converged", True) else f"kept unconverged (on_max_iter='accept'): {info['message']}"
+        return StepResult(self.stepper.q.copy(), status, note, info, mu)
 
     # ------------------------------------------------------------------ outputs
     def output_map(self):

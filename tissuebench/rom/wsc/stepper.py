@@ -112,10 +112,13 @@ class ReducedStepper:
     memory : int
         L-BFGS pairs kept.
     linear_solver : {"dense", "sparse"}
+    accept_unconverged : bool
+        Keep a step that reaches ``max_iter`` (finite state, residual reported) instead of failing.
     """
 
     def __init__(self, subspace, forces, mass_q, loads, scheme, solver="lbfgs", rtol=1e-6, max_iter=50,
-                 memory=8, linear_solver="dense"):
+                 memory=8, linear_solver="dense", accept_unconverged=False):
+        self.accept_unconverged = bool(accept_unconverged)
         self.sub, self.forces, self.loads, self.scheme = subspace, forces, loads, scheme
         self.solver, self.rtol, self.max_iter, self.memory = solver, rtol, int(max_iter), int(memory)
         self.linear_solver = linear_solver
@@ -215,7 +218,7 @@ class ReducedStepper:
                 return False, z, E, fz, {"message": f"non-finite energy or force (an inverted element?) at "
                                                     f"iteration {it}", "iterations": it, "evaluations": evals}
             if gn <= tol:
-                return True, z, E, fz, {"iterations": it, "evaluations": evals, "residual": gn,
+                return True, z, E, fz, {"iterations": it, "evaluations": evals, "residual": gn, "converged": True,
                                         "solve_s": time.perf_counter() - tic}
             if it == self.max_iter:
                 break
@@ -248,9 +251,10 @@ class ReducedStepper:
                     S.pop(0)
                     Y.pop(0)
             z, phi, g, E, fz = z1, phi1, g1, E1, fz1
-        return False, z, E, fz, {"message": f"L-BFGS did not converge in {self.max_iter} iterations "
-                                            f"(|R| = {gn:.3e}, tolerance {tol:.3e})",
-                                 "iterations": self.max_iter, "evaluations": evals}
+        info = {"message": f"L-BFGS did not converge in {self.max_iter} iterations (|R| = {gn:.3e}, tolerance "
+                           f"{tol:.3e})", "iterations": self.max_iter, "evaluations": evals, "residual": gn,
+                "converged": False, "solve_s": time.perf_counter() - tic}
+        return self.accept_unconverged, z, E, fz, info
 
     def _two_loop(self, g, S, Y):
         q = g.copy()
@@ -282,7 +286,7 @@ class ReducedStepper:
                 return False, z, np.nan, fz, {"message": f"non-finite residual at iteration {it}", "iterations": it}
             if gn <= tol or small_step:  # the step-size test of the full-order Newton (utol = 1e-12)
                 E = self.forces.energy_and_force(q)[0]
-                return True, z, E, fz, {"iterations": it, "evaluations": it + 1, "residual": gn,
+                return True, z, E, fz, {"iterations": it, "evaluations": it + 1, "residual": gn, "converged": True,
                                         "solve_s": time.perf_counter() - tic}
             if it == self.max_iter:
                 break
@@ -294,8 +298,12 @@ class ReducedStepper:
                 small_step = np.linalg.norm(dz) <= 1e-12 * max(np.linalg.norm(z), 1e-300)
             except (np.linalg.LinAlgError, ValueError) as exc:
                 return False, z, np.nan, fz, {"message": f"singular Newton matrix: {exc}", "iterations": it}
-        return False, z, np.nan, fz, {"message": f"Newton did not converge in {self.max_iter} iterations "
-                                                 f"(|R| = {gn:.3e}, tolerance {tol:.3e})", "iterations": self.max_iter}
+        info = {"message": f"Newton did not converge in {self.max_iter} iterations (|R| = {gn:.3e}, tolerance "
+                           f"{tol:.3e})", "iterations": self.max_iter, "residual": gn, "converged": False}
+        if self.accept_unconverged:  # the last iterate's energy and force (not checked further)
+            E, fq = self.forces.energy_and_force(self.sub.q_of(z, qb1))
+            return True, z, E, self.sub.z_of(fq), info
+        return False, z, np.nan, fz, info
 
     # ------------------------------------------------------------------ energy
     def energies(self):
