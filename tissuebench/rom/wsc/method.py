@@ -48,6 +48,12 @@ class Wsc(RomMethod):
         Number of free handles, or a fraction in (0, 1) of the mesh vertices (paper: 1-5 %).
     support : float
         Skinning support radius in units of the handles' covering radius (> 1).
+    boundary_support : float
+        Support of the boundary (Dirichlet) handles' kernel, distance to their set, in the
+        same unit (default 0.5: the set and a thin layer; with the full support the
+        boundary handle -- 3 free dofs on a planar face -- dominates the layers next to
+        the face and the subspace cannot follow the deformation there: 2.5 % projection
+        error of the ci tension history with 10 handles against 0.5 %).
     cubature : {"bgbc", "nnls", "full"}
         Cubature rule (see :mod:`.cubature`, :mod:`.nnls`).
     cubature_elements : int or float
@@ -82,7 +88,7 @@ class Wsc(RomMethod):
     def __init__(self, handles=0.03, support=2.0, cubature="bgbc", cubature_elements=0.0625,
                  cubature_support=2.0, nnls_tol=0.05, integrator="backward_euler", alpha=-0.05,
                  solver="lbfgs", rtol=1e-6, max_iter=50, memory=8, linear_solver="auto",
-                 on_max_iter="fail", track_energy=False, seed=0):
+                 on_max_iter="fail", boundary_support=0.5, track_energy=False, seed=0):
         if isinstance(handles, bool) or not isinstance(handles, (int, float, np.integer, np.floating)) \
                 or not handles > 0:
             raise ValueError(f"wsc option handles must be a count >= 1 or a fraction in (0, 1), got {handles!r}")
@@ -91,6 +97,7 @@ class Wsc(RomMethod):
                 or not cubature_elements > 0:
             raise ValueError(f"wsc option cubature_elements must be a count >= 1 or a fraction in (0, 1), "
                              f"got {cubature_elements!r} (a zero budget integrates nothing)")
+        _positive("boundary_support", boundary_support)
         for name, val in (("support", support), ("cubature_support", cubature_support)):
             if _positive(name, val) <= 1.0:
                 raise ValueError(f"wsc option {name} = {val!r} must exceed 1 (a node may lie a covering radius "
@@ -113,7 +120,7 @@ class Wsc(RomMethod):
                             nnls_tol=nnls_tol, integrator=integrator, alpha=alpha, solver=solver,
                             rtol=_positive("rtol", rtol), max_iter=_positive("max_iter", max_iter, True),
                             memory=_positive("memory", memory, True), linear_solver=linear_solver,
-                            on_max_iter=on_max_iter,
+                            on_max_iter=on_max_iter, boundary_support=float(boundary_support),
                             track_energy=bool(track_energy), seed=int(seed))
 
     # ------------------------------------------------------------------ offline
@@ -139,7 +146,8 @@ class Wsc(RomMethod):
         tic = time.perf_counter()
         # every vertex a handle (covering radius 0): any radius interpolates; half the separation
         radius = o["support"] * (fps.covering_radius if fps.covering_radius > 0 else 0.5 * fps.separation)
-        W = skinning_weights(pb.nodes, vertices[fps.indices], radius, groups)
+        W = skinning_weights(pb.nodes, vertices[fps.indices], radius, groups,
+                             o["boundary_support"] * radius / o["support"])
         sub = Subspace(pb.nodes, W, len(groups), pb.fixed_dofs)
         _check_prescribed_affine(sub, pb)
         M = be.mass()

@@ -14,8 +14,9 @@ reproduces any affine map shared by all handles exactly. The support is
 ``R`` of a handle), so ``support > 1`` guarantees every node sees a handle.
 
 Boundary handles: each Dirichlet set gets its own handle whose distance is the distance
-to the set; nodes of the set take weight 1 on it (and 0 elsewhere), so its affine map
-alone moves them -- the prescribed motion is imposed through that handle.
+to the set (with its own, smaller support ``group_radius``); nodes of the set take
+weight 1 on it (and 0 elsewhere), so its affine map alone moves them -- the prescribed
+motion is imposed through that handle.
 """
 from __future__ import annotations
 
@@ -33,7 +34,8 @@ def shepard_kernel(d, radius: float) -> np.ndarray:
         return (np.maximum(radius - d, 0.0) / (radius * d)) ** 2
 
 
-def skinning_weights(nodes, handle_points, radius: float, groups=()) -> sp.csr_matrix:
+def skinning_weights(nodes, handle_points, radius: float, groups=(), group_radius: float | None = None) \
+        -> sp.csr_matrix:
     """Normalised weights of every node on every handle, shape (n_nodes, k + len(groups)).
 
     Parameters
@@ -47,6 +49,8 @@ def skinning_weights(nodes, handle_points, radius: float, groups=()) -> sp.csr_m
     groups : sequence of (m_g,) int arrays
         Node sets with a boundary handle each (columns k, k + 1, ...); a node in several
         sets belongs to the last one.
+    group_radius : float, optional
+        Support radius of the boundary handles (default ``radius``).
 
     Raises
     ------
@@ -62,13 +66,16 @@ def skinning_weights(nodes, handle_points, radius: float, groups=()) -> sp.csr_m
     rows = np.repeat(np.arange(n), [len(c) for c in lists])
     cols = np.fromiter((j for c in lists for j in c), dtype=np.int64, count=len(rows))
     dist = np.linalg.norm(X[rows] - H[cols], axis=1)
+    rg = radius if group_radius is None else float(group_radius)
+    radii = np.full(len(dist), radius)
     for g, members in enumerate(groups):
-        d_g, _ = cKDTree(X[np.asarray(members)]).query(X, distance_upper_bound=radius)
+        d_g, _ = cKDTree(X[np.asarray(members)]).query(X, distance_upper_bound=rg)
         near = np.flatnonzero(np.isfinite(d_g))
         rows = np.concatenate([rows, near])
         cols = np.concatenate([cols, np.full(len(near), k + g)])
         dist = np.concatenate([dist, d_g[near]])
-    b = shepard_kernel(dist, radius)
+        radii = np.concatenate([radii, np.full(len(near), rg)])
+    b = shepard_kernel(dist, radii)
     keep = b > 0
     rows, cols, b = rows[keep], cols[keep], b[keep]
     # a node on a handle (d = 0, b = inf) takes that handle alone

@@ -1,0 +1,394 @@
+"""Weighted skinning + cubature (wsc) study: the paper's Table 1, Table 3, the LV figure,
+energy drift, offline cost and memory, and the RMSE-versus-step-time plot.
+
+Standalone until the sweep harness lands (its functions are small so the harness can
+call them). Every figure is measured against the full FE reference on the same mesh,
+with the FE step timed in the same process:
+
+* reference runs (``reference``): the catalogue scene's dynamic run through
+  ``tissuebench.studies.reference.solve``, cached as NPZ in the output folder;
+* the FE step time (``fe_step_times``): a few backward-Euler steps of the same system,
+  timed here (median, p99);
+* the ROM (``measure``): offline build timed per stage, model memory, then
+  ``time_online_steps`` over the whole trajectory (warm-up, median, p99 of the step,
+  step + reconstruction apart), relative RMSE of the displacement history
+  ``sqrt(sum_n |u_n - u_FE,n|^2 / sum_n |u_FE,n|^2)`` over all steps.
+
+Usage::
+
+    PYTHONPATH=$PWD OPENBLAS_NUM_THREADS=1 nice -n 10 python examples/wsc_study.py OUT \\
+        --resolution paper --parts table1,lv,table3,drift,nnls
+
+``--resolution ci`` runs the same parts on the CI meshes in a few minutes (the grid is
+scaled to the vertex count). Outputs in OUT: ``<part>.parquet``, ``pareto.png``,
+``summary.md`` (also printed), the cached references ``ref_*.npz``.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from tissuebench.cases.scene import load
+from tissuebench.refsolvers.backends import make_backend
+from tissuebench.refsolvers.dynamics import SecondOrderSystem, make_integrator
+from tissuebench.rom import Training, make_method
+from tissuebench.studies.timing import latency_stats, time_online_steps
+
+CUBE = "cube_tension_twist"
+LV = ("left_ventricle", "mooney_rivlin_dynamic")
+# the paper's Table 1 (7273 / 37592 mesh): (handles, cubature elements, RMSE %, ms per step)
+PAPER_TABLE1 = [(74, 1880, 21.82, 10.70), (108, 1880, 15.80, 12.00), (150, 1880, 16.42, 12.18),
+                (180, 1880, 16.11, 12.73), (220, 1880, 10.31, 13.25), (250, 1880, 5.59, 13.87),
+                (290, 1880, 3.90, 15.11), (327, 1880, 3.38, 15.42), (364, 1880, 2.59, 15.75),
+                (74, 2350, 8.60, 12.82), (108, 2350, 5.43, 13.82), (150, 2350, 4.90, 14.08),
+                (180, 2350, 5.97, 14.28), (220, 2350, 4.44, 15.48), (250, 2350, 4.99, 15.80),
+                (290, 2350, 3.31, 16.69), (327, 2350, 2.55, 17.81), (364, 2350, 2.29, 18.41),
+                (74, 2820, 11.24, 14.51), (108, 2820, 6.17, 15.45), (150, 2820, 6.26, 15.75),
+                (180, 2820, 9.66, 16.17), (220, 2820, 7.47, 17.33), (250, 2820, 4.05, 18.01),
+                (290, 2820, 5.64, 18.63), (327, 2820, 3.16, 19.49), (364, 2820, 2.48, 21.22)]
+PAPER_FE_MS, PAPER_LV = 688.83, {"rom_ms": 21.81, "fe_ms": 932.35, "rmse_percent": 2.4}
+# Table 3 rows of the paper: low (2519 / 12499) and high (9284 / 43517) resolution
+PAPER_TABLE3 = {"low": [(75, 815, 7.78, 10.47), (101, 815, 1.93, 12.86), (126, 815, 2.10, 15.28)],
+                "high": [(278, 2720, 6.77, 46.38), (371, 2720, 3.92, 55.35), (462, 2720, 2.89, 64.34)]}
+
+
+# ----------------------------------------------------------------------------- scenes, references
+def scene_at(case, variant, resolution, divisions=None):
+    """A catalogue scene; ``divisions`` overrides the box divisions (Table 3 meshes)."""
+    scene = load(case, resolution="ci" if resolution == "ci" else "paper", variant=variant)
+    if divisions is not None:
+        scene = dataclasses.replace(scene, mesh_spec=dict(scene.mesh_spec, params={**scene.mesh_spec["params"],
+                                                                                   "divisions": list(divisions)}))
+    return scene
+
+
+def reference(scene, out: Path, tag: str) -> dict:
+    """FE reference trajectory ``{"t", "u" (n_steps + 1, ndof), "wall" (per step)}``, cached."""
+    path = out / f"ref_{tag}.npz"
+    if path.is_file():
+        z = np.load(path)
+        return {k: z[k] for k in z.files}
+    from tissuebench.studies.reference import solve
+
+    tic = time.perf_counter()
+    r = solve(scene)
+    if r.status != "success":
+        raise RuntimeError(f"reference {tag}: {r.status}: {r.message}")
+    ref = {"t": np.asarray(r.steps), "u": r.displacement.reshape(len(r.steps), -1),
+           "wall": r.table["wall_s"].to_numpy()[1:], "run_s": np.array(time.perf_counter() - tic)}
+    np.savez_compressed(path, **ref)
+    return ref
+
+
+def fe_step_times(scene, backend, n_steps=5):
+    """Wall times [s] of ``n_steps`` full-order steps of the scene's integrator, this process."""
+    a = scene.analysis
+    system = SecondOrderSystem.from_backend(backend, scene.history)
+    integ = make_integrator(a["integrator"], **a.get("integrator_options", {}))
+    integ.start(system, None, None, float(a["dt"]))
+    times = []
+    for _ in range(n_steps):
+        tic = time.perf_counter()
+        rep = integ.step()
+        times.append(time.perf_counter() - tic)
+        if not rep.converged:
+            raise RuntimeError(f"FE step failed: {rep.message}")
+    return np.array(times)
+
+
+def training_of(scene, backend, ref) -> Training:
+    history = scene.history
+    params = [{"time": float(t), "load_factor": float(history(t))} for t in ref["t"]]
+    return Training(snapshots=ref["u"].T, parameters=params, backend=backend, dt=float(scene.analysis["dt"]),
+                    history=history, info={"case": scene.name, "variant": scene.variant})
+
+
+def step_parameters(scene, ref):
+    history = scene.history
+    return [{"time": float(t), "load_factor": float(history(t))} for t in ref["t"][1:]]
+
+
+# ----------------------------------------------------------------------------- one ROM
+def model_nbytes(model) -> int:
+    """Bytes of the arrays the online model keeps (weights, subspace, cubature, matrices)."""
+    seen, total = set(), 0
+
+    def add(a):
+        nonlocal total
+        if a is None or id(a) in seen:
+            return
+        seen.add(id(a))
+        if hasattr(a, "nnz") and hasattr(a, "data"):
+            total += a.data.nbytes + getattr(a, "indices", np.empty(0)).nbytes + getattr(a, "indptr",
+                                                                                            np.empty(0)).nbytes
+        elif isinstance(a, np.ndarray):
+            total += a.nbytes
+
+    st, sub, f = model.stepper, model.sub, model.stepper.forces
+    for a in (sub.weights, sub.phi, sub.Z, sub.P, sub.N, st.M_q, st.M_z, st.M_zb, f.W, f.WT_w, f.Xt, f.w,
+              f.kernel.grad, f.kernel._G, f.kernel.dx):
+        add(a)
+    for H in st._H.values():
+        add(getattr(H, "inv", None))
+        lu = getattr(H, "lu", None)
+        if lu is not None:
+            add(lu.L)
+            add(lu.U)
+    return int(total)
+
+
+def measure(scene, backend, ref, options, warmup=20, training=None) -> dict:
+    """Build, time and compare one ROM configuration; returns a table row (dict)."""
+    row = {"case": scene.name, "variant": scene.variant, **{f"opt_{k}": v for k, v in options.items()}}
+    tic = time.perf_counter()
+    try:
+        model = make_method("wsc", **options).build(training or Training(backend=backend,
+                                                                         dt=float(scene.analysis["dt"])))
+    except ValueError as exc:  # e.g. an NNLS rule that misses its tolerance: stored, not hidden
+        return {**row, "status": "build_failed", "message": str(exc)}
+    row["build_s"] = time.perf_counter() - tic
+    info = model.info
+    row.update({f"offline_{k}": v for k, v in info["offline"].items()})
+    row.update(handles=info["handles"], n_z=info["n_z"], cubature_elements=info["cubature_elements"],
+               redundant_removed=info["redundant_removed"], linear_solver=info["linear_solver"],
+               vertices=info["mesh"]["vertices"], cells=info["mesh"]["cells"])
+    for k in ("heldout_error", "train_error"):
+        if k in info["cubature_info"]:
+            row[f"nnls_{k}"] = info["cubature_info"][k]
+    tic = time.perf_counter()
+    model.start(dt=float(scene.analysis["dt"]))
+    row["start_s"] = time.perf_counter() - tic
+    row["model_MB"] = model_nbytes(model) / 2**20
+    mus = step_parameters(scene, ref)
+    step, both, results = time_online_steps(model, mus, warmup=warmup)
+    row.update(step.as_dict("step_"))
+    row.update({"step_reconstruct_median_s": both.median if both else np.nan})
+    failed = [r for r in results if r.q is None]
+    row["failed_steps"] = len(failed)
+    row["message"] = failed[0].message if failed else ""
+    row["unconverged_steps"] = sum(1 for r in results if r.q is not None and not r.info.get("converged", True))
+    row["evaluations_mean"] = float(np.mean([r.info.get("evaluations", np.nan) for r in results if r.q is not None]))
+    if failed:
+        row["status"], row["rmse"] = "failed", np.nan
+        return row
+    U = np.array([model.reconstruct(r) for r in results])
+    R = ref["u"][1:len(U) + 1]
+    row["rmse"] = float(np.sqrt(np.sum((U - R) ** 2) / np.sum(R ** 2)))
+    row["final_rel_l2"] = float(np.linalg.norm(U[-1] - R[-1]) / np.linalg.norm(R[-1]))
+    row["status"] = "ok"
+    return row
+
+
+def with_fe(row, fe_times):
+    s = latency_stats(fe_times)
+    row.update(fe_step_median_s=s.median, fe_step_p99_s=s.p99)
+    row["speedup"] = s.median / row["step_median_s"] if row.get("step_median_s") else np.nan
+    return row
+
+
+# ----------------------------------------------------------------------------- parts
+def scaled(counts, n_now, n_paper):
+    """Paper counts scaled to another mesh size (ci runs), at least 1."""
+    return sorted({max(1, int(round(c * n_now / n_paper))) for c in counts})
+
+
+def table1(out, resolution, cubature="bgbc", handles=None, elements=None, extra=None):
+    scene = scene_at(CUBE, "tension_dynamic", resolution)
+    pb = scene.to_problem()
+    be = make_backend("skfem", pb)
+    ref = reference(scene, out, f"tension_{resolution}")
+    fe = fe_step_times(scene, be)
+    handles = handles or [h for h, _, _, _ in PAPER_TABLE1[:9]]
+    elements = elements or [2350, 1880, 2820]
+    if resolution == "ci":
+        handles = scaled(handles, pb.mesh.n_vertices, 7273)
+        elements = scaled(elements, pb.mesh.n_cells, 37592)
+    training = training_of(scene, be, ref) if cubature == "nnls" else None
+    rows = []
+    for c in elements:
+        for h in handles:
+            opts = dict(handles=h, cubature=cubature, cubature_elements=c, **(extra or {}))
+            row = with_fe(measure(scene, be, ref, opts, training=training), fe)
+            rows.append(row)
+            _progress(row)
+    return pd.DataFrame(rows)
+
+
+def table3(out, rows=None):
+    """App. B: the other two cube resolutions (our box divisions), the paper's (handles, elements)."""
+    frames = []
+    divisions = load(CUBE, variant="tension_dynamic").methods["wsc"]["resolutions"]
+    for level, paper_rows in PAPER_TABLE3.items():
+        scene = scene_at(CUBE, "tension_dynamic", "paper", divisions[level])
+        be = make_backend("skfem", scene.to_problem())
+        ref = reference(scene, out, f"tension_{level}")
+        fe = fe_step_times(scene, be)
+        for h, c, _, _ in (rows or paper_rows):
+            row = with_fe(measure(scene, be, ref, dict(handles=h, cubature_elements=c)), fe)
+            row["level"] = level
+            frames.append(row)
+            _progress(row)
+    return pd.DataFrame(frames)
+
+
+def lv(out, resolution, configs=None):
+    scene = scene_at(*LV, resolution)
+    be = make_backend("skfem", scene.to_problem())
+    ref = reference(scene, out, f"lv_{resolution}")
+    fe = fe_step_times(scene, be)
+    wsc = scene.methods["wsc"]
+    configs = configs or [dict(handles=wsc["handles"], cubature_elements=wsc["cubature_elements"])]
+    rows = []
+    for opts in configs:
+        if resolution == "ci":
+            opts = dict(opts, handles=max(4, opts["handles"] * be.problem.mesh.n_vertices // 15699),
+                        cubature_elements=max(20, opts["cubature_elements"] * be.problem.mesh.n_cells // 61659))
+        row = with_fe(measure(scene, be, ref, opts), fe)
+        rows.append(row)
+        _progress(row)
+    return pd.DataFrame(rows)
+
+
+def drift(out, resolution, options, horizon_factor=10):
+    """Energy of the reduced dynamics over ``horizon_factor`` times the paper's horizon:
+    the pull of [0, 1] s, then the end held to ``horizon_factor`` s."""
+    scene = scene_at(CUBE, "tension_dynamic", resolution)
+    be = make_backend("skfem", scene.to_problem())
+    dt = float(scene.analysis["dt"])
+    rows = []
+    for integrator in ("backward_euler", "newmark"):
+        model = make_method("wsc", track_energy=True, integrator=integrator, **options).build(
+            Training(backend=be, dt=dt))
+        model.start()
+        n = int(round(horizon_factor * scene.analysis["t_end"] / dt))
+        e = []
+        for k in range(1, n + 1):
+            t = k * dt
+            r = model.step({"time": t, "load_factor": float(scene.history(t))})
+            if r.q is None:
+                break
+            e.append((t, r.info["kinetic_energy"], r.info["strain_energy"], r.info["reaction_work"]))
+        e = np.array(e)
+        mech = e[:, 1] + e[:, 2] - e[:, 3]  # KE + IE - work of the supports: constant if conservative
+        scale = np.abs(e[:, 3]).max()
+        hold = e[:, 0] >= 1.0
+        rows.append({"integrator": integrator, "steps": len(e), "t_end": e[-1, 0], "failed": len(e) < n,
+                     "balance_end_rel": mech[-1] / scale, "balance_max_rel": np.abs(mech).max() / scale,
+                     "hold_drift_rel": (mech[hold][-1] - mech[hold][0]) / scale,
+                     "kinetic_end": e[-1, 1], "strain_end": e[-1, 2], **{f"opt_{k}": v for k, v in options.items()}})
+        _progress(rows[-1])
+    return pd.DataFrame(rows)
+
+
+def _progress(row):
+    keys = ("handles", "cubature_elements", "opt_cubature", "rmse", "step_median_s", "step_p99_s",
+            "fe_step_median_s", "build_s", "status", "integrator", "balance_end_rel", "hold_drift_rel")
+    print("  " + ", ".join(f"{k}={row[k]:.4g}" if isinstance(row.get(k), float) else f"{k}={row[k]}"
+                           for k in keys if k in row), flush=True)
+
+
+# ----------------------------------------------------------------------------- report
+def pareto_plot(frames, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    p = np.array(PAPER_TABLE1)
+    ax.scatter(p[:, 3], p[:, 2], marker="x", c="grey", label="paper Table 1 (C++, Xeon E5-1603)")
+    markers = {"bgbc": "o", "nnls": "s", "full": "^"}
+    for df in frames:
+        ok = df[df["status"] == "ok"]
+        for scheme, g in ok.groupby("opt_cubature"):
+            ax.scatter(1e3 * g["step_median_s"], 100 * g["rmse"], marker=markers.get(scheme, "o"),
+                       label=f"ours, {scheme} (median step)")
+    ax.axhline(2.5, ls=":", c="k", lw=0.8)
+    ax.axvline(2.0, ls=":", c="k", lw=0.8)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("time per step [ms]")
+    ax.set_ylabel("relative RMSE of the displacement history [%]")
+    ax.set_title("cube tension, 7273 / 37592 (paper) vs 7744 / 37800 (ours)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
+def table1_comparison(df):
+    """Paper vs ours, row by row (same handles and cubature elements)."""
+    ours = df[df["opt_cubature"] == "bgbc"].set_index(["handles", "cubature_elements"])
+    rows = []
+    for h, c, rmse, ms in PAPER_TABLE1:
+        r = ours.loc[(h, c)] if (h, c) in ours.index else None
+        rows.append({"handles": h, "elements": c, "paper_rmse_%": rmse, "paper_ms": ms,
+                     "ours_rmse_%": np.nan if r is None else 100 * r["rmse"],
+                     "ours_ms_median": np.nan if r is None else 1e3 * r["step_median_s"],
+                     "ours_ms_p99": np.nan if r is None else 1e3 * r["step_p99_s"],
+                     "fe_ms": np.nan if r is None else 1e3 * r["fe_step_median_s"]})
+    return pd.DataFrame(rows)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--resolution", choices=("ci", "paper"), default="ci")
+    ap.add_argument("--parts", default="table1,lv,drift,nnls")
+    ap.add_argument("--handles", default=None, help="comma-separated handle counts (Table 1)")
+    ap.add_argument("--elements", default=None, help="comma-separated cubature element counts (Table 1)")
+    args = ap.parse_args(argv)
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    parts = args.parts.split(",")
+    handles = [int(x) for x in args.handles.split(",")] if args.handles else None
+    elements = [int(x) for x in args.elements.split(",")] if args.elements else None
+    print(f"wsc study, resolution {args.resolution}, parts {parts}, load average {os.getloadavg()}", flush=True)
+    frames, lines = [], []
+    if "table1" in parts:
+        df = table1(out, args.resolution, "bgbc", handles, elements)
+        df.to_parquet(out / "table1.parquet")
+        frames.append(df)
+        cmp = table1_comparison(df) if args.resolution == "paper" else df
+        lines += ["## Table 1 (BGBC cubature, no snapshots)", cmp.to_string(index=False, float_format=lambda v: f"{v:.4g}")]
+    if "nnls" in parts:
+        df = table1(out, args.resolution, "nnls", handles or [74, 150, 250, 364], elements or [250, 500, 1000],
+                    extra={"nnls_tol": None})
+        df.to_parquet(out / "table1_nnls.parquet")
+        frames.append(df)
+        lines += ["## NNLS cubature (trained on the reference trajectory)",
+                  df[["handles", "cubature_elements", "rmse", "step_median_s", "step_p99_s", "fe_step_median_s",
+                      "nnls_heldout_error", "build_s", "status"]].to_string(index=False, float_format=lambda v: f"{v:.4g}")]
+    if "lv" in parts:
+        df = lv(out, args.resolution)
+        df.to_parquet(out / "lv.parquet")
+        lines += [f"## Left ventricle (paper: {PAPER_LV})", df.to_string(index=False, float_format=lambda v: f"{v:.4g}")]
+    if "table3" in parts and args.resolution == "paper":
+        df = table3(out)
+        df.to_parquet(out / "table3.parquet")
+        lines += ["## Table 3 (low / high resolution)", df[["level", "vertices", "cells", "handles",
+                                                             "cubature_elements", "rmse", "step_median_s",
+                                                             "step_p99_s", "fe_step_median_s", "build_s"]]
+                  .to_string(index=False, float_format=lambda v: f"{v:.4g}")]
+    if "drift" in parts:
+        df = drift(out, args.resolution, {"handles": 150 if args.resolution == "paper" else 10,
+                                          "cubature_elements": 2350 if args.resolution == "paper" else 0.1})
+        df.to_parquet(out / "drift.parquet")
+        lines += ["## Energy over 10x the horizon", df.to_string(index=False, float_format=lambda v: f"{v:.4g}")]
+    if frames:
+        pareto_plot(frames, out / "pareto.png")
+    lines.append(f"load average at the end {os.getloadavg()}")
+    text = "\n\n".join(lines)
+    (out / "summary.md").write_text(text + "\n")
+    print(text)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
