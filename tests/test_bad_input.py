@@ -3,7 +3,6 @@ solver failures are reported as data (status, last converged state), never as Na
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest

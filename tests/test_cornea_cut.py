@@ -132,9 +132,16 @@ def test_pressure_in_the_cut_opens_it(scene, uncut, depth):
 
 
 def test_scene_load_cut_versus_uncut(scene, uncut):
-    """The scalpel contact (3 N at the crack tip of the 0 deg spoke, inwards). At ci the
-    dome snaps through near 14 % of it (Newton stalls at load factor ~0.135 cut, ~0.143
-    uncut), so the comparison is made at 10 % (0.3 N), where both converge."""
+    """The scalpel contact (0.1 N at the crack tip of the 0 deg spoke, inwards) at 10 % of
+    its value (0.01 N): the small-load regime, where the relative change of the field caused
+    by the cut is a property of the linearised response (0.0600 at 0.01 N, 0.0613 at 0.05 N,
+    0.0628 at 0.1 N; linear extrapolation to zero load 0.0597).
+
+    Measured at ci (relative l2 of u_cut - u_uncut over the original nodes): 0.0600, almost
+    all from the loaded spoke (that spoke alone: 0.0591; the three others alone: 0.0063); a
+    through cut gives 0.159. Asserted to 2 %: four times the load dependence between 0 and
+    0.01 N, far tighter than the distance to a cut that misses the loaded spoke or cuts
+    through. The cut dome is the more compliant one: the loaded node moves 2.6 % more."""
     u = {}
     for name, sc in (("cut", scene), ("uncut", uncut)):
         res = newton_solve(make_backend("skfem", sc.to_problem()), 0.1, n_increments=4)
@@ -142,7 +149,10 @@ def test_scene_load_cut_versus_uncut(scene, uncut):
         u[name] = res.u
     n0 = uncut.mesh.n_vertices
     diff = np.linalg.norm(u["cut"][: 3 * n0] - u["uncut"]) / np.linalg.norm(u["uncut"])
-    assert 0.01 < diff < 0.5, diff  # measured 0.071 (relative l2 over the original nodes)
+    assert diff == pytest.approx(0.0600, rel=0.02), diff
+    node = uncut.to_problem().loads[0].nodes[0]
+    moved = {k: np.linalg.norm(v.reshape(-1, 3)[node]) for k, v in u.items()}
+    assert moved["cut"] / moved["uncut"] == pytest.approx(1.026, abs=0.003), moved
     _, info = cut_scene_mesh(scene)
     U = u["cut"].reshape(-1, 3)
     assert np.max(np.linalg.norm(U[info.pairs[:, 1]] - U[info.pairs[:, 0]], axis=1)) > 1e-3
@@ -178,7 +188,7 @@ def test_check_cut_normalises():
 
 def _scene_with_cut(tmp_path, cut_toml):
     text = Path(load("cornea_cut").path).read_text()
-    i, j = text.index("\n[cut]\n"), text.index("\n[methods.pgd_cutting]\n")
+    i, j = text.index("\n[cut]\n"), text.index("\n[paper.methods.pgd_cutting]\n")
     p = tmp_path / "cut.toml"
     p.write_text(text[:i + 1] + cut_toml + "\n" + text[j:])
     return p
@@ -191,7 +201,7 @@ def test_bad_cut_in_a_scene_file(tmp_path):
     # r1 beyond the anterior base radius (6.12 mm): found when the mesh is cut
     s = load(_scene_with_cut(tmp_path, "[cut]\nincisions = [{angle_deg = 0.0, radii = [1.5, 7.0]}]"))
     with pytest.raises(ValueError, match=r"cut\.incisions\[0\]\.radii = \[1\.5, 7\.0\].*<= 6\.118 mm"):
-        s.mesh
+        s.mesh  # noqa: B018  (cutting happens when the mesh is first used)
 
 
 def test_angles_off_the_mesh_lines_are_refused(uncut):

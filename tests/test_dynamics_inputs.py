@@ -11,8 +11,8 @@ M2 = np.diag([2.0, 1.0])
 K2 = np.array([[3.0, -1.0], [-1.0, 1.0]])
 
 
-def sys2(load=np.zeros(2)):
-    return SecondOrderSystem.linear(M2, K2, load)
+def sys2(load=None):
+    return SecondOrderSystem.linear(M2, K2, np.zeros(2) if load is None else load)
 
 
 @pytest.mark.parametrize("dt", [0.0, -0.1, np.nan])

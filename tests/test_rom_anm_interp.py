@@ -52,7 +52,8 @@ def models(family):
         training = Training(groups={x: family[x] for x in lattice})
         for bi in ("podi", "grassmann"):
             for align in ("procrustes", "modes"):
-                out[name, bi, align] = AnmPodInterp(n_modes=N_MODES, basis_interpolation=bi, align=align).build(training)
+                method = AnmPodInterp(n_modes=N_MODES, basis_interpolation=bi, align=align)
+                out[name, bi, align] = method.build(training)
     return out
 
 
@@ -187,7 +188,8 @@ def test_out_of_envelope_is_flagged_extrapolation(family, models):
     assert res.status == "extrapolation" and res.info["distance"] == pytest.approx(0.3)
     assert "outside the stored positions [2, 4]" in res.message and np.all(np.isfinite(model.reconstruct(res)))
     assert model.step({"load_factor": 1.2, "position": 3.0}).status == "extrapolation"
-    paper = AnmPodInterp(n_modes=N_MODES, order=2, max_segments=1).build(Training(groups={x: family[x] for x in COARSE}))
+    coarse = Training(groups={x: family[x] for x in COARSE})
+    paper = AnmPodInterp(n_modes=N_MODES, order=2, max_segments=1).build(coarse)
     assert paper.step({"load_factor": 1.0, "position": 2.5}).status == "beyond_validity"
     with pytest.raises(ValueError, match="position"):
         model.step({"load_factor": 0.5})

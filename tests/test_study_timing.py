@@ -1,44 +1,81 @@
-"""The latency protocol and the error metrics of the studies."""
+"""The latency protocol (with an injected clock: exact durations, no wall-clock assertion)
+and the basic error measures."""
 import numpy as np
 import pytest
 
 from tissuebench.rom import OnlineModel, StepResult
-from tissuebench.studies.timing import latency_stats, max_displacement, relative_l2, time_online_steps
+from tissuebench.studies.evaluation import Evaluation, EvaluationPoint
+from tissuebench.studies.protocol import time_latency
+from tissuebench.studies.timing import latency_stats, max_displacement, relative_l2
 
 
 def test_latency_stats_are_median_and_tail():
     s = latency_stats(np.r_[np.full(99, 1e-3), 1.0])
     assert s.median == 1e-3 and s.max == 1.0 and s.n == 100
-    assert 1e-3 <= s.p99 <= 1.0
+    assert s.p99 == pytest.approx(np.percentile(np.r_[np.full(99, 1e-3), 1.0], 99))
     with pytest.raises(ValueError):
         latency_stats([])
 
 
-class Counting(OnlineModel):
-    name = "counting"
+class FakeClock:
+    """Advances only when the model works: step costs 3 ticks, outputs 1, reconstruct 5."""
 
     def __init__(self):
-        self.calls = 0
+        self.t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+class Counting(OnlineModel):
+    name = "counting"
+    kind = "path"
+
+    def __init__(self, clock):
+        self.clock, self.steps, self.starts = clock, 0, 0
 
     @property
     def n_reduced(self):
         return 2
 
+    def start(self, mu0=None, state0=None, dt=None):
+        self.starts += 1
+
     def step(self, mu):
-        self.calls += 1
-        return StepResult(np.array([mu["load_factor"], 0.0]))
+        self.steps += 1
+        self.clock.t += 3.0 if self.steps % 10 else 30.0  # every 10th step is slow: the tail
+        return StepResult(np.array([mu["load_factor"], 0.0]), mu=mu)
+
+    def outputs(self, result):
+        self.clock.t += 1.0
+        return {"y": float(result.q[0])}
 
     def reconstruct(self, result):
+        self.clock.t += 5.0
         return np.repeat(result.q, 3)
 
 
-def test_time_online_steps_times_each_call_and_returns_results():
-    m = Counting()
-    mus = [{"load_factor": x} for x in np.linspace(0, 1, 11)]
-    step, both, res = time_online_steps(m, mus, warmup=5, repeats=2)
-    assert m.calls == 5 + 22 and step.n == 22 and both.n == 22
-    assert both.median >= step.median * 0.5
-    assert [r.q[0] for r in res] == [mu["load_factor"] for mu in mus]
+def _path(n):
+    return Evaluation("path", "load_factor", [EvaluationPoint({"load_factor": x}, None, {}, x)
+                                              for x in np.linspace(0.1, 1, n)])
+
+
+def test_time_latency_times_haptic_step_and_reconstruction_apart():
+    clock = FakeClock()
+    m = Counting(clock)
+    lat = time_latency(m, _path(10), steps=25, warmup=4, clock=clock)
+    h, r = lat["haptic"], lat["reconstruct"]
+    # a path model is driven along its path, restarted (untimed) until >= 25 steps: 3 passes of 10
+    assert h.n == 30 and r.n == 30 and m.starts == 1 + 3
+    assert m.steps == 4 + 30
+    assert h.median == 4.0 and h.max == 31.0  # step + outputs; the slow step is in the tail only
+    assert h.p99 == pytest.approx(np.percentile([4.0] * 27 + [31.0] * 3, 99))
+    assert r.median == r.max == 5.0  # reconstruction alone
+
+
+def test_time_latency_refuses_an_empty_evaluation():
+    with pytest.raises(ValueError, match="empty"):
+        time_latency(Counting(FakeClock()), _path(0), clock=FakeClock())
 
 
 def test_metrics():

@@ -16,8 +16,8 @@ import math
 
 import numpy as np
 import pytest
-from scipy.optimize import brentq
 
+from _closed_forms import lame_from, principal_stress, uniaxial_closed_form
 from _fe_helpers import (BACKEND_PARAMS, CELL_OF, ELEMENTS, MATERIAL_NAMES, element_mesh, fitted_order,
                          l2_error, material_set, on_box_boundary, on_plane, solve)
 from tissuebench.cases.meshes import box_mesh
@@ -62,7 +62,8 @@ def test_patch_test_traction(backend, element):
     consistent with u = A x + b: the exact affine field is reproduced to 1e-10."""
     mesh = element_mesh(element, divisions=(3, 3, 3), jitter=0.25, seed=4)
     mat = LinearElastic(E=2.0, nu=0.3)
-    lam, mu = mat.lame
+    lam, mu = lame_from(2.0, 0.3)
+    assert (lam, mu) == pytest.approx((15 / 13, 10 / 13), rel=1e-14)
     eps = 0.5 * (A_PATCH + A_PATCH.T)
     sigma = lam * np.trace(eps) * np.eye(3) + 2 * mu * eps
     loads = []
@@ -156,54 +157,24 @@ def test_l2_convergence_same_nodal_solution_on_both_backends(element):
 
 
 # =========================================================================== 3. uniaxial stretch
-def _principal_stress(material, l1, l2):
-    """P11 and P22 of F = diag(l1, l2, l2) from W(l1, l2, l3) written by hand."""
-    if isinstance(material, SaintVenantKirchhoff):
-        lam, mu = material.lame
-        e = 0.5 * (np.array([l1, l2, l2]) ** 2 - 1)
-        S = lam * e.sum() + 2 * mu * e
-        return l1 * S[0], l2 * S[1]
-    if isinstance(material, NeoHookean):
-        lam, mu = material.lame
-        lnJ = math.log(l1 * l2 * l2)
-        return mu * (l1 - 1 / l1) + lam * lnJ / l1, mu * (l2 - 1 / l2) + lam * lnJ / l2
-    if isinstance(material, MooneyRivlin):
-        m1, m2, k = material.mu1, material.mu2, material.kappa
-        l = np.array([l1, l2, l2])
-        J = l.prod()
-        I1 = (l ** 2).sum()
-        I2 = l1**2 * l2**2 * 2 + l2**4
-        # dW/dl_i = m1 J^-2/3 (l_i - I1/(3 l_i)) + m2 J^-4/3 (l_i (I1 - l_i^2) - 2 I2/(3 l_i)) + k (J-1) J / l_i
-        dW = (m1 * J ** (-2 / 3) * (l - I1 / (3 * l)) + m2 * J ** (-4 / 3) * (l * (I1 - l**2) - 2 * I2 / (3 * l))
-              + k * (J - 1) * J / l)
-        return dW[0], dW[1]
-    raise TypeError(material)
-
-
-def _uniaxial_closed_form(material, l1):
-    """(lateral stretch, P11) with traction-free sides, by brentq on P22(l2) = 0."""
-    l2 = brentq(lambda s: _principal_stress(material, l1, s)[1], 0.3, 1.5, xtol=1e-15, rtol=1e-15)
-    return l2, _principal_stress(material, l1, l2)[0]
-
-
-def test_uniaxial_closed_forms_independent_numbers():
+def testuniaxial_closed_forms_independent_numbers():
     """The hand-written stresses agree with the materials' strain energies (central FD of W)
     and with the published neo-Hookean numbers (E=1, nu=0.3, lambda1=1.5)."""
     nh = NeoHookean(E=1.0, nu=0.3)
-    l2, P11 = _uniaxial_closed_form(nh, 1.5)
+    l2, P11 = uniaxial_closed_form(nh, 1.5)
     assert round(l2, 6) == 0.880175 and round(P11, 6) == 0.378280
     # SVK: P11 = E l (l^2 - 1)/2 and E22 = -nu E11
     svk = SaintVenantKirchhoff(E=1.0, nu=0.3)
-    l2, P11 = _uniaxial_closed_form(svk, 1.2)
+    l2, P11 = uniaxial_closed_form(svk, 1.2)
     assert P11 == pytest.approx(1.2 * (1.2**2 - 1) / 2, rel=1e-12)
     assert 0.5 * (l2**2 - 1) == pytest.approx(-0.3 * 0.5 * (1.2**2 - 1), rel=1e-12)
     # d W(diag(l1, l2, l3)) / d l_i from the package's energy vs the hand derivation
     for mat in (svk, nh, MooneyRivlin(mu1=0.5, mu2=0.6, kappa=10.0)):
         l1, s, h = 1.3, 0.9, 1e-6
-        W = lambda a, b, c: float(mat.energy(np.diag([a, b, c])[None, None])[0, 0])  # noqa: E731
+        W = lambda a, b, c, m=mat: float(m.energy(np.diag([a, b, c])[None, None])[0, 0])  # noqa: E731
         dW1 = (W(l1 + h, s, s) - W(l1 - h, s, s)) / (2 * h)
         dW2 = (W(l1, s + h, s) - W(l1, s - h, s)) / (2 * h)
-        P11, P22 = _principal_stress(mat, l1, s)
+        P11, P22 = principal_stress(mat, l1, s)
         assert dW1 == pytest.approx(P11, rel=1e-8) and dW2 == pytest.approx(P22, rel=1e-8)
 
 
@@ -223,7 +194,7 @@ def test_uniaxial_stretch(name, material, l1, element, divisions, backend):
            Dirichlet(on_plane(2, 0.0), (2,)), Dirichlet(on_plane(0, 1.0), (0,), l1 - 1.0)]
     pb = Problem(mesh, material, element, bcs)
     b, res = solve(pb, backend, n_increments=2, rtol=1e-12)
-    l2, P11 = _uniaxial_closed_form(material, l1)
+    l2, P11 = uniaxial_closed_form(material, l1)
     x = pb.nodes
     u = res.u.reshape(-1, 3)
     # the displacement field is the homogeneous one everywhere

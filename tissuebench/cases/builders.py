@@ -76,6 +76,20 @@ BUILDERS = {"box": box, "netgen_box": netgen_box, "cornea_dome": cornea_dome, "l
             "liver": liver, "interval": interval, "beam1d": beam1d}
 
 
+def mesh_sources(builder: str, params: dict) -> list:
+    """The files a builder reads for ``params`` (their content is part of a scene's identity):
+    the liver's VTU/STL (explicit ``path`` or the data folder's); none for meshes built from
+    parameters alone."""
+    if builder != "liver":
+        return []
+    from pathlib import Path
+
+    from .io import liver_mesh_path
+
+    p = Path(params["path"]).expanduser() if params.get("path") else liver_mesh_path()
+    return [p] if p.is_file() else []
+
+
 def build_mesh(builder: str, **params) -> BuiltMesh:
     """Call the builder registered as ``builder`` with ``params``."""
     if builder not in BUILDERS:

@@ -28,7 +28,7 @@ from .probes import Probe, make_probe
 from .regions import check_region
 from .schema import AXES, c_bool, c_enum, c_frame, c_num, c_pos, c_str, c_vec3, check_table, require
 
-__all__ = ["MONITOR_QUANTITIES", "check_monitor", "evaluate_monitors", "unit_vector"]
+__all__ = ["MONITOR_QUANTITIES", "check_monitor", "evaluate_monitors", "linear_outputs", "unit_vector"]
 
 MONITOR_QUANTITIES = ("max_displacement", "displacement", "deformed_coordinate", "reaction_force",
                       "nominal_stress", "moment", "volume_ratio", "strain_energy")
@@ -72,6 +72,21 @@ def evaluate_monitors(scene, problem, u, f_int=None) -> dict:
         else:
             raise ValueError(f"monitor {m['name']!r}: quantity {q!r} needs a backend (strain energy)")
         out[m["name"]] = val * m.get("scale", 1.0)
+    return out
+
+
+def linear_outputs(scene, problem) -> dict:
+    """``{monitor name: c (n_dof,)}`` for the monitors that are linear in the displacement
+    (``displacement`` at a point, one x/y/z component): ``value = c @ u``. Reduced models
+    project these offline, so their haptic step reports them without the full field."""
+    out = {}
+    for m in scene.monitors:
+        if m["quantity"] != "displacement" or m["component"] not in AXES:
+            continue
+        probe = _probe(scene, m, problem)
+        c = np.zeros(problem.ndof)
+        np.add.at(c, 3 * np.asarray(probe.nodes) + AXES[m["component"]], probe.weights * m.get("scale", 1.0))
+        out[m["name"]] = c
     return out
 
 

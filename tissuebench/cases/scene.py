@@ -33,9 +33,10 @@ Schema (see the README of the catalogue, and any scene file, for examples)
                  reason they differ (printed by ``tissuebench run``)
 ``[cut]``        incisions (angle_deg, radii) and depth_fraction: the mesh is cut along them,
                  nodes duplicated on the cut faces (see :mod:`.cutting`)
-``[methods]``    free table: ROM settings of the paper (modes, orders, handles ...)
+``[parameters]`` parameters a study may evaluate the scene at (``position``: a point load
+                 moved along a line), see :mod:`.parameters` and :meth:`Scene.at`
 ``[variants.X]`` overrides: material/model/analysis/mesh replace, dirichlet/load/monitor
-                 append, paper/methods/case merge
+                 append, paper/case/parameters merge
 
 Regions (node selectors evaluated on coordinates; exactly one primary key):
 ``plane = "x"`` + value [+ tol]; ``box = [[lo], [hi]]``; ``nearest = [x, y, z]`` [+ count];
@@ -53,6 +54,9 @@ scene into a solvable problem. Their public names are re-exported here.
 """
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
 import tomllib
 from dataclasses import dataclass
 from functools import cached_property
@@ -66,6 +70,7 @@ from .assembly import LineModel
 from .cutting import check_cut
 from .histories import DEFAULT_HISTORY, History
 from .monitors import check_monitor, evaluate_monitors
+from .parameters import apply_mu, check_parameters_table
 from .regions import MeshGeometry, compile_region
 # the checkers were defined here before the split: re-exported for existing imports
 from .schema import (MODELS, c_any, c_bool, c_enum, c_int1, c_nonneg, c_num, c_numlist, c_nu,  # noqa: F401
@@ -100,8 +105,41 @@ class Scene:
     analysis: dict
     monitors: list
     paper: dict
-    methods: dict
     cut: dict | None = None  # validated [cut] table (see .cutting); the mesh is then cut
+    parameters: dict = dataclasses.field(default_factory=dict)  # validated [parameters] (see .parameters)
+    mu: dict = dataclasses.field(default_factory=dict)  # the parameters this scene was evaluated at (at())
+
+    # ------------------------------------------------------------------ parameters, identity
+    def at(self, mu: dict) -> "Scene":
+        """This scene evaluated at parameters ``mu`` (``{"position": s}``, analysis overrides
+        ``max_load_factor`` / ``load_steps``); ValueError naming an unknown key or a bad value.
+        The mesh is shared (not rebuilt) when only loads or analysis change."""
+        if not mu:
+            return self
+        fields = apply_mu({"loads": self.loads, "analysis": self.analysis, "material": self.material},
+                          self.parameters, dict(mu), self.name)
+        fields["loads"] = [check_load(f"load[{i}]", ld, self.model) for i, ld in enumerate(fields["loads"])]
+        new = dataclasses.replace(self, mu={**self.mu, **dict(mu)}, **fields)
+        if "built" in self.__dict__:  # cached_property: reuse the mesh already built
+            new.__dict__["built"] = self.__dict__["built"]
+        return new
+
+    def content(self) -> dict:
+        """Everything that determines a reference run of this scene (JSON-able): the validated
+        tables, resolution, variant, ``mu`` and the SHA-256 of the mesh files the builder reads."""
+        from .builders import mesh_sources
+
+        sources = {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for p in mesh_sources(
+            self.mesh_spec["builder"], self.mesh_spec["params"])}
+        return {"name": self.name, "resolution": self.resolution, "variant": self.variant, "model": self.model,
+                "mesh": {k: v for k, v in self.mesh_spec.items() if k != "resolutions"},
+                "mesh_sources": sorted(sources.values()), "material": self.material, "model_params": self.model_params,
+                "dirichlet": self.dirichlet, "loads": self.loads, "analysis": self.analysis,
+                "monitors": self.monitors, "cut": self.cut, "mu": self.mu}
+
+    def content_hash(self) -> str:
+        """SHA-256 of :meth:`content`: two scenes with the same hash give the same reference."""
+        return hashlib.sha256(json.dumps(self.content(), sort_keys=True, default=_jsonable).encode()).hexdigest()
 
     # ------------------------------------------------------------------ basics
     @property
@@ -203,7 +241,7 @@ class Scene:
 
 # =============================================================================== loading
 _TOP = {"case", "units", "mesh", "material", "model", "dirichlet", "load", "analysis", "monitor", "paper",
-        "methods", "variants", "cut"}
+        "variants", "cut", "parameters"}
 _CASE_SCHEMA = {"name": c_str, "paper": c_str, "description": c_str, "model": c_enum(*MODELS),
                 "default_variant": c_str}
 _UNITS_SCHEMA = {k: c_str for k in ("length", "force", "stress", "mass", "time", "note")}
@@ -318,5 +356,15 @@ def load(name_or_path, resolution: str = "ci", variant: str | None = None) -> Sc
     return Scene(name=case["name"], path=path, resolution=resolution, variant=variant, variants=all_variants,
                  case=case, units=units, mesh_spec=mesh, material=material, model_params=model_params,
                  dirichlet=dirichlet, loads=loads, analysis=analysis, monitors=monitors,
-                 paper=_check_paper(raw.get("paper", {}), monitors), methods=c_table("methods", raw.get("methods", {})),
-                 cut=check_cut("cut", raw["cut"]) if "cut" in raw else None)
+                 paper=_check_paper(raw.get("paper", {}), monitors),
+                 cut=check_cut("cut", raw["cut"]) if "cut" in raw else None,
+                 parameters=check_parameters_table("parameters", raw.get("parameters", {}), loads))
+
+
+def _jsonable(obj):
+    """JSON form of the numpy values a validated scene may hold (hashing only)."""
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    raise TypeError(f"scene content: {type(obj).__name__} is not JSON-able")

@@ -1,7 +1,7 @@
 """Variants of a scene file: ``[variants.<name>]`` tables merged over the base scene.
 
 material/model/analysis/mesh replace the base table, dirichlet/load/monitor append to
-the base arrays, paper/methods/case merge key by key; ``description`` documents the
+the base arrays, paper/case/parameters merge key by key; ``description`` documents the
 variant only. The merge works on the raw TOML tables, before validation, so a variant
 is validated exactly like a scene written out in full.
 """
@@ -14,7 +14,7 @@ from .schema import c_table
 __all__ = ["VARIANT_KEYS", "apply_variant"]
 
 VARIANT_KEYS = {"description", "material", "model", "mesh", "analysis", "dirichlet", "load", "monitor", "paper",
-                "methods", "case"}
+                "case", "parameters"}
 
 
 def apply_variant(raw, variant, path):
@@ -38,7 +38,7 @@ def apply_variant(raw, variant, path):
             continue
         if key in ("dirichlet", "load", "monitor"):
             out[key] = list(out.get(key, [])) + list(val)
-        elif key in ("paper", "methods", "case"):
+        elif key in ("paper", "case", "parameters"):
             out[key] = {**out.get(key, {}), **val}
         else:
             out[key] = copy.deepcopy(val)

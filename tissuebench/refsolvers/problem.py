@@ -13,7 +13,7 @@ outward orientation (see :meth:`Mesh.select_facets`) or a predicate on vertices.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
 from typing import Callable, Sequence
 

@@ -5,7 +5,6 @@ Rules come from scikit-fem; reference cells are the unit tetrahedron
 """
 from __future__ import annotations
 
-import numpy as np
 from skfem.quadrature import get_quadrature
 from skfem.refdom import RefHex, RefTet, RefTri, RefQuad
 

@@ -71,7 +71,7 @@ class AnmSeries:
         # Horner tables, kept as Python floats for the microsecond root search
         self._Z = np.vstack([self.u0[None, :], self.u])
         self._c = [float(self.lam0), *map(float, self.lam)]
-        self._mono = {}
+        self._mono = None  # (lo, hi): lam'(a) > 0 on (lo, hi) around 0, computed at first use
 
     @property
     def order(self) -> int:
@@ -119,42 +119,87 @@ class AnmSeries:
             None when no root lies within the limit.
         """
         lim = (self.a_end if self.a_end is not None else math.inf) if a_limit is None else a_limit
-        if lim not in self._mono:
-            self._mono[lim] = self._monotone(lim)
-        if self._mono[lim]:
-            a = _newton_root(self._c, lam_star)
-            if a is not None and abs(a) <= lim * (1 + 1e-12):
-                return a  # lam' > 0 on the interval: the root there is unique
+        lo, hi = self.monotone_interval()
+        if lo < hi:  # lam increases on (lo, hi): a root there is the one nearest 0, and unique
+            c = self._c
+            if lam_star >= c[0]:
+                a = _bracketed_root(c, lam_star, 0.0, min(hi, lim))
+            else:
+                a = _bracketed_root(c, lam_star, max(lo, -lim), 0.0)
+            if a is not None:
+                return a
+            if (lam_star >= c[0] and hi >= lim) or (lam_star < c[0] and lo <= -lim):
+                return None  # monotone up to the limit and the target is not reached there
         return _robust_root(self._c, lam_star, lim)
 
-    def _monotone(self, lim):
-        """lam'(a) > 0 on [-lim, lim] (then the root is unique and Newton finds it)."""
-        d = np.arange(1, len(self._c)) * np.asarray(self._c[1:])
-        if len(d) == 1 or not np.any(d[1:]):
-            return d[0] > 0
-        if not math.isfinite(lim):
-            return False
-        r = _real_roots(d, lim)
-        return d[0] > 0 and not np.any(np.abs(r) <= lim)
+    def monotone_interval(self) -> tuple[float, float]:
+        """``(lo, hi)`` around 0 on which ``lam'(a) > 0`` (the roots of lam' nearest 0, or
+        +-inf); ``(0, 0)`` when ``lam'(0) <= 0``. Computed once per series."""
+        if self._mono is None:
+            d = np.arange(1, len(self._c)) * np.asarray(self._c[1:])
+            if d[0] <= 0:
+                self._mono = (0.0, 0.0)
+            else:
+                r = _real_roots(d, math.inf)
+                pos, neg = r[r > 0], r[r < 0]
+                self._mono = (float(neg.max()) if neg.size else -math.inf, float(pos.min()) if pos.size else math.inf)
+        return self._mono
 
 
-def _newton_root(c, target):
-    """Root of sum c_k a^k = target by Newton from the linear guess (Python floats); None if it stalls."""
-    if c[1] == 0.0:
-        return None
-    a = (target - c[0]) / c[1]
-    for _ in range(50):
-        v, d = c[-1], 0.0
-        for ck in reversed(c[:-1]):
-            d = d * a + v
-            v = v * a + ck
-        if d == 0.0:
+def _horner(c, a):
+    """(p(a), p'(a)) of ``sum c_k a^k`` (Python floats: microseconds for the online step)."""
+    v, d = c[-1], 0.0
+    for ck in reversed(c[:-1]):
+        d = d * a + v
+        v = v * a + ck
+    return v, d
+
+
+def _bracketed_root(c, target, lo, hi):
+    """The root of ``p(a) = target`` in [lo, hi] where p increases (None if p does not reach
+    ``target`` there): Newton safeguarded by bisection; an infinite end is first bracketed by
+    doubling from the linear guess."""
+    f_lo = _horner(c, lo)[0] - target if math.isfinite(lo) else -math.inf
+    f_hi = _horner(c, hi)[0] - target if math.isfinite(hi) else math.inf
+    if not math.isfinite(hi) or not math.isfinite(lo):
+        step = abs((target - c[0]) / c[1]) if c[1] else 1.0
+        step = step or 1.0
+        for _ in range(200):
+            if not math.isfinite(hi):
+                b = 2.0 * step
+                if _horner(c, b)[0] >= target:
+                    hi, f_hi = b, _horner(c, b)[0] - target
+                step *= 2.0
+            if not math.isfinite(lo):
+                b = -2.0 * step
+                if _horner(c, b)[0] <= target:
+                    lo, f_lo = b, _horner(c, b)[0] - target
+                step *= 2.0
+            if math.isfinite(lo) and math.isfinite(hi):
+                break
+        else:
             return None
-        step = (v - target) / d
-        a -= step
-        if abs(step) <= 1e-15 * abs(a) or step == 0.0:
+    if f_lo > 0 or f_hi < 0:
+        return None
+    if f_lo == 0:
+        return lo
+    a = 0.0 if lo <= 0.0 <= hi else 0.5 * (lo + hi)
+    for _ in range(100):
+        v, d = _horner(c, a)
+        v -= target
+        if v == 0.0:
             return a
-    return None
+        if v < 0:
+            lo = a
+        else:
+            hi = a
+        nxt = a - v / d if d > 0 else 0.5 * (lo + hi)
+        if not lo < nxt < hi:
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - a) <= 1e-15 * max(abs(nxt), 1e-300) or hi - lo <= 1e-15 * max(abs(hi), abs(lo)):
+            return nxt
+        a = nxt
+    return a
 
 
 def _real_roots(c, scale):

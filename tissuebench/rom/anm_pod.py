@@ -163,7 +163,7 @@ class AnmPodModel(LinearReconstruction, OnlineModel):
 
         m = self.n_reduced if n_modes is None else min(int(n_modes), self.n_reduced)
         names = inspect.signature(AnmPod).parameters
-        opts = AnmPod(**{**{k: getattr(self.options, k) for k in names}, **options})
+        opts = AnmPod(**{**{k: getattr(self.options, k) for k in names}, **options, "n_modes": m})
         model = AnmPodModel(self.basis[:, :m], self.free_dofs, self.ndof, self.poly.leading(m), opts, self._env)
         if opts.precompute:
             model._path = reduced_path(model.poly, opts.lam_max or self._env[1], opts.order, opts.eps,

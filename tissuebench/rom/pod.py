@@ -207,10 +207,13 @@ class _PodOnline(LinearReconstruction, OnlineModel):
     def envelope(self) -> dict:
         return dict(self._envelope)
 
-    def _status(self, lam) -> str:
+    def _status(self, lam) -> tuple[str, str]:
+        """(status, message) of load factor ``lam`` against the training envelope."""
         lo, hi = self._envelope.get("load_factor", (-np.inf, np.inf))
         tol = 1e-12 * max(1.0, abs(lo), abs(hi))
-        return "ok" if lo - tol <= lam <= hi + tol else "extrapolation"
+        if lo - tol <= lam <= hi + tol:
+            return "ok", ""
+        return "extrapolation", f"load factor {lam:.6g} outside the training envelope [{lo:.6g}, {hi:.6g}]"
 
     def _full(self, q, lam) -> np.ndarray:
         return self.reconstruct(StepResult(q, mu={"load_factor": lam}))
@@ -262,14 +265,14 @@ class _PodLinearOnline(_PodOnline):
             values = self.prescribed({"load_factor": lam})[1]
             if np.any(values != 0.0):
                 q = q - self._solve(self._factor, self._K_rc @ values)
-        return StepResult(q, self._status(lam), mu={"load_factor": lam})
+        return StepResult(q, *self._status(lam), mu={"load_factor": lam})
 
 
 @register
 class PodNewton(_PodStatic):
     """Reduced Newton: ``Phi^T (f_int(u) - f_ext(u, lam))[free] = 0``, ``u = lift(lam) + Phi q``, full assembly.
 
-    Extra options: ``rtol`` (on ``|r_q| / max(|Phi^T f_ext|, |Phi^T f_int|)``) and
+    Extra options: ``rtol`` (on ``|r_q| / max(|f_ext|, |reaction on the fixed dofs|)``) and
     ``max_iterations``. Each step starts from the last converged ``q`` (``start()``: zero).
     Follower loads enter the reduced tangent through ``external_tangent``.
     """
@@ -296,6 +299,8 @@ class PodNewton(_PodStatic):
 
 
 class _PodNewtonOnline(_PodOnline):
+    kind = "path"
+
     def __init__(self, *args):
         super().__init__(*args)
         self.start()
@@ -313,7 +318,9 @@ class _PodNewtonOnline(_PodOnline):
         if K_ext is not None:  # follower loads: K = K_t - d f_ext / du
             K = K - K_ext
         r = Phi.T @ (f_int - f_ext)[free]
-        scale = max(np.linalg.norm(Phi.T @ f_ext[free]), np.linalg.norm(Phi.T @ f_int[free]))
+        # the force scale of the residual: the applied load or, for a motion imposed through
+        # Dirichlet data (no load at all), the reaction it takes (as the full Newton does)
+        scale = max(np.linalg.norm(f_ext), np.linalg.norm(f_int[self.problem.fixed_dofs]))
         return r, Phi.T @ (K[free][:, free] @ Phi), scale
 
     def step(self, mu) -> StepResult:
@@ -329,7 +336,7 @@ class _PodNewtonOnline(_PodOnline):
                 break
             if norms[-1] <= self.rtol * scale + self._atol:
                 self._q = q
-                return StepResult(q.copy(), self._status(lam), info={"iterations": it, "residual_norms": norms},
+                return StepResult(q.copy(), *self._status(lam), info={"iterations": it, "residual_norms": norms},
                                   mu={"load_factor": lam})
             if it == self.max_iterations:
                 break

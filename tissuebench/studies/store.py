@@ -6,6 +6,7 @@ an interrupted or failed run never leaves a half-written result folder behind.
 from __future__ import annotations
 
 import contextlib
+import functools
 import datetime as _dt
 import hashlib
 import importlib.metadata
@@ -54,7 +55,9 @@ def write_json_atomic(path: Path, data) -> None:
     os.replace(tmp, path)
 
 
-def _git_commit() -> str:
+@functools.lru_cache(maxsize=1)
+def git_commit() -> str:
+    """HEAD of the repository the package lives in ("unknown" outside one)."""
     try:
         root = Path(__file__).resolve().parents[2]
         return subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
@@ -63,15 +66,36 @@ def _git_commit() -> str:
         return "unknown"
 
 
-def provenance(**extra) -> dict:
-    """Package versions, git commit, machine and date (UTC)."""
+@functools.lru_cache(maxsize=1)
+def package_versions() -> dict:
+    """Installed versions of the packages a result depends on (None when absent)."""
     versions = {}
     for pkg in _PACKAGES:
         try:
             versions[pkg] = importlib.metadata.version(pkg)
         except importlib.metadata.PackageNotFoundError:
             versions[pkg] = None
-    return {"versions": versions, "git_commit": _git_commit(),
+    return versions
+
+
+@functools.lru_cache(maxsize=8)
+def code_hash(*subpackages: str) -> str:
+    """SHA-256 over the Python sources (and scene/preset TOMLs) of the named subpackages of
+    tissuebench (all of it without arguments): a result computed by other code differs by
+    this, committed or not."""
+    root = Path(__file__).resolve().parents[1]
+    dirs = [root / p for p in subpackages] if subpackages else [root]
+    h = hashlib.sha256()
+    for d in dirs:
+        for f in sorted(d.rglob("*")):
+            if f.suffix in (".py", ".toml") and "__pycache__" not in f.parts:
+                h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes())
+    return h.hexdigest()
+
+
+def provenance(**extra) -> dict:
+    """Package versions, git commit, source hash, machine and date (UTC)."""
+    return {"versions": package_versions(), "git_commit": git_commit(), "code_hash": code_hash(),
             "machine": {"node": platform.node(), "platform": platform.platform(), "python": platform.python_version(),
                         "cpus": os.cpu_count()},
             "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"), **extra}

@@ -16,7 +16,7 @@ from ...refsolvers.dynamics import SecondOrderSystem, integrate
 from ...refsolvers.line_models import assemble_line_model, solve_static
 from .result import dynamics_output
 
-__all__ = ["solve_line", "line_monitor_fn"]
+__all__ = ["solve_line", "line_monitor_fn", "line_dynamics_system"]
 
 
 def line_monitor_fn(scene, system):
@@ -67,11 +67,16 @@ def _static(scene, system, monitors, progress):
                 displacement=disp, **_fields(scene, system))
 
 
-def _dynamic(scene, plan, system, monitors, progress):
-
-    a = scene.analysis
+def line_dynamics_system(scene, plan, system=None) -> SecondOrderSystem:
+    """The linear second-order system of a 1D scene (lumped or consistent mass, as planned)."""
+    system = system or assemble_line_model(scene.line_model())
     M = system.M_lumped if plan.mass == "lumped" else system.M
-    sos = SecondOrderSystem.linear_system(M, system.K, system.load_vector, free=system.free)
+    return SecondOrderSystem.linear_system(M, system.K, system.load_vector, free=system.free)
+
+
+def _dynamic(scene, plan, system, monitors, progress):
+    a = scene.analysis
+    sos = line_dynamics_system(scene, plan, system)
     t_end = float(a["t_end"])
 
     def observe(t, u):

@@ -39,6 +39,8 @@ class ReferenceResult:
     steps : (n_states,) array
         Load factor or time of each stored state (the first is the initial state).
     displacement : (n_states, n_nodes, n_components) array
+    velocity : (n_states, n_nodes, n_components) array or None
+        Velocities of the stored states (dynamics only).
     wall_s : float
     info : dict
         Counters and settings (mesh metadata, Newton increments, integrator).
@@ -58,6 +60,7 @@ class ReferenceResult:
     components: tuple
     steps: np.ndarray
     displacement: np.ndarray
+    velocity: np.ndarray | None = None
     wall_s: float = 0.0
     info: dict = field(default_factory=dict)
     problem: object = None
@@ -83,7 +86,8 @@ def dynamics_output(res, monitors_per_step, fields, n_comp):
     mon = pd.DataFrame(monitors_per_step[:n])
     table = pd.concat([table, mon], axis=1)
     disp = res.u.reshape(len(res.stored_steps), -1, n_comp)
+    vel = res.v.reshape(len(res.stored_steps), -1, n_comp)
     info = {"integrator": res.method, "dt": res.dt, "energy_growth_ratio": res.energy_growth_ratio,
             "failed_step": res.failed_step, "options": res.options}
     return dict(status=res.status, message=res.message, table=table, steps=res.t[res.stored_steps],
-                displacement=disp, info=info, **fields)
+                displacement=disp, velocity=vel, info=info, **fields)

@@ -19,11 +19,11 @@ from ...refsolvers.backends import make_backend
 from ...refsolvers.dynamics import SecondOrderSystem, integrate
 from ...refsolvers.linear_solvers import DirectSolver
 from ...refsolvers.newton import NewtonOptions, newton_solve
-from .line import solve_line
+from .line import line_dynamics_system, solve_line
 from .plan import plan_for
 from .result import ReferenceResult, dynamics_output
 
-__all__ = ["ReferenceResult", "solve"]
+__all__ = ["ReferenceResult", "solve", "dynamics_system"]
 
 
 def _scene_of(case, resolution, variant):
@@ -146,11 +146,20 @@ def _newton_static(be, n_steps, target, monitors, progress, linear_solver, to_di
 
 
 # ============================================================================ FE dynamics
+def dynamics_system(scene, backend="skfem") -> SecondOrderSystem:
+    """The semi-discrete system the scene's reference integrates (FE: from a backend name
+    or instance; 1D models: their assembled matrices), as the plan decides (mass, linearity)."""
+    plan = plan_for(scene)
+    if not scene.is_fe:
+        return line_dynamics_system(scene, plan)
+    be = make_backend(backend, scene.to_problem()) if isinstance(backend, str) else backend
+    return SecondOrderSystem.from_backend(be, scene.history, lumped=plan.mass == "lumped", linear=plan.linear)
+
+
 def _dynamic(scene, plan, be, progress, linear_solver):
     a = scene.analysis
     pb = be.problem
-    history = scene.history
-    system = SecondOrderSystem.from_backend(be, history, lumped=plan.mass == "lumped", linear=plan.linear)
+    system = dynamics_system(scene, be)
     dt, t_end = float(a["dt"]), float(a["t_end"])
     n_steps = int(np.ceil(t_end / dt - 1e-9))
     store_every = int(a.get("store_every", max(1, n_steps // 200)))

@@ -1,0 +1,287 @@
+"""The sweep harness: spec validation, the store, resume, the reference cache, executors."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tissuebench.cli import main
+from tissuebench.studies.results import ResultsStore, SweepLocked, read_points, read_units
+from tissuebench.studies.schema import UNIT_COLUMNS
+from tissuebench.studies.spec import expand_units, list_presets, load_spec
+from tissuebench.studies.sweep import run_sweep
+
+ROOT = Path(__file__).resolve().parents[1]
+# what differs between two runs of the same unit: timings, their ratios, dates, memory
+VOLATILE = {"haptic_median_s", "haptic_p99_s", "reconstruct_median_s", "reconstruct_p99_s", "reference_step_s",
+            "speedup", "calibration_s", "haptic_per_calibration", "offline_s", "build_peak_bytes", "date",
+            "model_info", "machine", "blas_threads"}
+
+TINY = """
+[sweep]
+name = "tiny"
+[protocol]
+latency_steps = {steps}
+warmup = 3
+reference_samples = 1
+[[case]]
+name = "cornea_pinch"
+training = {{ kind = "path", every = 2 }}
+evaluation = {{ kind = "path", beyond = [2.0] }}
+[[method]]
+name = "anm_pod"
+options = {{ eps = 1e-6, max_segments = 1 }}
+grid = {{ n_modes = [2, 4], order = [1, 6] }}
+[[method]]
+name = "nearest"
+[[method]]
+name = "pod_interp"
+grid = {{ n_modes = [4], interpolation = ["linear", "rbf"] }}
+"""
+
+
+def write_spec(folder: Path, steps: int = 30, text: str = TINY) -> Path:
+    p = folder / "tiny.toml"
+    p.write_text(text.format(steps=steps))
+    return p
+
+
+@pytest.fixture(scope="module")
+def serial(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("sweep")
+    spec = write_spec(folder)
+    out = folder / "serial"
+    summary = run_sweep(load_spec(spec), out, progress=False)
+    return spec, out, summary
+
+
+def _stable(df):
+    keep = [c for c in df.columns if c not in VOLATILE]
+    return df[keep].sort_values("unit_key").reset_index(drop=True)
+
+
+# ------------------------------------------------------------------------ spec validation
+@pytest.mark.parametrize("edit, message", [
+    (lambda t: t.replace('name = "nearest"', 'name = "nope"'), r"method\[1\].name = 'nope': unknown method; valid: \["),
+    (lambda t: t.replace("n_modes = [2, 4]", "n_modez = [2, 4]"), r"method\[0\].grid: method 'anm_pod' takes no "
+                                                                  r"option 'n_modez'; valid: \["),
+    (lambda t: t.replace("n_modes = [2, 4]", "n_modes = []"), r"method\[0\].grid.n_modes = \[\]: expected a "
+                                                              r"non-empty list"),
+    (lambda t: t.replace('name = "cornea_pinch"', 'name = "cornea_pinchh"'), r"case\[0\].name = 'cornea_pinchh': "
+                                                                              r"unknown case; valid: \["),
+    (lambda t: t.replace('name = "tiny"', 'name = "tiny"\nerror_metric = "speed"'), r"sweep.error_metric = 'speed':"
+                                                                                     r" unknown metric; valid"),
+    (lambda t: t.replace('kind = "path", every = 2', 'kind = "paths"'), r"case\[0\].training.kind = 'paths': valid"),
+    (lambda t: t.replace('kind = "path", every = 2', 'kind = "positions"'), r"learns from \['path'\] training sets"),
+    (lambda t: t + '[[method]]\nname = "nearest"\ncases = ["liver"]\n', r"method\[3\].cases = 'liver': not a case id"),
+    (lambda t: t.replace("latency_steps = 30", "latency_steps = 0"), r"protocol.latency_steps = 0"),
+    (lambda t: t + "[extra]\n", r"extra: unknown top-level key"),
+])
+def test_bad_specs_are_refused_naming_the_key(tmp_path, edit, message):
+    spec = tmp_path / "bad.toml"
+    spec.write_text(edit(TINY.format(steps=30)))
+    with pytest.raises(ValueError, match=message):
+        load_spec(spec)
+
+
+def test_presets_load_and_expand_at_both_resolutions():
+    names = [n for n, _ in list_presets()]
+    assert {"anm_pod", "interpolation", "pod_cube"} <= set(names)
+    for name in names:
+        ci, paper = expand_units(load_spec(name)), expand_units(load_spec(name, resolution="paper"))
+        assert ci and paper
+        assert len({u.key for u in ci}) == len(ci)  # every unit has its own key
+    anm = [u for u in expand_units(load_spec("anm_pod", resolution="paper")) if u.case["id"] == "liver_palpation"]
+    assert len(anm) == 150 and {u.case["resolution"] for u in anm} == {"paper"}
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--executor", "threads"], "executor = 'threads'"),
+    (["--executor", "dask", "--scheduler", "tcp://127.0.0.1:9"], "cannot be reached"),
+    (["--workers", "0"], "workers = 0"),
+])
+def test_bad_command_line_exits_2_and_writes_nothing(tmp_path, capsys, argv, message):
+    spec = write_spec(tmp_path)
+    out = tmp_path / "out"
+    assert main(["sweep", str(spec), "--out", str(out), "--quiet", *argv]) == 2
+    assert message in capsys.readouterr().err
+    assert not any(out.glob("case=*")) and not (out / ".lock").exists()
+
+
+def test_unknown_preset_and_list(capsys):
+    assert main(["sweep", "--preset", "nope"]) == 2
+    assert "valid: ['anm_pod'" in capsys.readouterr().err
+    assert main(["sweep", "--list"]) == 0
+    assert "anm_pod" in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------------ the store
+def test_store_has_one_row_per_unit_with_the_declared_schema(serial):
+    spec, out, summary = serial
+    units = pd.read_parquet(out)  # the plain pandas call a user makes
+    assert len(units) == summary.planned == 7 and not summary.failed
+    assert set(units.columns) == set(UNIT_COLUMNS) | {"case", "method"}
+    assert (units["unit_status"] == "ok").all()
+    # the beyond point (2x the path) has no reference: its status is measured, never an error
+    assert (units["n_extrapolation"] + units["n_beyond_validity"] >= 1).all()
+    assert np.isfinite(units["max_rel_l2"]).all() and (units["haptic_n"] >= 30).all()
+    assert (units["speedup"] > 1).all() and (units["reference_step_s"] > 0).all()
+    assert (units["blas_threads"] == 1).all() and (units["calibration_s"] > 0).all()
+    points = read_points(out)
+    assert len(points) == sum(units["n_points"])
+    man = json.loads((out / "_sweep.json").read_text())
+    assert man["state"] == "finished" and len(man["units"]) == 7 and man["spec_hash"]
+    for name in ("pareto.parquet", "radius.parquet", "pareto_cornea_pinch.png", "radius.png"):
+        assert (out / "_derived" / name).is_file()
+    assert pd.read_parquet(out / "_derived" / "pareto.parquet")["pareto"].any()
+
+
+def test_held_out_errors_rank_the_methods(serial):
+    """Trained on every second state and measured on all: order 6 beats order 1 (the linear
+    ROM) and the baselines are not exact away from their snapshots."""
+    units = read_units(serial[1]).set_index("label")
+    a6, a1 = (units.loc[f"anm_pod eps=1e-06 max_segments=1 n_modes=4 order={o}", "max_rel_l2"] for o in (6, 1))
+    assert a6 < 1e-3 < a1
+    assert units.loc["nearest", "max_rel_l2"] > 0.05  # half a load step away from a snapshot
+    assert units.loc["nearest", "validity_1pct"] == 0.0
+
+
+def test_resume_keeps_every_finished_unit(serial, tmp_path):
+    spec, out, _ = serial
+    before = {p: p.stat().st_mtime_ns for p in out.glob("case=*/method=*/*.parquet")}
+    summary = run_sweep(load_spec(spec), out, resume=True, progress=False)
+    assert summary.computed == [] and len(summary.skipped) == 7
+    assert {p: p.stat().st_mtime_ns for p in out.glob("case=*/method=*/*.parquet")} == before
+
+
+def test_a_folder_with_results_needs_resume(serial):
+    spec, out, _ = serial
+    with pytest.raises(FileExistsError, match="--resume"):
+        run_sweep(load_spec(spec), out, progress=False)
+
+
+def test_a_changed_key_is_recomputed_and_said(serial, tmp_path):
+    import shutil
+
+    spec, out, _ = serial
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    said = []
+    changed = write_spec(tmp_path, steps=31)  # another protocol: every key changes
+    summary = run_sweep(load_spec(changed), copy, resume=True, progress=True, log=said.append)
+    assert len(summary.recomputed) == 7 and len(summary.computed) == 7
+    assert sum("recomputed" in s for s in said) == 7
+    units = read_units(copy)
+    assert len(units) == 7 and (units["haptic_n"] >= 31).all()  # the stale rows are gone
+
+
+def test_second_sweep_hits_the_reference_cache(serial, tmp_path, monkeypatch):
+    import tissuebench.studies.reference.cache as cache
+
+    calls = []
+    monkeypatch.setattr(cache, "solve", lambda *a, **k: calls.append(a) or pytest.fail("reference recomputed"))
+    run_sweep(load_spec(serial[0]), tmp_path / "again", progress=False)
+    assert calls == []
+    assert _stable(read_units(tmp_path / "again")).drop(columns=["unit_key"]).shape[0] == 7
+
+
+def test_a_unit_that_raises_is_a_failed_row_and_the_sweep_goes_on(tmp_path):
+    text = TINY.replace('grid = {{ n_modes = [2, 4], order = [1, 6] }}', 'grid = {{ n_modes = [2], order = [1] }}')
+    text += ('[[case]]\nid = "cube"\nname = "cube_tension_twist"\nvariant = "tension"\n'
+             'training = {{ kind = "path" }}\n[[method]]\nname = "anm_pod"\ncases = ["cube"]\n')
+    summary = run_sweep(load_spec(write_spec(tmp_path, text=text)), tmp_path / "out", progress=False)
+    units = read_units(tmp_path / "out")
+    assert len(units) == summary.planned == 9  # both anm_pod entries reach the cube; the baselines too
+    failed = units[units["unit_status"] == "failed"]
+    assert len(summary.failed) == len(failed) == 2 and set(failed["case"]) == {"cube"}
+    assert failed["message"].str.contains("'mooney_rivlin'.*not polynomial").all()
+    assert failed["max_rel_l2"].isna().all()
+    assert (units.loc[units["unit_status"] == "ok", "method"].value_counts().to_dict()
+            == {"pod_interp": 4, "nearest": 2, "anm_pod": 1})
+
+
+def test_a_held_lock_refuses_a_second_sweep(serial, tmp_path):
+    spec = serial[0]
+    out = tmp_path / "locked"
+    store = ResultsStore(out)
+    store.acquire()
+    try:
+        with pytest.raises(SweepLocked, match="in use by another sweep"):
+            run_sweep(load_spec(spec), out, progress=False)
+    finally:
+        store.release()
+    # a stale lock (its process is gone) is taken over
+    (out / ".lock").write_text(json.dumps({"pid": 2 ** 22 + 12345, "host": os.uname().nodename}))
+    run_sweep(load_spec(spec), out, progress=False)
+    assert not (out / ".lock").exists()
+
+
+# ------------------------------------------------------------------------ kill anywhere
+def _kill_after(proc, out, n_finished, extra_s):
+    """SIGKILL ``proc`` ``extra_s`` seconds after ``n_finished`` units are stored."""
+    deadline = time.monotonic() + 300
+    while len(list(out.glob("case=*/method=*/*.parquet"))) < n_finished and proc.poll() is None:
+        assert time.monotonic() < deadline, "the sweep made no progress"
+        time.sleep(0.01)
+    time.sleep(extra_s)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_sigkill_at_a_random_moment_then_resume_loses_and_redoes_nothing(serial, tmp_path, seed):
+    spec, reference_out, _ = serial
+    out = tmp_path / "killed"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    cmd = [sys.executable, "-m", "tissuebench.cli", "sweep", str(spec), "--out", str(out), "--quiet"]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    rng = np.random.default_rng(seed)
+    _kill_after(proc, out, int(rng.integers(0, 5)), float(rng.uniform(0.0, 0.4)))
+    finished = {p.stem: p.read_bytes() for p in out.glob("case=*/method=*/*.parquet")}
+    assert len(finished) < 7, "the sweep ended before the kill: nothing was tested"
+    summary = run_sweep(load_spec(spec), out, resume=True, progress=False)
+    assert sorted(summary.skipped) == sorted(finished)  # nothing finished was recomputed
+    assert len(summary.skipped) + len(summary.computed) == 7  # nothing was lost
+    for key, data in finished.items():
+        assert next(out.glob(f"case=*/method=*/{key}.parquet")).read_bytes() == data
+    pd.testing.assert_frame_equal(_stable(read_units(out)).drop(columns=["git_commit"]),
+                                  _stable(read_units(reference_out)).drop(columns=["git_commit"]),
+                                  check_exact=False, rtol=1e-9)
+    assert not list(out.rglob(".*.tmp"))
+
+
+# ------------------------------------------------------------------------ executors
+@pytest.mark.slow
+@pytest.mark.parametrize("executor", ["dask", "processes"])
+def test_parallel_executors_store_the_same_rows_as_serial(serial, tmp_path, executor):
+    spec, serial_out, _ = serial
+    out = tmp_path / executor
+    summary = run_sweep(load_spec(spec), out, executor=executor, workers=2, progress=False)
+    assert len(summary.computed) == 7 and not summary.failed
+    a, b = _stable(read_units(out)), _stable(read_units(serial_out))
+    pd.testing.assert_frame_equal(a, b, check_exact=False, rtol=1e-9)
+
+
+def test_nested_units_are_sliced_from_one_build_and_equal_fresh_builds(serial, tmp_path):
+    """anm_pod n_modes x order: one parent (4 modes, order 6) is built; the (2, 1) unit sliced
+    from it measures what a fresh build of (2, 1) measures."""
+    spec, out, _ = serial
+    sliced = read_units(out).set_index("label")
+    label = "anm_pod eps=1e-06 max_segments=1 n_modes=2 order=1"
+    assert json.loads(sliced.loc[label, "model_info"])["sliced_from"] == {
+        "eps": 1e-06, "max_segments": 1, "n_modes": 4, "order": 6}
+    fresh_text = TINY.replace("grid = {{ n_modes = [2, 4], order = [1, 6] }}", "list = [{{ n_modes = 2, order = 1 }}]")
+    run_sweep(load_spec(write_spec(tmp_path, text=fresh_text)), tmp_path / "fresh", progress=False)
+    fresh = read_units(tmp_path / "fresh").set_index("label")
+    assert "sliced_from" not in json.loads(fresh.loc[label, "model_info"])
+    for col in ("max_rel_l2", "rmse_rel", "validity_1pct", "n_reduced", "n_beyond_validity"):
+        assert fresh.loc[label, col] == pytest.approx(sliced.loc[label, col], rel=1e-9, abs=1e-15), col

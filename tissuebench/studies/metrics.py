@@ -1,0 +1,118 @@
+"""Error metrics of SPEC "Measurements": per evaluation point, per unit, validity radius, Pareto front.
+
+* relative l2 error of the nodal displacement ``||u_rom - u_ref|| / ||u_ref||`` per point
+  (``inf`` for a step that failed where a reference exists: never a silent NaN; NaN only
+  where there is no reference to compare with, e.g. loads past the path);
+* each monitored scalar the model outputs, relative to the reference's value;
+* the relative RMSE over a history (the wsc paper's):
+  ``sqrt(sum_k ||u_rom,k - u_ref,k||^2 / sum_k ||u_ref,k||^2)``;
+* the validity radius: the largest abscissa (load factor, distance to the nearest stored
+  position, time) up to which every error stays within a tolerance (1 %, 5 %);
+* the Pareto front per scene: units not beaten in both haptic latency and error.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from .timing import max_displacement
+
+__all__ = ["point_rows", "output_rows", "summarise_points", "validity_radius", "pareto_front", "TOLERANCES"]
+
+TOLERANCES = (0.01, 0.05)
+
+
+def point_rows(evaluation, driven) -> list[dict]:
+    """One row per evaluation point: mu, abscissa, step status, errors."""
+    rows = []
+    for k, (p, res, u) in enumerate(zip(evaluation.points, driven.results, driven.fields)):
+        status = "initial" if res is None and k == 0 and evaluation.kind == "trajectory" else (
+            "not_reached" if res is None else res.status)
+        ref = p.reference
+        if ref is None or status == "initial":
+            rel, dmax = np.nan, np.nan
+        elif u is None:
+            rel, dmax = np.inf, np.inf
+        else:
+            den = np.linalg.norm(ref)
+            rel = float(np.linalg.norm(u - ref) / den) if den > 0 else float(np.linalg.norm(u))
+            rm = max_displacement(ref) if ref.size % 3 == 0 else float(np.abs(ref).max())
+            um = max_displacement(u) if u.size % 3 == 0 else float(np.abs(u).max())
+            dmax = abs(um - rm) / rm if rm > 0 else abs(um)
+        rows.append({"point": k, "x": p.x, "group": np.nan if p.group is None else p.group,
+                     "mu": _mu_text(p.mu), "status": status, "message": "" if res is None else res.message[:300],
+                     "rel_l2": rel, "rel_max_displacement": dmax, "has_reference": ref is not None})
+    return rows
+
+
+def output_rows(evaluation, driven) -> list[dict]:
+    """Long form: one row per (point, monitored output the model reports and the reference has)."""
+    rows = []
+    for k, (p, out) in enumerate(zip(evaluation.points, driven.outputs)):
+        for name, value in out.items():
+            if name in p.monitors:
+                r = p.monitors[name]
+                rows.append({"point": k, "x": p.x, "monitor": name, "reference": r, "rom": float(value),
+                             "rel_error": abs(value - r) / abs(r) if r != 0 else abs(value - r)})
+    return rows
+
+
+def _mu_text(mu: dict) -> str:
+    return ", ".join(f"{k}={v:.6g}" for k, v in sorted(mu.items()))
+
+
+def validity_radius(x, errors, tol: float) -> float:
+    """Largest abscissa up to which every error (NaN: no reference, ignored) is <= ``tol``;
+    0 when the first fails, NaN without any reference."""
+    x, e = np.asarray(x, float), np.asarray(errors, float)
+    keep = ~np.isnan(e)
+    if not keep.any():
+        return float("nan")
+    x, e = x[keep], e[keep]
+    order = np.argsort(x, kind="stable")
+    x, e = x[order], e[order]
+    bad_x = x[e > tol]
+    if bad_x.size == 0:
+        return float(x.max())
+    ok = x[x < bad_x.min()]
+    return float(ok.max()) if ok.size else 0.0
+
+
+def summarise_points(points: pd.DataFrame, outputs: pd.DataFrame, evaluation, fields) -> dict:
+    """The unit-level error columns from its point rows."""
+    has_ref = points["has_reference"] & (points["status"] != "initial")
+    rel = points.loc[has_ref, "rel_l2"].to_numpy(float)
+    ok = points.loc[has_ref, "status"].isin(["ok"]).to_numpy()
+    num = den = 0.0
+    for p, u, use in zip(evaluation.points, fields, has_ref):
+        if not use:
+            continue
+        num += np.inf if u is None else float(np.sum((u - p.reference) ** 2))
+        den += float(np.sum(p.reference ** 2))
+    counts = points["status"].value_counts()
+    row = {"n_points": int(len(points)), "n_reference_points": int(has_ref.sum()),
+           "max_rel_l2": float(rel.max()) if rel.size else np.nan,
+           "mean_rel_l2": float(rel.mean()) if rel.size else np.nan,
+           "max_rel_l2_in_envelope": float(rel[ok].max()) if ok.any() else np.nan,
+           "rmse_rel": float(np.sqrt(num / den)) if den > 0 else np.nan,
+           "max_monitor_rel_error": float(outputs["rel_error"].max()) if len(outputs) else np.nan,
+           "x_name": evaluation.x_name}
+    for status in ("ok", "extrapolation", "beyond_validity", "failed", "not_reached"):
+        row[f"n_{status}"] = int(counts.get(status, 0))
+    for tol in TOLERANCES:
+        row[f"validity_{int(round(tol * 100))}pct"] = validity_radius(points["x"], points["rel_l2"], tol)
+    return row
+
+
+def pareto_front(units: pd.DataFrame, error: str = "max_rel_l2", latency: str = "haptic_median_s") -> pd.DataFrame:
+    """``units`` with a boolean ``pareto`` column: per case, not beaten in both latency and error
+    by another unit (failed units and units without error or latency are never on the front)."""
+    out = units.copy()
+    out["pareto"] = False
+    for _, grp in out.groupby("case"):
+        ok = grp[(grp["unit_status"] == "ok") & np.isfinite(grp[error]) & np.isfinite(grp[latency])]
+        e, t = ok[error].to_numpy(), ok[latency].to_numpy()
+        for i, idx in enumerate(ok.index):
+            dominated = np.any((e <= e[i]) & (t <= t[i]) & ((e < e[i]) | (t < t[i])))
+            out.loc[idx, "pareto"] = not dominated
+    return out

@@ -1,0 +1,238 @@
+"""The one timed loop every method goes through, and the reference timed beside it.
+
+For every unit, in one process, one unit at a time, with the BLAS thread count limited
+(1 by default, recorded):
+
+1. **Evaluation pass** (untimed): the model is driven through the evaluation set in its
+   order (``start`` then ``step`` per point; trajectories from the initial state at the
+   reference's dt), its outputs and reconstructed fields collected.
+2. **Latency pass**: after ``warmup`` untimed steps, at least ``steps`` haptic steps
+   (``step`` + ``outputs``) are timed one by one with ``time.perf_counter`` (a map model
+   at seeded random parameters, a path model along its path, a
+   trajectory model through its time steps, restarted untimed when a pass ends); the
+   reconstruction of each result is timed separately. Median and 99th percentile. A map
+   model is timed at fresh parameters drawn uniformly over the evaluation's range (never at
+   parameters it may have cached).
+3. **Reference step**: the full model's own step (one Newton increment from a converged
+   state, one back-substitution for a linear static scene, one time step of the
+   reference integrator) timed ``reference_samples`` times in the same process, so every
+   row has a speed-up ratio that survives a noisy machine.
+4. **Calibration kernel**: a 256 x 256 dense matmul timed in the same process, so a
+   reader can scale latencies to another CPU.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from threadpoolctl import threadpool_info
+
+from ..refsolvers.backends import make_backend
+from ..refsolvers.dynamics import integrate
+from ..refsolvers.line_models import assemble_line_model
+from ..refsolvers.linear_solvers import DirectSolver
+from ..refsolvers.newton import newton_solve
+from .reference import dynamics_system
+from .timing import latency_stats
+
+__all__ = ["Driven", "drive", "time_latency", "calibration_seconds", "reference_step_seconds", "blas_info"]
+
+
+@dataclass
+class Driven:
+    """A model driven through an evaluation set: one entry per evaluation point."""
+
+    results: list
+    fields: list  # reconstructed full field or None (failed step / no reconstruction)
+    outputs: list
+
+
+def _trajectory_mus(evaluation, history):
+    dt, t_end = evaluation.dt, evaluation.info["t_end"]
+    t0 = evaluation.points[0].mu["time"]
+    n = int(np.ceil((t_end - t0) / dt - 1e-9))
+    return [{"time": t0 + k * dt, "load_factor": float(history(t0 + k * dt))} for k in range(1, n + 1)]
+
+
+def drive(model, evaluation, history=None) -> Driven:
+    """Evaluation pass (module docstring, 1)."""
+    results, fields, outputs = [], [], []
+
+    def record(res):
+        results.append(res)
+        outputs.append(model.outputs(res))
+        fields.append(model.reconstruct(res) if res.q is not None else None)
+
+    if evaluation.kind == "trajectory":
+        p0 = evaluation.points[0]
+        model.start(p0.mu, evaluation.state0, evaluation.dt)
+        wanted = {round(p.mu["time"] / evaluation.dt) for p in evaluation.points[1:]}
+        results.append(None), fields.append(evaluation.state0["u"]), outputs.append({})  # the initial state
+        for mu in _trajectory_mus(evaluation, history):
+            res = model.step(mu)
+            if res.mu is None:
+                res.mu = mu
+            if round(mu["time"] / evaluation.dt) in wanted:
+                record(res)
+            if res.status == "failed":
+                break
+        missing = len(evaluation.points) - len(results)
+        results += [None] * missing
+        fields += [None] * missing
+        outputs += [{}] * missing
+        return Driven(results, fields, outputs)
+    model.start(evaluation.points[0].mu if evaluation.points else None)
+    for p in evaluation.points:
+        res = model.step(p.mu)
+        if res.mu is None:
+            res.mu = dict(p.mu)
+        record(res)
+    return Driven(results, fields, outputs)
+
+
+def _timing_sequence(model, evaluation, history, n, seed):
+    if evaluation.kind == "trajectory":
+        return _trajectory_mus(evaluation, history)
+    mus = [p.mu for p in evaluation.points]
+    if model.kind == "map":
+        # fresh parameters every step, uniform over the evaluation's range of each one (a tool
+        # moves continuously: a model must not be timed on parameters it has cached)
+        rng = np.random.default_rng(seed)
+        keys = sorted(mus[0])
+        lo = {k: min(m[k] for m in mus) for k in keys}
+        hi = {k: max(m[k] for m in mus) for k in keys}
+        return [{k: float(rng.uniform(lo[k], hi[k])) for k in keys} for _ in range(max(n, 1))]
+    return mus
+
+
+def _start(model, evaluation, seq):
+    if evaluation.kind == "trajectory":
+        model.start(evaluation.points[0].mu, evaluation.state0, evaluation.dt)
+    else:
+        model.start(seq[0])
+
+
+def time_latency(model, evaluation, history=None, steps: int = 200, warmup: int = 20, seed: int = 0,
+                 clock=time.perf_counter) -> dict:
+    """Latency pass (module docstring, 2): ``{"haptic": LatencyStats, "reconstruct": LatencyStats | None}``.
+
+    ``clock`` returns seconds (injectable, for testing the protocol with exact durations)."""
+    seq = _timing_sequence(model, evaluation, history, steps, seed)
+    if not seq:
+        raise ValueError("time_latency: an empty evaluation set cannot be timed")
+    _start(model, evaluation, seq)
+    for mu in seq[:warmup]:
+        res = model.step(mu)
+        model.outputs(res)
+        if res.q is not None:
+            model.reconstruct(res)
+    haptic, recon = [], []
+    while len(haptic) < steps:
+        _start(model, evaluation, seq)
+        for mu in seq:
+            t0 = clock()
+            res = model.step(mu)
+            model.outputs(res)
+            t1 = clock()
+            haptic.append(t1 - t0)
+            if res.q is not None:
+                if res.mu is None:
+                    res.mu = mu
+                t2 = clock()
+                model.reconstruct(res)
+                recon.append(clock() - t2)
+            if res.status == "failed" and evaluation.kind == "trajectory":
+                break
+        if not haptic:
+            break
+    return {"haptic": latency_stats(haptic), "reconstruct": latency_stats(recon) if recon else None}
+
+
+def calibration_seconds(n: int = 256, repeats: int = 30, seed: int = 0) -> float:
+    """Median time [s] of one ``n x n`` dense matmul (the machine's calibration kernel)."""
+    rng = np.random.default_rng(seed)
+    A, B = rng.standard_normal((n, n)), rng.standard_normal((n, n))
+    A @ B
+    samples = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        A @ B
+        samples.append(time.perf_counter() - t0)
+    return float(np.median(samples))
+
+
+def blas_info() -> dict:
+    """BLAS libraries and their thread counts as threadpoolctl reports them."""
+    info = [i for i in threadpool_info() if i.get("user_api") == "blas"]
+    return {"blas": ",".join(sorted({i["internal_api"] for i in info})) or "unknown",
+            "blas_threads": max((i["num_threads"] for i in info), default=0)}
+
+
+_REFERENCE_STEP: dict = {}  # (scene hash, backend, samples) -> seconds, measured once per process
+
+
+def reference_step_seconds(evaluation, backend: str = "skfem", samples: int = 3) -> float:
+    """Median wall time [s] of the reference's own step (module docstring, 3), measured once per
+    process and scene; NaN when the evaluation has no reference run to step from."""
+    ctx = evaluation.reference_steps
+    if not ctx:
+        return float("nan")
+    key = (ctx["scene"].content_hash(), backend, samples)
+    if key not in _REFERENCE_STEP:
+        _REFERENCE_STEP[key] = _reference_step(ctx["ref"], ctx["scene"], backend, samples)
+    return _REFERENCE_STEP[key]
+
+
+def _reference_step(ref, scene, backend, samples) -> float:
+    if ref.plan.analysis == "dynamic":
+        return _dynamic_step(ref, scene, backend, samples)
+    if not scene.is_fe:
+        system = assemble_line_model(scene.line_model())
+        K = system.K[system.free][:, system.free]
+        lu = DirectSolver().factorize(K)
+        f = system.load_vector(1.0)[system.free]
+        return _median_of(lambda: lu.solve(f), samples)
+    be = make_backend(backend, ref.problem)
+    if ref.plan.linear:
+        free = ref.problem.free_dofs
+        lu = DirectSolver().factorize(be.tangent(np.zeros(be.ndof))[free][:, free])
+        f = be.external_force(np.zeros(be.ndof), 1.0)[free]
+        return _median_of(lambda: lu.solve(f), samples)
+    U = ref.displacement.reshape(len(ref.steps), -1)
+    ks = _middle_indices(len(ref.steps) - 1, samples)
+    times = []
+    for k in ks:
+        t0 = time.perf_counter()
+        newton_solve(be, float(ref.steps[k + 1]), u0=U[k], n_increments=1, min_increment=1.0, store_states=False)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)) if times else float("nan")
+
+
+def _dynamic_step(ref, scene, backend, samples):
+    system = dynamics_system(scene, backend)
+    n = len(ref.steps)
+    k = n // 2
+    U, V = ref.displacement.reshape(n, -1), ref.velocity.reshape(n, -1)
+    dt = float(scene.analysis["dt"])
+    t0 = float(ref.steps[k])
+    res = integrate(system, U[k], V[k], dt, t0 + samples * dt, method=scene.analysis.get("integrator", "hht"),
+                    t0=t0, **scene.analysis.get("integrator_options", {}))
+    return float(np.median(res.wall_time[1:])) if len(res.wall_time) > 1 else float("nan")
+
+
+def _middle_indices(n, k):
+    """Up to ``k`` consecutive indices in ``range(n)`` around its middle."""
+    if n <= 0:
+        return []
+    start = max(0, n // 2 - k // 2)
+    return list(range(start, min(n, start + k)))
+
+
+def _median_of(fn, samples):
+    times = []
+    for _ in range(max(samples, 1)):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))

@@ -1,0 +1,76 @@
+"""Row schemas of the results store, declared once: the store, the report and the gate use them.
+
+``UNIT_COLUMNS`` is one row per unit (the Parquet dataset ``pandas.read_parquet(DIR)``
+reads; ``case`` and ``method`` come from the partition folders ``case=<id>/method=<name>``);
+``POINT_COLUMNS`` one row per evaluation point (``DIR/_points``); ``OUTPUT_COLUMNS`` one row
+per (point, monitored output) (``DIR/_outputs``). Every file of a dataset is written with
+exactly its schema, so the datasets read back with one set of columns and types.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+
+__all__ = ["UNIT_COLUMNS", "POINT_COLUMNS", "OUTPUT_COLUMNS", "PARTITIONS", "arrow_schema", "conform"]
+
+PARTITIONS = ("case", "method")
+
+_F, _I, _S, _B = pa.float64(), pa.int64(), pa.string(), pa.bool_()
+
+UNIT_COLUMNS = {
+    # identity
+    "unit_key": _S, "case_name": _S, "variant": _S, "resolution": _S, "backend": _S, "kind": _S,
+    "options": _S, "label": _S, "spec_name": _S, "spec_hash": _S, "scene_hash": _S,
+    # outcome
+    "unit_status": _S, "message": _S,
+    # sizes
+    "n_dof": _I, "n_reduced": _I, "n_training_snapshots": _I, "n_points": _I, "n_reference_points": _I,
+    # step statuses
+    "n_ok": _I, "n_extrapolation": _I, "n_beyond_validity": _I, "n_failed": _I, "n_not_reached": _I,
+    # errors (relative; inf where a step failed against a reference)
+    "max_rel_l2": _F, "mean_rel_l2": _F, "max_rel_l2_in_envelope": _F, "rmse_rel": _F, "max_monitor_rel_error": _F,
+    "x_name": _S, "validity_1pct": _F, "validity_5pct": _F,
+    # latency [s] and the same-process references
+    "haptic_median_s": _F, "haptic_p99_s": _F, "haptic_n": _I, "reconstruct_median_s": _F, "reconstruct_p99_s": _F,
+    "reference_step_s": _F, "speedup": _F, "calibration_s": _F, "haptic_per_calibration": _F,
+    "blas": _S, "blas_threads": _I,
+    # offline
+    "offline_s": _F, "build_peak_bytes": _I, "model_bytes": _I, "model_info": _S,
+    # provenance
+    "git_commit": _S, "code_hash": _S, "tissuebench": _S, "numpy": _S, "scipy": _S, "machine": _S, "python": _S,
+    "date": _S,
+}
+POINT_COLUMNS = {"unit_key": _S, "point": _I, "x": _F, "group": _F, "mu": _S, "status": _S, "message": _S,
+                 "rel_l2": _F, "rel_max_displacement": _F, "has_reference": _B}
+OUTPUT_COLUMNS = {"unit_key": _S, "point": _I, "x": _F, "monitor": _S, "reference": _F, "rom": _F, "rel_error": _F}
+
+
+def arrow_schema(columns: dict) -> pa.Schema:
+    return pa.schema([(k, t) for k, t in columns.items()])
+
+
+_FILL = {_F: np.nan, _I: -1, _S: "", _B: False}
+
+
+def conform(rows, columns: dict) -> pa.Table:
+    """A pyarrow table of ``rows`` (list of dicts) with exactly ``columns`` (missing values filled:
+    NaN, -1, "" or False; extra keys are an error, so nothing is silently dropped)."""
+    df = pd.DataFrame(list(rows))
+    extra = sorted(set(df.columns) - set(columns) - set(PARTITIONS))
+    if extra:
+        raise ValueError(f"row keys not in the store schema: {extra}")
+    data = {}
+    for name, typ in columns.items():
+        col = df[name] if name in df else pd.Series([_FILL[typ]] * len(df), dtype=object)
+        col = col.where(col.notna(), _FILL[typ]) if typ != _F else col
+        if typ == _F:
+            col = pd.to_numeric(col, errors="coerce").astype(float)
+        elif typ == _I:
+            col = col.astype("int64")
+        elif typ == _B:
+            col = col.astype(bool)
+        else:
+            col = col.astype(str)
+        data[name] = pa.array(col.to_numpy(), type=typ)
+    return pa.table(data, schema=arrow_schema(columns))

@@ -1,0 +1,179 @@
+"""``tissuebench sweep``: plan -> resume -> execute -> store -> derived tables.
+
+:func:`run_sweep` expands a :class:`~.spec.SweepSpec` into units, checks the output folder
+before any work, takes the folder's lock, skips the units already stored under the same
+key (``resume``), recomputes those whose key changed (code, scene, mesh file, versions,
+protocol: said unit by unit), runs the rest on an executor, writes each unit as it
+finishes, and finally writes the derived tables (Pareto front and validity radii per
+scene) and their plots into ``_derived/``. A unit that raises is a failed row, and the
+sweep goes on. Ctrl-C stops after releasing the lock, saying how to resume.
+"""
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .executors import check_executor, execute
+from .metrics import TOLERANCES, pareto_front
+from .results import ResultsStore, read_units
+from .spec import SweepSpec, expand_units
+from .store import provenance
+
+__all__ = ["SweepSummary", "run_sweep", "check_output_folder", "write_derived"]
+
+
+@dataclass
+class SweepSummary:
+    out: Path
+    planned: int
+    computed: list = field(default_factory=list)
+    skipped: list = field(default_factory=list)
+    recomputed: list = field(default_factory=list)
+    failed: list = field(default_factory=list)
+    wall_s: float = 0.0
+
+
+def check_output_folder(out: Path, resume: bool) -> None:
+    """Refuse an unusable output location before any work (exists as a file, unwritable parent,
+    a folder with results without ``resume``)."""
+    out = Path(out)
+    if "\0" in str(out):
+        raise ValueError(f"--out = {str(out)!r}: contains a NUL byte")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out = {out}: exists and is not a folder")
+    parent = out if out.exists() else next((p for p in out.parents if p.exists()), Path("."))
+    if not parent.is_dir():
+        raise ValueError(f"--out = {out}: {parent} is not a folder")
+    if not _writable(parent):
+        raise ValueError(f"--out = {out}: {parent} is not writable")
+    if out.is_dir() and any(out.glob("case=*")) and not resume:
+        raise FileExistsError(f"results folder {out} holds a sweep; pass --resume to continue it, "
+                              "or choose another --out")
+
+
+def _writable(folder: Path) -> bool:
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            return True
+    except OSError:
+        return False
+
+
+def _plan(units, store, resume, log):
+    done = store.finished() if resume else {}
+    by_identity = {(c, m, o): k for k, (c, m, o) in done.items()}
+    pending, skipped, stale = [], [], []
+    for u in units:
+        if u.key in done:
+            skipped.append(u)
+            continue
+        old = by_identity.get(u.identity)
+        if old is not None:
+            stale.append((u, old))
+            log(f"{u.case['id']} {u.label}: stored result has another key (code, scene, mesh file, versions or "
+                f"protocol changed): recomputed")
+        pending.append(u)
+    return pending, skipped, stale
+
+
+def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | None = None,
+              scheduler: str | None = None, resume: bool = False, progress: bool = True, log=print) -> SweepSummary:
+    """Run a sweep into results folder ``out`` (module docstring)."""
+    out = Path(out)
+    check_executor(executor, workers, scheduler)
+    check_output_folder(out, resume)
+    units = expand_units(spec)
+    t_start = time.perf_counter()
+    store = ResultsStore(out)
+    store.acquire()
+    try:
+        store.clean_temporaries()
+        pending, skipped, stale = _plan(units, store, resume, log if progress else (lambda *_: None))
+        summary = SweepSummary(out, len(units), skipped=[u.key for u in skipped], recomputed=[u.key for u, _ in stale])
+        store.write_manifest(_manifest(spec, units, executor, "running"))
+        bar = _bar(len(units), len(skipped), progress)
+        stale_old = {u.key: old for u, old in stale}
+        try:
+            for unit, outcome in execute(pending, executor, workers, scheduler):
+                store.write_unit(outcome)
+                if unit.key in stale_old:
+                    store.remove_unit(unit.case["id"], unit.method, stale_old[unit.key])
+                summary.computed.append(unit.key)
+                if outcome.row.get("unit_status") != "ok":
+                    summary.failed.append(unit.key)
+                if bar is not None:
+                    bar.update(1)
+                    bar.write(_line(len(summary.computed) + len(skipped), len(units), unit, outcome.row))
+        finally:
+            if bar is not None:
+                bar.close()
+        write_derived(out, spec.error_metric)
+        summary.wall_s = time.perf_counter() - t_start
+        store.write_manifest(_manifest(spec, units, executor, "finished", summary))
+        return summary
+    finally:
+        store.release()
+
+
+def _manifest(spec, units, executor, state, summary=None) -> dict:
+    data = provenance(spec_name=spec.name, spec_source=spec.source, spec_hash=spec.hash, spec_text=spec.text,
+                      resolution=spec.resolution, error_metric=spec.error_metric, executor=executor, state=state,
+                      units=[{"key": u.key, "case": u.case["id"], "method": u.method, "label": u.label} for u in units])
+    if summary is not None:
+        data.update(computed=len(summary.computed), skipped=len(summary.skipped),
+                    recomputed=len(summary.recomputed), failed=len(summary.failed), wall_s=summary.wall_s)
+    return data
+
+
+def _bar(total, initial, enabled):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=initial, desc="sweep", unit="unit")
+
+
+def _line(done, total, unit, row) -> str:
+    head = f"[{done}/{total}] {unit.case['id']} {unit.label}"
+    if row.get("unit_status") != "ok":
+        return f"{head}: FAILED: {row.get('message', '')}"
+    return (f"{head}: error {row['max_rel_l2']:.3g}, haptic {row['haptic_median_s'] * 1e6:.1f} us median / "
+            f"{row['haptic_p99_s'] * 1e6:.1f} us p99, speed-up {row['speedup']:.3g}, steps "
+            f"{row['n_ok']} ok {row['n_extrapolation']} extrapolated {row['n_beyond_validity']} beyond "
+            f"{row['n_failed']} failed")
+
+
+def write_derived(out: Path, error_metric: str = "max_rel_l2") -> Path | None:
+    """``_derived/pareto.parquet``, ``radius.parquet`` and the plots, replaced atomically."""
+    units = read_units(out)
+    if units.empty:
+        return None
+    from ..reports.sweep_plots import plot_pareto, plot_radius
+
+    cols = ["case", "method", "label", "options", "unit_key", "unit_status", error_metric, "haptic_median_s",
+            "haptic_p99_s", "reconstruct_median_s", "reference_step_s", "speedup", "n_reduced"]
+    pareto = pareto_front(units, error=error_metric)[cols + ["pareto"]].rename(columns={error_metric: "error"})
+    pareto.insert(len(cols), "error_metric", error_metric)
+    radius = units[["case", "method", "label", "options", "unit_key", "x_name"]
+                   + [f"validity_{int(round(t * 100))}pct" for t in TOLERANCES]].copy()
+    final = out / "_derived"
+    tmp = Path(tempfile.mkdtemp(prefix="._derived.", dir=out))
+    try:
+        pareto.to_parquet(tmp / "pareto.parquet", index=False)
+        radius.to_parquet(tmp / "radius.parquet", index=False)
+        plot_pareto(pareto, tmp)
+        plot_radius(radius, tmp)
+        if final.exists():
+            old = out / "._derived.old"
+            shutil.rmtree(old, ignore_errors=True)
+            final.rename(old)
+            shutil.rmtree(old, ignore_errors=True)
+        tmp.rename(final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return final
+

@@ -1,0 +1,139 @@
+"""Training sets of a sweep's case entry, built from cached reference runs.
+
+A case entry of a sweep spec names what its methods learn from (``training``) with a
+``kind`` (the ``training_kinds`` a method declares must include it):
+
+``path``        the scene's reference load path (statics): the initial state and every
+                converged state, the load factor as the parameter (``every = k`` keeps every
+                k-th state counted back from the last).
+``positions``   one reference path per stored load position (``positions = n`` points of
+                the scene's ``[parameters.position]`` range, or a list), each shortened by
+                ``max_load_factor`` / ``load_steps``: ``Training.groups = {s: Training}``
+                for PODI / Grassmann, and all states with ``{position, load_factor}`` as
+                ``snapshots`` for the non-intrusive baselines.
+``trajectory``  the scene's reference time integration (dynamics): stored states and
+                velocities, ``{time, load_factor}`` per state, the dynamics system, the
+                load history and dt; ``runs = [{load_scale = 0.5}, ...]`` adds runs of
+                the scene at other parameters (one trajectory id per run).
+``operators``   no snapshots: the backend (FE) or the dynamics system (1D models) only,
+                for methods that build from operators (PGD).
+
+Every training carries the scene's linear output functionals (``Training.outputs``).
+Reference runs go through the content-hashed cache (:mod:`.reference.cache`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..cases import load
+from ..cases.monitors import linear_outputs
+from ..refsolvers.backends import make_backend
+from ..rom import Training
+from .reference import cached_solve, dynamics_system
+
+__all__ = ["TRAINING_KINDS", "case_scene", "build_training", "lattice_positions", "reference_states"]
+
+TRAINING_KINDS = ("path", "positions", "trajectory", "operators")
+
+
+def case_scene(case: dict):
+    """The scene of a case entry (``name``, ``variant``, ``resolution``)."""
+    return load(case["name"], resolution=case["resolution"], variant=case.get("variant"))
+
+
+def reference_states(ref) -> tuple[np.ndarray, np.ndarray]:
+    """``(states (n_dof, k), steps (k,))`` of a reference result without its initial state."""
+    U = ref.displacement[1:].reshape(len(ref.displacement) - 1, -1).T
+    return np.ascontiguousarray(U), np.asarray(ref.steps[1:], float)
+
+
+def lattice_positions(scene, spec) -> np.ndarray:
+    """The stored positions: ``spec`` points evenly over the scene's position range, or a list."""
+    if "position" not in scene.parameters:
+        raise ValueError(f"{scene.name}: training.kind = 'positions' needs a [parameters.position] table")
+    lo, hi = scene.parameters["position"]["range"]
+    if isinstance(spec, list):
+        return np.asarray(spec, float)
+    return np.linspace(lo, hi, int(spec))
+
+
+def _outputs(scene, problem) -> dict:
+    return linear_outputs(scene, problem) if scene.is_fe else {}
+
+
+def _path(scene, case, spec, info):
+    ref, _ = cached_solve(scene, case["backend"])
+    # the initial state (load factor 0, at rest) belongs to the path: known exactly for free,
+    # it anchors interpolation between the origin and the first converged state
+    U = ref.displacement.reshape(len(ref.displacement), -1).T
+    lams = np.asarray(ref.steps, float)
+    every = int(spec.get("every", 1))
+    keep = np.arange(len(lams))[::-1][::every][::-1]  # always keep the last state
+    be = make_backend(case["backend"], ref.problem)
+    return Training(U[:, keep], [{"load_factor": float(lams[k])} for k in keep], be,
+                    outputs=_outputs(scene, ref.problem), info={**info, "reference_status": ref.status})
+
+
+def positional_scene(scene, s, spec):
+    """The scene with its load at position ``s`` and the path shortened as ``spec`` says."""
+    mu = {"position": float(s)}
+    mu.update({k: spec[k] for k in ("max_load_factor", "load_steps") if k in spec})
+    return scene.at(mu)
+
+
+def _positions(scene, case, spec, info):
+    groups, cols, params = {}, [], []
+    for s in lattice_positions(scene, spec.get("positions", 5)):
+        ref, _ = cached_solve(positional_scene(scene, s, spec), case["backend"])
+        if ref.status != "success":
+            raise RuntimeError(f"{scene.name}: the reference at position {s:g} did not converge: {ref.message}")
+        U, lams = reference_states(ref)
+        be = make_backend(case["backend"], ref.problem)
+        groups[float(s)] = Training(U, [{"load_factor": float(x)} for x in lams], be)
+        cols.append(U)
+        params += [{"position": float(s), "load_factor": float(x)} for x in lams]
+    first = next(iter(groups.values()))
+    return Training(np.hstack(cols), params, first.backend, groups=groups,
+                    outputs=_outputs(scene, first.backend.problem), info=info)
+
+
+def _trajectory(scene, case, spec, info):
+    runs = [{}] + list(spec.get("runs", []))
+    cols, vels, params, ids = [], [], [], []
+    for k, mu in enumerate(runs):
+        ref, _ = cached_solve(scene.at(mu), case["backend"])
+        if ref.status != "success":
+            raise RuntimeError(f"{scene.name}: training run {mu or 'base'} failed: {ref.message}")
+        n = len(ref.steps)
+        cols.append(ref.displacement.reshape(n, -1).T)
+        vels.append(ref.velocity.reshape(n, -1).T)
+        hist = scene.at(mu).history
+        params += [{"time": float(t), "load_factor": float(hist(t))} for t in ref.steps]
+        ids += [k] * n
+    system = dynamics_system(scene, case["backend"])
+    backend = make_backend(case["backend"], scene.to_problem()) if scene.is_fe else None
+    return Training(np.hstack(cols), params, backend, free_dofs=np.asarray(system.free),
+                    velocities=np.hstack(vels), trajectories=np.array(ids), system=system,
+                    history=scene.history, dt=float(scene.analysis["dt"]),
+                    outputs=_outputs(scene, backend.problem) if backend else {}, info=info)
+
+
+def _operators(scene, case, spec, info):
+    if scene.is_fe:
+        pb = scene.to_problem()
+        return Training(backend=make_backend(case["backend"], pb), outputs=_outputs(scene, pb), info=info)
+    return Training(system=dynamics_system(scene) if scene.analysis["type"] == "dynamic" else None,
+                    info={**info, "line_model": scene.line_model()})
+
+
+_BUILDERS = {"path": _path, "positions": _positions, "trajectory": _trajectory, "operators": _operators}
+
+
+def build_training(case: dict, scene=None) -> Training:
+    """The :class:`~tissuebench.rom.Training` of a case entry (module docstring)."""
+    scene = scene or case_scene(case)
+    spec = dict(case["training"])
+    kind = spec.pop("kind")
+    info = {"case": scene.name, "variant": scene.variant, "resolution": scene.resolution,
+            "backend": case["backend"], "training_kind": kind, "scene_hash": scene.content_hash()}
+    return _BUILDERS[kind](scene, case, spec, info)

@@ -1,0 +1,214 @@
+"""Work units of a sweep: plain data (picklable, no closures) and the function that runs one.
+
+A unit is (case entry, method, options) plus the measurement protocol. Its ``key`` is the
+SHA-256 of everything that changes its result: the case entry, the scene's content hash
+(mesh files included), the method and options, the protocol, the source hash of the code
+and the package versions. :func:`run_unit` runs in whatever process an executor picks and
+returns plain rows; it never raises for a failure of the method (the unit's row says
+``unit_status = "failed"`` with the message), so a sweep goes on.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import platform
+import time
+import tracemalloc
+import traceback
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from threadpoolctl import threadpool_limits
+
+from ..rom import make_method, method_class
+from .evaluation import build_evaluation
+from .metrics import output_rows, point_rows, summarise_points
+from .protocol import blas_info, calibration_seconds, drive, reference_step_seconds, time_latency
+from .store import code_hash, git_commit, package_versions
+from .training import build_training, case_scene
+
+__all__ = ["WorkUnit", "UnitOutcome", "unit_key", "options_text", "run_unit", "DEFAULT_PROTOCOL"]
+
+DEFAULT_PROTOCOL = {"latency_steps": 200, "warmup": 20, "blas_threads": 1, "reference_samples": 3, "seed": 0}
+
+
+def options_text(options: dict) -> str:
+    """Canonical JSON of an option set (sorted keys): the same options give the same text."""
+    return json.dumps(options, sort_keys=True, separators=(",", ":"))
+
+
+def unit_key(case: dict, scene_hash: str, method: str, options: dict, protocol: dict) -> str:
+    """SHA-256 identifying a unit's result (module docstring)."""
+    content = {"case": case, "scene": scene_hash, "method": method, "options": options, "protocol": protocol,
+               "code": code_hash(), "versions": package_versions()}
+    return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class WorkUnit:
+    """One (case entry, method, options) of a sweep, with its protocol and key."""
+
+    case: dict
+    method: str
+    options: dict
+    protocol: dict
+    spec: dict
+    key: str
+    parent_options: dict | None = None  # nested options at their group maximum: built once, sliced
+
+    @property
+    def label(self) -> str:
+        opts = " ".join(f"{k}={v}" for k, v in sorted(self.options.items()))
+        return f"{self.method} {opts}".strip()
+
+    @property
+    def identity(self) -> tuple:
+        """What the unit measures, whatever the code version: (case id, method, options)."""
+        return self.case["id"], self.method, options_text(self.options)
+
+
+@dataclass
+class UnitOutcome:
+    row: dict
+    points: list = field(default_factory=list)
+    outputs: list = field(default_factory=list)
+
+
+def _nbytes(obj, seen=None, depth=0) -> int:
+    """Bytes of the numpy arrays an online model holds (not its backend or problem)."""
+    seen = set() if seen is None else seen
+    if id(obj) in seen or depth > 4:
+        return 0
+    seen.add(id(obj))
+    if isinstance(obj, np.ndarray):
+        return int(obj.nbytes)
+    if isinstance(obj, dict):
+        return sum(_nbytes(v, seen, depth + 1) for v in obj.values())
+    if isinstance(obj, (list, tuple)):
+        return sum(_nbytes(v, seen, depth + 1) for v in obj)
+    if hasattr(obj, "__dict__") and type(obj).__module__.startswith("tissuebench.rom"):
+        return sum(_nbytes(v, seen, depth + 1) for k, v in vars(obj).items() if k not in ("backend", "problem"))
+    return 0
+
+
+def _base_row(unit: WorkUnit) -> dict:
+    c = unit.case
+    return {"unit_key": unit.key, "case": c["id"], "case_name": c["name"], "variant": c.get("variant") or "",
+            "resolution": c["resolution"], "backend": c["backend"], "method": unit.method,
+            "kind": method_class(unit.method).kind, "options": options_text(unit.options), "label": unit.label,
+            "spec_name": unit.spec["name"], "spec_hash": unit.spec["hash"]}
+
+
+def _provenance_row() -> dict:
+    v = package_versions()
+    return {"git_commit": git_commit(), "code_hash": code_hash(), "tissuebench": v.get("tissuebench"),
+            "numpy": v.get("numpy"), "scipy": v.get("scipy"), "machine": platform.node(),
+            "python": platform.python_version(),
+            "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
+
+
+def run_unit(unit: WorkUnit) -> UnitOutcome:
+    """Build, drive, time and measure one unit (see :mod:`.protocol`); failures become a row."""
+    row = {**_base_row(unit), **_provenance_row()}
+    threads = unit.protocol.get("blas_threads") or None
+    try:
+        with threadpool_limits(limits=threads, user_api="blas"):
+            row.update(_measure(unit, row))
+            row.update(unit_status="ok", message="")
+            return UnitOutcome(row, row.pop("_points"), row.pop("_outputs"))
+    except Exception as exc:  # a method that raises is a stored result, not the end of the sweep
+        tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
+        row.pop("_points", None), row.pop("_outputs", None)
+        row.update(unit_status="failed", message=f"{tb} (in {_where(exc)})")
+        return UnitOutcome(row)
+
+
+def _where(exc) -> str:
+    frames = traceback.extract_tb(exc.__traceback__)
+    return f"{frames[-1].filename.split('tissuebench/')[-1]}:{frames[-1].lineno}" if frames else "?"
+
+
+def _measure(unit: WorkUnit, row: dict) -> dict:
+    p = unit.protocol
+    scene = case_scene(unit.case)
+    training = build_training(unit.case, scene)
+    evaluation = build_evaluation(unit.case, scene)
+    model, offline, peak = _build(unit, training)
+    if training.outputs:
+        model.attach_outputs(training.outputs)
+    history = training.history or (scene.history if evaluation.kind == "trajectory" else None)
+    driven = drive(model, evaluation, history)
+    points = pd.DataFrame(point_rows(evaluation, driven))
+    outputs = pd.DataFrame(output_rows(evaluation, driven), columns=["point", "x", "monitor", "reference", "rom",
+                                                                       "rel_error"])
+    lat = time_latency(model, evaluation, history, int(p["latency_steps"]), int(p["warmup"]), int(p["seed"]))
+    ref_step = reference_step_seconds(evaluation, unit.case["backend"], int(p["reference_samples"]))
+    calib = calibration_seconds()
+    h, r = lat["haptic"], lat["reconstruct"]
+    n_dof = len(evaluation.points[0].reference) if evaluation.points and evaluation.points[0].reference is not None \
+        else int(getattr(model, "ndof", 0))
+    return {**summarise_points(points, outputs, evaluation, driven.fields),
+            "n_dof": n_dof, "n_reduced": int(model.n_reduced), "n_training_snapshots":
+                0 if training.snapshots is None else int(training.snapshots.shape[1]),
+            "haptic_median_s": h.median, "haptic_p99_s": h.p99, "haptic_n": h.n,
+            "reconstruct_median_s": r.median if r else np.nan, "reconstruct_p99_s": r.p99 if r else np.nan,
+            "reference_step_s": ref_step, "speedup": ref_step / h.median if h.median > 0 else np.nan,
+            "calibration_s": calib, "haptic_per_calibration": h.median / calib, **blas_info(),
+            "offline_s": offline, "build_peak_bytes": int(peak), "model_bytes": _nbytes(model),
+            "scene_hash": scene.content_hash(), "model_info": json.dumps(_jsonable(getattr(model, "info", {}))),
+            "_points": points.to_dict("records"), "_outputs": outputs.to_dict("records")}
+
+
+_PARENTS: OrderedDict = OrderedDict()  # per process: nested parents (model, build seconds, peak bytes)
+
+
+def _timed_build(method, options, training):
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    model = make_method(method, **options).build(training)
+    seconds = time.perf_counter() - t0
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return model, seconds, peak
+
+
+def _build(unit: WorkUnit, training):
+    """``(model, offline seconds, peak bytes)``. A unit whose nested options (``RomMethod.nested``,
+    e.g. n_modes and order of ANM-POD) are below its group's maximum is sliced from the group's
+    model built once per process (``variant``: leading POD modes, sliced tensors; the same model
+    as a fresh build); its offline time is then the parent's build plus the slicing."""
+    parent_opts = unit.parent_options
+    if not parent_opts or parent_opts == unit.options:
+        return _timed_build(unit.method, unit.options, training)
+    key = (unit.case["id"], training.info.get("scene_hash"), unit.method, options_text(parent_opts))
+    if key not in _PARENTS:
+        _PARENTS[key] = _timed_build(unit.method, parent_opts, training)
+        while len(_PARENTS) > 2:
+            _PARENTS.popitem(last=False)
+    parent, seconds, peak = _PARENTS[key]
+    if not hasattr(parent, "variant"):
+        return _timed_build(unit.method, unit.options, training)
+    t0 = time.perf_counter()
+    model = parent.variant(**unit.options)
+    model.info = {**getattr(model, "info", {}), "sliced_from": parent_opts}
+    return model, seconds + time.perf_counter() - t0, peak
+
+
+def _jsonable(obj, depth=0):
+    """Scalars, strings and small lists of a model's info dict (arrays and objects summarised)."""
+    if depth > 3:
+        return str(type(obj).__name__)
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v, depth + 1) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v, depth + 1) for v in obj[:50]]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist() if obj.size <= 50 else f"array{obj.shape}"
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    if isinstance(obj, (str, int, float, bool)) or obj is None:
+        return obj
+    return type(obj).__name__
