@@ -224,7 +224,7 @@ def table1(out, resolution, cubature="bgbc", handles=None, elements=None, extra=
 def table3(out, rows=None):
     """App. B: the other two cube resolutions (our box divisions), the paper's (handles, elements)."""
     frames = []
-    divisions = load(CUBE, variant="tension_dynamic").methods["wsc"]["resolutions"]
+    divisions = load(CUBE, variant="tension_dynamic").paper["methods"]["wsc"]["resolutions"]
     for level, paper_rows in PAPER_TABLE3.items():
         scene = scene_at(CUBE, "tension_dynamic", "paper", divisions[level])
         be = make_backend("skfem", scene.to_problem())
@@ -243,7 +243,7 @@ def lv(out, resolution, configs=None):
     be = make_backend("skfem", scene.to_problem())
     ref = reference(scene, out, f"lv_{resolution}")
     fe = fe_step_times(scene, be)
-    wsc = scene.methods["wsc"]
+    wsc = scene.paper["methods"]["wsc"]
     configs = configs or [dict(handles=wsc["handles"], cubature_elements=wsc["cubature_elements"])]
     rows = []
     for opts in configs:
