@@ -261,7 +261,8 @@ class WscModel(OnlineModel):
         lam0 = float(mu0.get("load_factor", 0.0)) if mu0 else 0.0
         self.t = float(mu0.get("time", 0.0)) if mu0 else 0.0
         nz, nb = self.sub.n_z, 12 * self.sub.n_groups
-        if state0 is None:
+        at_rest = state0 is None or (not np.any(state0["u"]) and not np.any(state0.get("v", 0.0)))
+        if at_rest:  # no projection needed (the harness passes the reference's zero initial state)
             z0, v0, qb0, vb0 = np.zeros(nz), np.zeros(nz), self.prescribed_q(lam0), np.zeros(nb)
         else:
             z0, qb0 = self.project(state0["u"])

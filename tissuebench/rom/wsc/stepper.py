@@ -161,7 +161,8 @@ class ReducedStepper:
         self.z, self.v = np.array(z0, float), np.array(v0, float)
         self.qb, self.vb, self.ab = np.array(qb0, float), np.array(vb0, float), np.zeros(len(qb0))
         q = self.sub.q_of(self.z, self.qb)
-        self.E, _, self.fz = self.f_z(q)
+        self.E, fq, self.fz = self.f_z(q)
+        self.fq_norm = float(np.linalg.norm(fq))
         self.fext = self.external_z(lam0, q)
         rhs = self.fext - self.fz - (self.M_zb @ self.ab if self.M_zb.shape[1] else 0.0)
         self.a = spla.spsolve(sp.csc_matrix(self.M_z), rhs) if np.any(rhs) else np.zeros_like(self.z)
@@ -181,13 +182,17 @@ class ReducedStepper:
         zt = sch.predicted(dt, self.z, self.v, self.a)
         c_m = sch.c_m(dt)
         z = self.z + dt * self.v + 0.5 * dt * dt * self.a
-        r_ref = max(np.linalg.norm(self.fz), np.linalg.norm(fext1), np.linalg.norm(self.M_z @ self.a), 1e-300)
+        # the force scale of the step; |f_q| includes the support reaction on the prescribed
+        # boundary dofs, which keeps the scale when the free forces balance (a held stretch)
+        r_ref = max(np.linalg.norm(self.fz), self.fq_norm, np.linalg.norm(fext1), np.linalg.norm(self.M_z @ self.a),
+                    1e-300)
         run = self._lbfgs if self.solver == "lbfgs" else self._newton
         ok, z, E, fz, info = run(z, zt, c_m, lin, qb1, r_ref)
         if not ok:
             return False, info["message"], info
         v1, a1 = sch.kinematics(dt, z, self.z, self.v, self.a)
         self.z, self.v, self.a, self.E, self.fz, self.fext = z, v1, a1, E, fz, fext1
+        self.fq_norm = info.pop("fq_norm", self.fq_norm)
         self.qb, self.vb, self.ab = qb1, vb1, ab1
         self.q = self.sub.q_of(z, qb1)
         return True, "", info
@@ -196,7 +201,8 @@ class ReducedStepper:
     def _phi(self, z, zt, c_m, lin, qb1):
         """(Phi, gradient, E, f_z) at z."""
         al = self.scheme.alpha
-        E, _, fz = self.f_z(self.sub.q_of(z, qb1))
+        E, fq, fz = self.f_z(self.sub.q_of(z, qb1))
+        self._last_fq_norm = float(np.linalg.norm(fq))
         dz = z - zt
         Mdz = self.M_z @ dz
         phi = 0.5 * c_m * dz @ Mdz + lin @ z + (1.0 + al) * E
@@ -210,6 +216,7 @@ class ReducedStepper:
             if np.isfinite(phi):
                 z = start
                 break
+        fq_norm = self._last_fq_norm
         tol = self.rtol * max(r_ref, np.linalg.norm(g))
         S, Y, evals = [], [], 1
         for it in range(self.max_iter + 1):
@@ -219,7 +226,7 @@ class ReducedStepper:
                                                     f"iteration {it}", "iterations": it, "evaluations": evals}
             if gn <= tol:
                 return True, z, E, fz, {"iterations": it, "evaluations": evals, "residual": gn, "converged": True,
-                                        "solve_s": time.perf_counter() - tic}
+                                        "solve_s": time.perf_counter() - tic, "fq_norm": fq_norm}
             if it == self.max_iter:
                 break
             d = -self._two_loop(g, S, Y)
@@ -250,7 +257,7 @@ class ReducedStepper:
                 if len(S) > self.memory:
                     S.pop(0)
                     Y.pop(0)
-            z, phi, g, E, fz = z1, phi1, g1, E1, fz1
+            z, phi, g, E, fz, fq_norm = z1, phi1, g1, E1, fz1, self._last_fq_norm
         info = {"message": f"L-BFGS did not converge in {self.max_iter} iterations (|R| = {gn:.3e}, tolerance "
                            f"{tol:.3e})", "iterations": self.max_iter, "evaluations": evals, "residual": gn,
                 "converged": False, "solve_s": time.perf_counter() - tic}
@@ -287,7 +294,7 @@ class ReducedStepper:
             if gn <= tol or small_step:  # the step-size test of the full-order Newton (utol = 1e-12)
                 E = self.forces.energy_and_force(q)[0]
                 return True, z, E, fz, {"iterations": it, "evaluations": it + 1, "residual": gn, "converged": True,
-                                        "solve_s": time.perf_counter() - tic}
+                                        "solve_s": time.perf_counter() - tic, "fq_norm": float(np.linalg.norm(fq))}
             if it == self.max_iter:
                 break
             K_z = (T.T @ (T.T @ K.T).T)
