@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from tests._fe_helpers import BACKEND_PARAMS, element_mesh
+from tests._fe_helpers import BACKEND_PARAMS, MATERIAL_NAMES, element_mesh, material_set
 from tissuebench.refsolvers import Dirichlet, Guccione, MooneyRivlin, Problem
 from tissuebench.refsolvers.backends import make_backend
 
@@ -110,3 +110,13 @@ def test_bad_cells_and_local_shapes(backend):
     k = be.cell_kernel([1, 2])
     with pytest.raises(ValueError, match=r"u_loc must have shape \(2, 12\)"):
         k.energies_and_forces(np.zeros((3, 12)))
+
+
+@pytest.mark.parametrize("name", MATERIAL_NAMES)
+def test_fused_energy_and_stress_equals_the_separate_kernels(name):
+    mat = material_set()[name]
+    F = np.eye(3) + 0.2 * np.random.default_rng(7).standard_normal((50, 2, 3, 3))
+    F = F[np.all(np.linalg.det(F) > 0.2, axis=1)]  # (cells, qp, 3, 3), no inverted point
+    W, P = mat.energy_and_stress(F)
+    assert np.allclose(W, mat.energy(F), rtol=1e-12, atol=1e-14)
+    assert np.allclose(P, mat.stress(F), rtol=1e-11, atol=1e-13)
