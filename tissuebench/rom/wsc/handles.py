@@ -59,7 +59,8 @@ def resolve_count(value, n_total: int, name: str) -> int:
     return count
 
 
-def furthest_point_sampling(points, count: int, seed: int = 0, sources=None) -> Sampling:
+def furthest_point_sampling(points, count: int, seed: int = 0, sources=None, sources_as_picks: bool = True) \
+        -> Sampling:
     """Pick ``count`` of ``points`` (n, 3) by furthest-point sampling.
 
     Parameters
@@ -71,7 +72,8 @@ def furthest_point_sampling(points, count: int, seed: int = 0, sources=None) -> 
     seed : int
         Seed of the first pick (a uniformly random candidate).
     sources : sequence of (m_i,) int arrays, optional
-        Point sets treated as already picked (their points are never picked).
+        Point sets whose points are never picked; with ``sources_as_picks`` they also count
+        as already picked (the picks keep away from them).
 
     Returns
     -------
@@ -85,7 +87,8 @@ def furthest_point_sampling(points, count: int, seed: int = 0, sources=None) -> 
     for src in sources or ():
         src = np.asarray(src, dtype=np.int64)
         if src.size:
-            dist = np.minimum(dist, cKDTree(X[src]).query(X)[0])
+            if sources_as_picks:
+                dist = np.minimum(dist, cKDTree(X[src]).query(X)[0])
             blocked[src] = True
     available = int((~blocked).sum())
     if not 1 <= int(count) <= available:
@@ -97,7 +100,7 @@ def furthest_point_sampling(points, count: int, seed: int = 0, sources=None) -> 
     separation = np.inf
     for k in range(int(count)):
         if k:
-            picks[k] = int(np.argmax(dist))
+            picks[k] = int(np.argmax(np.where(blocked, -np.inf, dist)))
             separation = min(separation, float(dist[picks[k]]))
         dist = np.minimum(dist, np.linalg.norm(X - X[picks[k]], axis=1))
     if len(picks) > 1:  # the seeded first pick may lie closer to a later one than the FPS radii
