@@ -365,10 +365,12 @@ def pareto_plot(frames, path):
     ax.scatter(p[:, 3], p[:, 2], marker="x", c="grey", label="paper Table 1 (C++, Xeon E5-1603)")
     markers = {"bgbc": "o", "nnls": "s", "full": "^"}
     for df in frames:
-        ok = df[df["status"] == "ok"]
-        for scheme, g in ok.groupby("opt_cubature"):
+        ok = df[df["status"] == "ok"].copy()
+        ok["trained_on"] = ok.get("trained_on", "").fillna("") if "trained_on" in ok else ""
+        for (scheme, part, trained), g in ok.groupby(["opt_cubature", "part", "trained_on"]):
+            how = {"tension_dynamic": ", in-sample", "twist_dynamic": ", trained on twist"}.get(trained, "")
             ax.scatter(1e3 * g["step_median_s"], 100 * g["rmse"], marker=markers.get(scheme, "o"),
-                       label=f"ours, {scheme} (median step)")
+                       label=f"ours: {part}, {scheme}{how}")
     ax.axhline(2.5, ls=":", c="k", lw=0.8)
     ax.axvline(2.0, ls=":", c="k", lw=0.8)
     ax.set_xscale("log")
