@@ -10,7 +10,6 @@ import math
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
 from tissuebench.cases.assembly import rotation_motion
 from tissuebench.cases.meshes import box_mesh

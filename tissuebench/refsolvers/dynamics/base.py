@@ -8,9 +8,10 @@ fixed step ``dt`` at a time (like SciPy's ``integrate._ivp.base.OdeSolver``).
 State after ``start`` / each successful ``step`` (free dofs only, shape (n_free,)):
 ``t`` [s], ``u`` [m], ``v`` [m/s], ``a`` [m/s^2], plus ``f_ext`` and ``f_int`` [N]
 at that state; the fixed dofs carry ``uc``, ``vc``, ``ac`` (shape (n_fixed,)), zero
-unless the system prescribes a motion (see :mod:`.system`). A step that fails (Newton divergence, non-finite values) leaves the
-state unchanged and says so in its :class:`StepReport`; it never raises. Bad input
-(dt <= 0, options out of range, wrong shapes, a non-finite load) raises ValueError.
+unless the system prescribes a motion (see :mod:`.system`). A step that fails (Newton
+divergence, non-finite values) leaves the state unchanged and says so in its
+:class:`StepReport`; it never raises. Bad input (dt <= 0, options out of range, wrong
+shapes, a non-finite load) raises ValueError.
 """
 from __future__ import annotations
 

@@ -9,8 +9,9 @@ For sample elements ``e`` with weights ``w_e`` (:mod:`.cubature`)::
 ``U_e q`` is gathered through the skinning weights of the element nodes: the blended
 affine map of node i, ``B_i = sum_j w_ij A_j`` (a sparse (a m) x k product with the
 12 entries of every A_j), applied to ``[1, X_i]``; the force goes back the same way,
-``f_A[j] = sum_i w_e w_ij [1, X_i] (x) f_i``. No full-size vector is formed. Element energies, force vectors and tangents come
-from the backend's :meth:`~tissuebench.refsolvers.backends.base.Backend.cell_kernel`.
+``f_A[j] = sum_i w_e w_ij [1, X_i] (x) f_i``. No full-size vector is formed. Element
+energies, force vectors and tangents come from the backend's
+:meth:`~tissuebench.refsolvers.backends.base.Backend.cell_kernel`.
 """
 from __future__ import annotations
 
