@@ -179,8 +179,9 @@ def model_nbytes(model) -> int:
     return int(total)
 
 
-def measure(scene, backend, ref, options, warmup=20, training=None) -> dict:
-    """Build, time and compare one ROM configuration; returns a table row (dict)."""
+def measure(scene, backend, ref, options, warmup=20, training=None, keep_dofs=None) -> dict:
+    """Build, time and compare one ROM configuration; returns a table row (dict). With
+    ``keep_dofs`` the row also holds ``series``: the ROM's values of those dofs per step."""
     row = {"case": scene.name, "variant": scene.variant, **{f"opt_{k}": v for k, v in options.items()}}
     tic = time.perf_counter()
     try:
@@ -214,6 +215,8 @@ def measure(scene, backend, ref, options, warmup=20, training=None) -> dict:
         row["status"], row["rmse"] = "failed", np.nan
         return row
     U = np.array([model.reconstruct(r) for r in results])
+    if keep_dofs is not None:
+        row["series"] = U[:, keep_dofs]
     R = ref["u"][1:len(U) + 1]
     row["rmse"] = float(np.sqrt(np.sum((U - R) ** 2) / np.sum(R ** 2)))
     row["final_rel_l2"] = float(np.linalg.norm(U[-1] - R[-1]) / np.linalg.norm(R[-1]))
@@ -301,15 +304,39 @@ def lv(out, resolution, configs=None, extra=None):
     configs = configs or [dict(handles=wsc["handles"], cubature_elements=wsc["cubature_elements"]),
                           dict(handles=60, cubature_elements=600), dict(handles=30, cubature_elements=400)]
     configs = [dict(c, **(extra or {})) for c in configs]
-    rows = []
+    apex = int(np.argmin(np.linalg.norm(be.problem.nodes - [0.0, 0.0, -17.0], axis=1)))  # endocardial apex
+    rows, series = [], {}
     for opts in configs:
         if resolution == "ci":
             opts = dict(opts, handles=max(4, opts["handles"] * be.problem.mesh.n_vertices // 15699),
                         cubature_elements=max(20, opts["cubature_elements"] * be.problem.mesh.n_cells // 61659))
-        row = with_fe(measure(scene, be, ref, opts), fe)
+        row = with_fe(measure(scene, be, ref, opts, keep_dofs=[3 * apex + 2]), fe)
+        if "series" in row:
+            series[f"wsc {row['handles']} handles, {row['cubature_elements']} elements"] = row.pop("series")[:, 0]
         rows.append(row)
         _progress(row)
+    lv_plot(ref, 3 * apex + 2, series, out / f"lv_{resolution}.png")
     return pd.DataFrame(rows)
+
+
+def lv_plot(ref, dof, series, path):
+    """Apex (endocardium) displacement along the axis versus time: FE and the ROMs."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.8))
+    ax.plot(ref["t"], ref["u"][:, dof], "k-", lw=2, label="FE (backward Euler)")
+    for label, values in series.items():
+        ax.plot(ref["t"][1:len(values) + 1], values, "--", label=label)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("apex displacement u_z [mm]")
+    ax.set_title("left ventricle, dynamic inflation to 0.5 kPa (ramp 0.2 s)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
 
 
 def drift(out, resolution, options, horizon_factor=10):
