@@ -63,7 +63,8 @@ def integrate(system, u0, v0, dt, t_end, method="newmark", t0=0.0, store_every=1
         raise ValueError(f"blowup_factor must be a finite number > 1, got {blowup_factor!r}")
     integ = make_integrator(method, **opts)
     integ.start(system, u0, v0, dt, t0)
-    rec = Recorder(system, integ.mass_ff, n, dofs, store_every, integ.damping_force, integ.mass_full)
+    rec = Recorder(system, integ.mass_ff, n, dofs, store_every, integ.damping_force,
+                   integ.mass_full if system.has_prescribed else None)
     rec.record(integ.t, integ.u, integ.v, integ.a, integ.f_ext, integ.f_int,
                constrained=(integ.uc, integ.vc, integ.ac))
     observations = [] if observe is None else [observe(integ.t, integ.full_u())]

@@ -88,7 +88,8 @@ class CentralDifference(Integrator):
 
     @property
     def mass_full(self):
-        return sp.diags(lumped_mass(self.system.M))
+        # row sums of all dofs (a massless fixed dof is allowed here: only kinetic energy uses it)
+        return sp.diags(np.asarray(sp.csr_matrix(self.system.M).sum(axis=1)).ravel())
 
     def _setup(self):
         self._m = lumped_mass(self.system.M_ff)
@@ -169,7 +170,9 @@ class ForwardEuler(Integrator):
 
     @property
     def mass_full(self):
-        return sp.diags(lumped_mass(self.system.M)) if self.lumped else self.system.M
+        if not self.lumped:
+            return self.system.M
+        return sp.diags(np.asarray(sp.csr_matrix(self.system.M).sum(axis=1)).ravel())
 
     def _check_prescribed_support(self):
         if self.system.has_prescribed and not self.lumped:
