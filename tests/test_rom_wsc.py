@@ -257,3 +257,14 @@ def test_a_step_the_reduced_solver_cannot_converge_is_a_failed_result(small_mode
     res = capped.step({"time": 0.05, "load_factor": 0.5})
     assert res.status == "ok" and res.q is not None and not res.info["converged"]
     assert "kept unconverged" in res.message and res.info["residual"] > 0
+
+
+@pytest.mark.ngsolve
+def test_the_rom_on_either_backend_is_the_same_model():
+    pb = bar_problem(divisions=(6, 2, 2))
+    out = []
+    for name in ("skfem", "ngsolve"):
+        model = make_method("wsc", handles=6, cubature="bgbc", cubature_elements=60, rtol=1e-10).build(
+            Training(backend=make_backend(name, pb), dt=0.05))
+        out.append(np.array([r.q for r in run_rom(model, [0.05, 0.1, 0.15])]))
+    assert np.abs(out[0] - out[1]).max() <= 1e-8 * np.abs(out[0]).max()
