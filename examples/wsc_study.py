@@ -167,7 +167,7 @@ def model_nbytes(model) -> int:
             total += a.nbytes
 
     st, sub, f = model.stepper, model.sub, model.stepper.forces
-    for a in (sub.weights, sub.phi, sub.Z, sub.P, sub.N, st.M_q, st.M_z, st.M_zb, f.W, f.WT_w, f.Xt, f.w,
+    for a in (sub.weights, sub.phi, sub.P, sub.N, st.M_q, st.M_z, st.M_zb, f.W, f.WT_w, f.Xt, f.w,
               f.kernel.grad, f.kernel._G, f.kernel.dx):
         add(a)
     for H in st._H.values():
@@ -193,7 +193,7 @@ def measure(scene, backend, ref, options, warmup=20, training=None, keep_dofs=No
     info = model.info
     row.update({f"offline_{k}": v for k, v in info["offline"].items()})
     row.update(handles=info["handles"], n_z=info["n_z"], cubature_elements=info["cubature_elements"],
-               redundant_removed=info["redundant_removed"], linear_solver=info["linear_solver"],
+               linear_solver=info["linear_solver"],
                vertices=info["mesh"]["vertices"], cells=info["mesh"]["cells"])
     for k in ("heldout_error", "train_error"):
         if k in info["cubature_info"]:

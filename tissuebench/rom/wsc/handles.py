@@ -82,7 +82,7 @@ def furthest_point_sampling(points, count: int, seed: int = 0, sources=None, sou
     X = np.asarray(points, dtype=float)
     if X.ndim != 2 or X.shape[1] != 3 or not np.all(np.isfinite(X)):
         raise ValueError(f"points must be a finite (n, 3) array, got shape {X.shape}")
-    dist = np.full(len(X), np.inf)
+    dist = np.full(len(X), np.inf)  # distance to the nearest pick (squared in the loop below)
     blocked = np.zeros(len(X), dtype=bool)
     for src in sources or ():
         src = np.asarray(src, dtype=np.int64)
@@ -98,11 +98,15 @@ def furthest_point_sampling(points, count: int, seed: int = 0, sources=None, sou
     picks = np.empty(int(count), dtype=np.int64)
     picks[0] = rng.choice(np.flatnonzero(~blocked))
     separation = np.inf
+    dist = dist ** 2
+    dist[blocked] = -np.inf  # never picked (their own distances are not needed)
     for k in range(int(count)):
         if k:
-            picks[k] = int(np.argmax(np.where(blocked, -np.inf, dist)))
-            separation = min(separation, float(dist[picks[k]]))
-        dist = np.minimum(dist, np.linalg.norm(X - X[picks[k]], axis=1))
-    if len(picks) > 1:  # the seeded first pick may lie closer to a later one than the FPS radii
+            picks[k] = int(np.argmax(dist))
+        D = X - X[picks[k]]
+        np.minimum(dist, np.einsum("ij,ij->i", D, D), out=dist, where=~blocked)
+    if len(picks) > 1:
         separation = float(cKDTree(X[picks]).query(X[picks], k=2)[0][:, 1].min())
-    return Sampling(picks, float(dist.max()), separation)
+    # covering radius over the pickable points (a blocked one is covered by its own set)
+    covering = float(np.sqrt(max(dist.max(), 0.0)))
+    return Sampling(picks, covering, separation)

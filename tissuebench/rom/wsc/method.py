@@ -13,7 +13,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..base import RomMethod, Training, register
 from .cubature import bgbc_cubature, cell_centroids, full_cubature
@@ -155,14 +154,13 @@ class Wsc(RomMethod):
         sub = Subspace(pb.nodes, W, len(groups), pb.fixed_dofs)
         _check_prescribed_affine(sub, pb)
         M = be.mass()
-        removed = sub.remove_redundancy(M)
         timings["weights_s"] = time.perf_counter() - tic
         tic = time.perf_counter()
         budget = resolve_count(o["cubature_elements"], mesh.n_cells, "cubature_elements")
         cub = self._cubature(o, budget, be, sub, training)
         timings["cubature_s"] = time.perf_counter() - tic
         tic = time.perf_counter()
-        M_q = sp.csr_matrix(sub.U.T @ (M @ sub.U))
+        M_q = sub.reduced_matrix(M)
         loads = ReducedLoads(sub, be)
         forces = CubatureForces(sub, be, cub)
         linear = o["linear_solver"]
@@ -173,7 +171,6 @@ class Wsc(RomMethod):
                                  o["memory"], linear, accept_unconverged=o["on_max_iter"] == "accept")
         timings["operators_s"] = time.perf_counter() - tic
         info = {"handles": k, "boundary_handles": len(groups), "n_q": sub.n_q, "n_z": sub.n_z,
-                "redundant_removed": removed,
                 "covering_radius": fps.covering_radius, "separation": fps.separation, "support_radius": radius,
                 "cubature": cub.scheme, "cubature_elements": cub.size, "cubature_info": cub.info,
                 "linear_solver": linear, "offline": timings, "handle_vertices": fps.indices,

@@ -31,6 +31,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .schemes import SCHEMES, Scheme, StepMatrix, make_scheme  # noqa: F401  (re-exported)
+from .subspace import regularised
 
 __all__ = ["SCHEMES", "SOLVERS", "Scheme", "ReducedStepper", "make_scheme"]
 
@@ -91,8 +92,8 @@ class ReducedStepper:
         if key not in self._H:
             _, K = self.forces.force_and_tangent(q)
             T = self.sub.T
-            K_z = T.T @ (T.T @ K.T).T if sp.issparse(T) else T.T @ K @ T
-            H = self.scheme.c_m(dt) * self.M_z.toarray() + (1.0 + self.scheme.alpha) * np.asarray(K_z)
+            K_z = T.T @ (T.T @ K.T).T
+            H = regularised(self.scheme.c_m(dt) * self.M_z.toarray() + (1.0 + self.scheme.alpha) * np.asarray(K_z))
             self._H[key] = StepMatrix(sp.csr_matrix(H) if self.linear_solver == "sparse" else H,
                                        self.linear_solver)
         return self._H[key]
@@ -108,7 +109,7 @@ class ReducedStepper:
         self.fq_norm = float(np.linalg.norm(fq))
         self.fext = self.external_z(lam0, q)
         rhs = self.fext - self.fz - (self.M_zb @ self.ab if self.M_zb.shape[1] else 0.0)
-        self.a = spla.spsolve(sp.csc_matrix(self.M_z), rhs) if np.any(rhs) else np.zeros_like(self.z)
+        self.a = spla.spsolve(sp.csc_matrix(regularised(self.M_z)), rhs) if np.any(rhs) else np.zeros_like(self.z)
         self.H = self.step_matrix(self.dt, q) if self.solver == "lbfgs" else None
         self.q = q
 
@@ -241,7 +242,7 @@ class ReducedStepper:
             if it == self.max_iter:
                 break
             K_z = (T.T @ (T.T @ K.T).T)
-            J = c_m * Mz + (1.0 + al) * np.asarray(K_z)
+            J = regularised(c_m * Mz + (1.0 + al) * np.asarray(K_z))
             try:
                 dz = sla.solve(J, g, assume_a="sym", check_finite=False)
                 z = z - dz

@@ -20,11 +20,12 @@ boundary handle cannot reproduce (not affine on its set) is refused at build tim
 
 Redundancy: the 12 k columns of ``U T`` are independent only if every handle's support
 holds enough affinely independent nodes (``4 k`` columns of ``phi`` against n nodes;
-with a handle on every vertex each handle contributes one direction, not four).
-:meth:`Subspace.remove_redundancy` tests the reduced mass ``T^T U^T M U T`` by a
-pivoted Cholesky factorisation and, if it is (numerically) singular, restricts the
-free coordinates to its range: ``z = Z y`` with ``Z`` its eigenvectors of eigenvalue
-above ``1e-10`` times the largest (dense; only built when needed).
+with a handle on every vertex each handle contributes one direction, not four). A
+redundant direction moves no node: forces and the mass have no component along it, so
+it is harmless in the dynamics; the solves with the reduced mass and the step matrix are
+regularised (:data:`REGULARISATION` times their largest diagonal entry) instead of
+restricting the coordinates (which would make ``T`` dense). The converged states are
+defined by the residual, which the regularisation does not touch.
 """
 from __future__ import annotations
 
@@ -34,7 +35,18 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-__all__ = ["Subspace"]
+__all__ = ["Subspace", "MassProjector", "REGULARISATION", "regularised"]
+
+#: relative shift of the reduced mass and step matrices (see the module docstring)
+REGULARISATION = 1e-10
+
+
+def regularised(A):
+    """``A + REGULARISATION * max(diag A) * I`` (dense or sparse, symmetric positive semidefinite A)."""
+    shift = REGULARISATION * float(np.max(A.diagonal()))
+    if sp.issparse(A):
+        return sp.csr_matrix(A + shift * sp.identity(A.shape[0]))
+    return A + shift * np.eye(len(A))
 
 
 class Subspace:
@@ -59,7 +71,6 @@ class Subspace:
         self.n_groups = int(n_groups)
         self.n_free_handles = self.n_handles - self.n_groups
         self.fixed_dofs = np.asarray(fixed_dofs, dtype=np.int64)
-        self.Z = None  # range restriction of the free coordinates (see remove_redundancy)
         Xt = np.column_stack([np.ones(len(self.nodes)), self.nodes])  # [1, X]
         W = self.weights.tocoo()
         rows = np.repeat(W.row, 4)
@@ -79,14 +90,9 @@ class Subspace:
         return 12 * self.n_handles
 
     @property
-    def n_z0(self) -> int:
-        """Free handle dofs plus the free part of the boundary handles (before redundancy removal)."""
-        return 12 * self.n_free_handles + self.N.shape[1]
-
-    @property
     def n_z(self) -> int:
-        """Free reduced coordinates."""
-        return self.n_z0 if self.Z is None else self.Z.shape[1]
+        """Free reduced coordinates: the free handles' dofs and the free part of the boundary handles."""
+        return 12 * self.n_free_handles + self.N.shape[1]
 
     @cached_property
     def U(self) -> sp.csr_matrix:
@@ -127,45 +133,34 @@ class Subspace:
         return float(np.linalg.norm(self._Uc @ (self.P @ g) - g) / den) if np.any(g) else 0.0
 
     @cached_property
-    def T0(self) -> sp.csr_matrix:
-        """Identity on the free handles, N on the boundary handles, shape (n_q, n_z0)."""
+    def T(self) -> sp.csr_matrix:
+        """``q = T z + lift(q_p)``: identity on the free handles, N on the boundary handles, (n_q, n_z)."""
         nf = 12 * self.n_free_handles
         return sp.csr_matrix(sp.block_diag([sp.identity(nf), sp.csr_matrix(self.N)], format="csr"))
 
-    @property
-    def T(self):
-        """``q = T z + lift(q_p)``: ``T0`` (sparse) or ``T0 Z`` (sparse times dense)."""
-        return self.T0 if self.Z is None else sp.csr_matrix(self.T0 @ self.Z)
-
-    def remove_redundancy(self, mass, rtol: float = 1e-10) -> int:
-        """Restrict the free coordinates to the range of the reduced mass (see the module
-        docstring); returns the number of directions removed."""
-        from scipy.linalg.lapack import dpstrf
-
-        self.Z = None
-        Mz = (self.T0.T @ (self.U.T @ (sp.csr_matrix(mass) @ self.U)) @ self.T0).toarray()
-        _, _, rank, _ = dpstrf(Mz.copy(), tol=rtol * float(np.max(np.diag(Mz))))
-        if rank == len(Mz):
-            return 0
-        lam, V = np.linalg.eigh(Mz)
-        keep = lam > rtol * lam[-1]
-        self.Z = np.ascontiguousarray(V[:, keep])
-        return int(len(Mz) - keep.sum())
+    def reduced_matrix(self, A) -> sp.csr_matrix:
+        """``U^T A U`` of a full (ndof, ndof) matrix; ``A = A_s (x) I3`` (the consistent mass)
+        is reduced through its scalar block, nine times cheaper."""
+        A = sp.csr_matrix(A)
+        As = A[0::3][:, 0::3]
+        if (abs(A[0::3][:, 1::3]).max() == 0 and abs(A[1::3][:, 1::3] - As).max() == 0
+                and abs(A[2::3][:, 2::3] - As).max() == 0 and abs(A[0::3][:, 2::3]).max() == 0
+                and abs(A[1::3][:, 2::3]).max() == 0):
+            return sp.csr_matrix(sp.kron(self.phi.T @ As @ self.phi, sp.identity(3)))
+        return sp.csr_matrix(self.U.T @ (A @ self.U))
 
     def q_of(self, z, qb_p) -> np.ndarray:
         """Full reduced vector (n_q,) of free coordinates ``z`` and prescribed ``qb_p``."""
         nf = 12 * self.n_free_handles
-        z0 = z if self.Z is None else self.Z @ z
         q = np.empty(self.n_q)
-        q[:nf] = z0[:nf]
-        q[nf:] = self.N @ z0[nf:] + qb_p
+        q[:nf] = z[:nf]
+        q[nf:] = self.N @ z[nf:] + qb_p
         return q
 
     def z_of(self, f_q) -> np.ndarray:
         """``T^T f`` of a reduced (dual) vector f (n_q,): its free components (n_z,)."""
         nf = 12 * self.n_free_handles
-        f0 = np.concatenate([f_q[:nf], self.N.T @ f_q[nf:]])
-        return f0 if self.Z is None else self.Z.T @ f0
+        return np.concatenate([f_q[:nf], self.N.T @ f_q[nf:]])
 
 
 class MassProjector:
@@ -178,9 +173,9 @@ class MassProjector:
     def __init__(self, subspace: Subspace, mass):
         self.sub = subspace
         self.M = sp.csr_matrix(mass)
-        M_q = subspace.U.T @ (self.M @ subspace.U)
+        M_q = subspace.reduced_matrix(self.M)
         self.M_z = (subspace.T.T @ M_q @ subspace.T).toarray()
-        self._cho = sla.cho_factor(self.M_z)
+        self._cho = sla.cho_factor(regularised(self.M_z))
 
     def project(self, u) -> tuple[np.ndarray, np.ndarray]:
         sub = self.sub
