@@ -44,7 +44,7 @@ MODEL_SCHEMAS = {  # model: (schema, required keys)
     "hermite_beam": ({"E": c_pos, "A": c_pos, "I": c_pos, "rho": c_pos}, ("E", "A", "I", "rho")),
 }
 LOAD_TYPES = ("point", "traction", "pressure", "follower_pressure", "body")
-INTEGRATOR_NAMES = ("hht", "bathe", "newmark", "central_difference", "forward_euler")
+INTEGRATOR_NAMES = ("hht", "bathe", "newmark", "backward_euler", "central_difference", "forward_euler")
 
 _MOTION_SCHEMA = {"type": c_enum("rotation"), "axis": c_vec3, "center": c_vec3, "angle_deg": c_num}
 _STATIC = {"type": c_str, "load_steps": c_int_range(1, MAX_LOAD_STEPS), "max_load_factor": c_pos,

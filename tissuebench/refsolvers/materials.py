@@ -78,6 +78,11 @@ class Material:
         S, CC = self.pk2(F, tangent=True)
         return _pk1_tangent(F, S, CC)
 
+    def energy_and_stress(self, F):
+        """(W, P) at once; invariant-based materials share the kinematics (reduced-order
+        cubature evaluates both on every iteration)."""
+        return self.energy(F), self.stress(F)
+
     @property
     def is_linear(self) -> bool:
         return False
@@ -156,8 +161,43 @@ class SaintVenantKirchhoff(_EnuMaterial):
         return S, np.broadcast_to(CC, F.shape[:-2] + (3, 3, 3, 3))
 
 
+def _det3(F):
+    """det of (..., 3, 3) arrays by the explicit formula (faster than LAPACK on small batches)."""
+    return (F[..., 0, 0] * (F[..., 1, 1] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 1])
+            - F[..., 0, 1] * (F[..., 1, 0] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 0])
+            + F[..., 0, 2] * (F[..., 1, 0] * F[..., 2, 1] - F[..., 1, 1] * F[..., 2, 0]))
+
+
+def _inv_sym3(C, det):
+    """Inverse of symmetric (..., 3, 3) C with determinant ``det`` (cofactors)."""
+    a, b, c = C[..., 0, 0], C[..., 1, 1], C[..., 2, 2]
+    d, e, f = C[..., 0, 1], C[..., 1, 2], C[..., 0, 2]
+    out = np.empty_like(C)
+    out[..., 0, 0] = b * c - e * e
+    out[..., 1, 1] = a * c - f * f
+    out[..., 2, 2] = a * b - d * d
+    out[..., 0, 1] = out[..., 1, 0] = f * e - d * c
+    out[..., 1, 2] = out[..., 2, 1] = d * f - a * e
+    out[..., 0, 2] = out[..., 2, 0] = d * e - b * f
+    return out / det[..., None, None]
+
+
 class _InvariantMaterial(Material):
     """W(I1, I2, J): S and CC from the partial derivatives returned by ``_derivs``."""
+
+    def energy_and_stress(self, F):
+        # fused only where W and S are entirely the invariant form (not Guccione's fibre part)
+        if type(self).energy is not _InvariantMaterial.energy or type(self).pk2 is not _InvariantMaterial.pk2:
+            return Material.energy_and_stress(self, F)
+        C = np.swapaxes(F, -1, -2) @ F
+        I1 = np.trace(C, axis1=-2, axis2=-1)
+        I2 = 0.5 * (I1**2 - np.einsum("...ij,...ij->...", C, C))
+        J = _det3(F)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            W, W1, W2, WJ, _, _, _ = self._derivs(I1, I2, J)
+            e = lambda a: a[..., None, None]  # noqa: E731
+            S = 2 * e(W1 + W2 * I1) * _I - 2 * e(W2) * C + e(WJ * J) * _inv_sym3(C, J * J)
+        return W, F @ S
 
     def _derivs(self, I1, I2, J):
         """Return W, W1, W2, WJ, W1J, W2J, WJJ (W11 = W22 = W12 = 0 for our models)."""

@@ -17,6 +17,10 @@ Conventions
   no load depends on ``u``).
 * Element quantities are indexed by mesh cell; local dofs follow the node order of
   ``problem.layout[1]`` (node-major, xyz).
+* Element quantities of a *subset* of cells (cubature elements of a reduced model) come
+  from :meth:`Backend.cell_kernel`: a :class:`CellKernel` evaluates energies, element
+  force vectors and element tangents from the cells' local displacements only, so its
+  cost is O(len(cells)), never O(mesh).
 * Quadrature: both backends integrate with the same rules,
   :func:`~tissuebench.refsolvers.quadrature.volume_rule`, so they agree to round-off
   on the same mesh for any material.
@@ -83,6 +87,34 @@ class Backend(ABC):
     def min_jacobian(self, u: np.ndarray) -> float:
         """Smallest det F over all quadrature points (<= 0 means an inverted element)."""
 
+    # -------------------------------------------------------------- cell subsets
+    def cell_kernel(self, cells=None) -> "CellKernel":
+        """Element operators restricted to ``cells`` (all cells when None).
+
+        Parameters
+        ----------
+        cells : (m,) int array, optional
+            Mesh cell indices (duplicates allowed; order kept).
+
+        Returns
+        -------
+        CellKernel
+            Evaluates from local displacements ``u_loc`` of shape (m, n_loc), with
+            ``n_loc = 3 * nodes per cell`` in the order of :meth:`element_dofs`.
+        """
+        raise NotImplementedError(f"{type(self).__name__} does not provide cell kernels")
+
+    def element_forces_and_tangents(self, u, cells=None):
+        """Element internal force vectors (m, n_loc) and tangents (m, n_loc, n_loc) of
+        ``cells`` (all when None) at the full displacement ``u`` (ndof,)."""
+        kernel = self.cell_kernel(cells)
+        return kernel.forces_and_tangents(kernel.gather(self._check_u(u)))
+
+    def element_energies_and_forces(self, u, cells=None):
+        """Element strain energies (m,) and internal force vectors (m, n_loc) of ``cells``."""
+        kernel = self.cell_kernel(cells)
+        return kernel.energies_and_forces(kernel.gather(self._check_u(u)))
+
     # -------------------------------------------------------------- helpers
     def element_dofs(self) -> np.ndarray:
         """Global dofs of each cell's local dofs, shape (n_cells, 3 * n_local_nodes)."""
@@ -100,6 +132,71 @@ class Backend(ABC):
         if u.shape != (self.ndof,):
             raise ValueError(f"u must have shape ({self.ndof},), got {u.shape}")
         return u
+
+
+def check_cells(cells, n_cells) -> np.ndarray:
+    """``cells`` as an int64 array of cell indices in range, or ValueError naming the value."""
+    if cells is None:
+        return np.arange(n_cells, dtype=np.int64)
+    arr = np.asarray(cells)
+    if arr.ndim != 1 or not (arr.size == 0 or np.issubdtype(arr.dtype, np.integer)):
+        raise ValueError(f"cells must be a 1D integer array of cell indices, got shape {arr.shape}, "
+                         f"dtype {arr.dtype}")
+    if arr.size and (arr.min() < 0 or arr.max() >= n_cells):
+        raise ValueError(f"cells: index out of range 0..{n_cells - 1} (min {arr.min()}, max {arr.max()})")
+    return arr.astype(np.int64)
+
+
+class CellKernel(ABC):
+    """Element operators of a fixed set of cells, from the cells' local displacements.
+
+    Attributes
+    ----------
+    cells : (m,) int array
+        Mesh cell indices.
+    dofs : (m, n_loc) int array
+        Global dofs of each cell's local dofs (node-major, xyz; see ``Backend.element_dofs``).
+    volumes : (m,) array
+        Reference volumes of the cells (quadrature of 1).
+    """
+
+    cells: np.ndarray
+    dofs: np.ndarray
+    volumes: np.ndarray
+
+    def gather(self, u: np.ndarray) -> np.ndarray:
+        """Local displacements (m, n_loc) of the full vector ``u`` (ndof,)."""
+        return np.asarray(u, dtype=float)[self.dofs]
+
+    def _check_local(self, u_loc) -> np.ndarray:
+        u_loc = np.asarray(u_loc, dtype=float)
+        if u_loc.shape != self.dofs.shape:
+            raise ValueError(f"u_loc must have shape {self.dofs.shape} (cells, local dofs), got {u_loc.shape}")
+        return u_loc
+
+    @abstractmethod
+    def energies_and_forces(self, u_loc: np.ndarray):
+        """Strain energies (m,) and internal force vectors (m, n_loc)."""
+
+    @abstractmethod
+    def forces_and_tangents(self, u_loc: np.ndarray):
+        """Internal force vectors (m, n_loc) and tangents d f_e / d u_e (m, n_loc, n_loc)."""
+
+    def energies(self, u_loc):
+        return self.energies_and_forces(u_loc)[0]
+
+    def forces(self, u_loc):
+        return self.energies_and_forces(u_loc)[1]
+
+
+def material_on_cells(material, cells):
+    """``material`` restricted to ``cells``: per-cell data (Guccione fibres (n_cells, 3)) sliced."""
+    import dataclasses
+
+    fibres = getattr(material, "fibres", None)
+    if fibres is not None and np.ndim(fibres) == 2 and dataclasses.is_dataclass(material):
+        return dataclasses.replace(material, fibres=np.asarray(fibres)[cells])
+    return material
 
 
 BACKENDS: dict[str, str] = {

@@ -47,7 +47,7 @@ from ..problem import BodyForce, FollowerPressure, SurfaceTraction
 from ..quadrature import default_order, facet_rule, mass_order, volume_rule
 from ..solver_base import idle_core
 from ..sparse_direct import NgsolveSparseSolver
-from .base import Backend
+from .base import Backend, check_cells
 
 TET_TO_NG = np.array([1, 0, 2, 3])  # netgen vertex k of a tet = VTK vertex TET_TO_NG[k]
 _VOL_ET = {"tetra": ngs.ET.TET, "hexahedron": ngs.ET.HEX}
@@ -418,6 +418,11 @@ class NgsolveBackend(Backend):
         fe = w * r.FV().NumPy()[dd][..., None]
         return np.bincount(flat.ravel(), weights=fe.ravel(), minlength=flat.shape[0] * flat.shape[1]).reshape(
             flat.shape[0], -1)
+
+    def cell_kernel(self, cells=None):
+        from .ngsolve_cells import NgsolveCellKernel
+
+        return NgsolveCellKernel(self, check_cells(cells, self.problem.mesh.n_cells))
 
     @cached_property
     def _qp(self):

@@ -16,7 +16,7 @@ import skfem
 from ..materials import Material
 from ..quadrature import default_order, facet_rule, mass_order, volume_rule
 from ..problem import BodyForce, FollowerPressure, SurfaceTraction
-from .base import Backend
+from .base import Backend, CellKernel, check_cells, material_on_cells
 
 # skfem's local vertex order of MeshHex1 expressed in VTK hexahedron order
 _VTK_TO_SKFEM_HEX = [0, 4, 3, 1, 7, 5, 2, 6]
@@ -94,6 +94,42 @@ class _CellKernel:
     def deformation_gradient(self, u):
         U = u.reshape(-1, 3)[self.nodes]  # (e, a, i)
         return np.eye(3) + np.einsum("eai,eqaJ->eqiJ", U, self.grad, optimize=True)
+
+
+class SkfemCellKernel(CellKernel):
+    """Element operators of a subset of cells (batched einsum over the subset only).
+
+    Holds the shape-function gradients and quadrature weights of the selected cells and
+    the material restricted to them; a call costs O(len(cells)).
+    """
+
+    def __init__(self, kernel: _CellKernel, material, cells):
+        self.cells = cells
+        self.grad = np.ascontiguousarray(kernel.grad[cells])  # (m, q, a, J)
+        self.dx = np.ascontiguousarray(kernel.dx[cells])  # (m, q)
+        self.dofs = kernel.dofs[cells]
+        self.volumes = self.dx.sum(axis=1)
+        self.material = material_on_cells(material, cells)
+        self._G = self.grad * self.dx[:, :, None, None]
+
+    def deformation_gradient(self, u_loc):
+        """F at the quadrature points, shape (m, q, 3, 3)."""
+        U = self._check_local(u_loc).reshape(len(self.cells), -1, 3)
+        return np.eye(3) + np.einsum("eai,eqaJ->eqiJ", U, self.grad, optimize=True)
+
+    def energies_and_forces(self, u_loc):
+        F = self.deformation_gradient(u_loc)
+        W, P = self.material.energy_and_stress(F)
+        fe = np.einsum("eqiJ,eqaJ->eai", P, self._G, optimize=True)
+        return np.einsum("eq,eq->e", self.dx, W), fe.reshape(len(fe), -1)
+
+    def forces_and_tangents(self, u_loc):
+        F = self.deformation_gradient(u_loc)
+        P, A = self.material.stress_and_tangent(F)
+        Ke = np.einsum("eqaJ,eqiJkL,eqbL->eaibk", self._G, A, self.grad, optimize=True)
+        fe = np.einsum("eqiJ,eqaJ->eai", P, self._G, optimize=True)
+        n = Ke.shape[1] * 3
+        return fe.reshape(len(fe), -1), Ke.reshape(len(Ke), n, n)
 
 
 class SkfemBackend(Backend):
@@ -177,6 +213,9 @@ class SkfemBackend(Backend):
 
     def element_internal_forces(self, u):
         return self._element_forces(u)
+
+    def cell_kernel(self, cells=None):
+        return SkfemCellKernel(self._k, self.problem.material, check_cells(cells, self.problem.mesh.n_cells))
 
     # ------------------------------------------------------------------ energies
     def element_strain_energies(self, u):

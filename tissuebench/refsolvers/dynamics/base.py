@@ -7,9 +7,11 @@ fixed step ``dt`` at a time (like SciPy's ``integrate._ivp.base.OdeSolver``).
 
 State after ``start`` / each successful ``step`` (free dofs only, shape (n_free,)):
 ``t`` [s], ``u`` [m], ``v`` [m/s], ``a`` [m/s^2], plus ``f_ext`` and ``f_int`` [N]
-at that state. A step that fails (Newton divergence, non-finite values) leaves the
-state unchanged and says so in its :class:`StepReport`; it never raises. Bad input
-(dt <= 0, options out of range, wrong shapes, a non-finite load) raises ValueError.
+at that state; the fixed dofs carry ``uc``, ``vc``, ``ac`` (shape (n_fixed,)), zero
+unless the system prescribes a motion (see :mod:`.system`). A step that fails (Newton
+divergence, non-finite values) leaves the state unchanged and says so in its
+:class:`StepReport`; it never raises. Bad input (dt <= 0, options out of range, wrong
+shapes, a non-finite load) raises ValueError.
 """
 from __future__ import annotations
 
@@ -71,8 +73,11 @@ class Integrator(ABC):
     def start(self, system: SecondOrderSystem, u0=None, v0=None, dt=None, t0=0.0):
         """Bind to ``system`` with full-vector initial state u0, v0 (n,) at time t0 [s].
 
-        Values of u0, v0 on constrained dofs must be zero. The initial acceleration
-        comes from the equation of motion: M a0 = f_ext(t0) - f_int(u0) - C v0.
+        Without a prescribed motion the values of u0, v0 on constrained dofs must be zero.
+        With one, u0 there must equal ``prescribed(t0)`` (None: it is filled in) and v0
+        there is the initial velocity of the prescribed dofs (None: at rest); their
+        initial acceleration is zero. The free acceleration comes from the equation of
+        motion: M_ff a0 = f_ext(t0) - f_int(u0) - C v0 - M_fc a_c0.
         """
         if not isinstance(system, SecondOrderSystem):
             raise TypeError(f"system must be a SecondOrderSystem, got {type(system).__name__}")
@@ -81,22 +86,62 @@ class Integrator(ABC):
         t0 = float(t0)
         if not np.isfinite(t0):
             raise ValueError(f"t0 must be finite, got {t0!r}")
-        u_full = self._initial("u0", u0)
-        v_full = self._initial("v0", v0)
+        self._check_prescribed_support()
+        uc0 = system.prescribed_values(t0)
+        u_full = self._initial("u0", u0, uc0)
+        v_full = self._initial("v0", v0, None)
         self._setup()
+        fixed = system.fixed
         u, v = u_full[system.free], v_full[system.free]
-        self.set_state(t0, u, v, None)
+        self.set_state(t0, u, v, None, u_full[fixed], v_full[fixed], np.zeros(len(fixed)))
         return self
 
-    def _initial(self, name, x):
-        n = self.system.n
-        x = np.zeros(n) if x is None else check_vector(name, x, n)
-        fixed = np.setdiff1d(np.arange(n), self.system.free)
-        if fixed.size and np.any(x[fixed] != 0):
-            raise ValueError(f"{name} must be zero on the constrained dofs (prescribed motion is "
-                             f"not supported), max |{name}| there = {np.abs(x[fixed]).max():.3e}")
+    def _check_prescribed_support(self):
+        """Hook: refuse a prescribed motion the scheme cannot take (ValueError)."""
+
+    def _initial(self, name, x, expected):
+        """Full initial vector; on the fixed dofs ``expected`` (prescribed displacement),
+        free (prescribed velocity, ``expected`` None) or zero (no prescribed motion)."""
+        sys = self.system
+        n, fixed = sys.n, sys.fixed
+        if x is None:
+            x = np.zeros(n)
+            if expected is not None and fixed.size:
+                x[fixed] = expected
+            return x
+        x = check_vector(name, x, n)
+        if not fixed.size:
+            return x
+        if not sys.has_prescribed:
+            if np.any(x[fixed] != 0):
+                raise ValueError(f"{name} must be zero on the constrained dofs (the system prescribes no "
+                                 f"motion), max |{name}| there = {np.abs(x[fixed]).max():.3e}")
+        elif expected is not None:
+            gap = np.abs(x[fixed] - expected).max()
+            if gap > 1e-12 * max(1.0, np.abs(expected).max()):
+                raise ValueError(f"{name} on the constrained dofs differs from the prescribed displacement at t0 "
+                                 f"by {gap:.3e}")
         return x
 
+    def full(self, x_f, x_c) -> np.ndarray:
+        """Full vector (n,) from free and fixed parts."""
+        return self.system.expand(x_f, x_c)
+
+    def full_u(self) -> np.ndarray:
+        """Current displacement on all dofs (prescribed values included)."""
+        return self.system.expand(self.u, self.uc)
+
+    @property
+    def mass_full(self) -> sp.csr_matrix:
+        """The mass the scheme uses on all dofs (kinetic energy with a prescribed motion)."""
+        return self.system.M
+
+    def _constrained_kinematics(self, uc1, kin):
+        """(v_c1, a_c1) of the fixed dofs at ``uc1`` by the scheme's kinematics ``kin``
+        (zero when nothing is prescribed)."""
+        if not self.system.has_prescribed:
+            return self.vc, self.ac
+        return kin(uc1)
     @property
     def mass_ff(self) -> sp.csr_matrix:
         """The mass matrix the scheme uses on the free dofs (lumped for explicit schemes)."""
@@ -115,16 +160,24 @@ class Integrator(ABC):
             self._mass_lu = (self.system, spla.splu(sp.csc_matrix(self.mass_ff), permc_spec="MMD_AT_PLUS_A"))
         return self._mass_lu[1].solve(rhs)
 
-    def set_state(self, t, u, v, a=None):
-        """Set the free-dof state; ``a=None`` computes it from the equation of motion."""
-        nf = len(self.system.free)
+    def set_state(self, t, u, v, a=None, uc=None, vc=None, ac=None):
+        """Set the free-dof state; ``a=None`` computes it from the equation of motion.
+
+        ``uc``, ``vc``, ``ac``: state of the fixed dofs (default: ``prescribed(t)``, rest).
+        """
+        sys = self.system
+        nf, nc = len(sys.free), len(sys.fixed)
         self.t = float(t)
         self.u = check_vector("u", u, nf).copy()
         self.v = check_vector("v", v, nf).copy()
-        self.f_ext = self.system.f_ext(self.t, self.u)
-        self.f_int = self.system.f_int(self.u)
+        self.uc = sys.prescribed_values(self.t) if uc is None else check_vector("uc", uc, nc).copy()
+        self.vc = np.zeros(nc) if vc is None else check_vector("vc", vc, nc).copy()
+        self.ac = np.zeros(nc) if ac is None else check_vector("ac", ac, nc).copy()
+        self.f_ext = sys.f_ext(self.t, self.u, self.uc)
+        self.f_int = sys.f_int(self.u, self.uc)
         if a is None:
-            a = self.solve_mass(self.f_ext - self.f_int - self.damping_force(self.v))
+            a = self.solve_mass(self.f_ext - self.f_int - self.damping_force(self.v)
+                                - sys.coupling_force(self.vc, self.ac))
         self.a = check_vector("a", a, nf).copy()
 
     # ------------------------------------------------------------------ stepping
@@ -137,18 +190,20 @@ class Integrator(ABC):
         report, new = out if isinstance(out, tuple) else (out, None)
         if not report.converged:
             return report
-        t, u, v, a, f_ext, f_int = new
+        t, u, v, a, f_ext, f_int = new[:6]
         if not (np.all(np.isfinite(u)) and np.all(np.isfinite(v)) and np.all(np.isfinite(a))):
             report.converged = False
             report.message = f"non-finite state at t={t:.6g}"
             return report
         self.t, self.u, self.v, self.a, self.f_ext, self.f_int = t, u, v, a, f_ext, f_int
+        if len(new) > 6:  # the fixed dofs' state (prescribed motion)
+            self.uc, self.vc, self.ac = new[6:]
         return report
 
     @abstractmethod
     def _advance(self):
         """Compute one step from the current state.
 
-        Returns ``(StepReport, (t, u, v, a, f_ext, f_int))`` on success or a
+        Returns ``(StepReport, (t, u, v, a, f_ext, f_int[, uc, vc, ac]))`` on success or a
         ``StepReport`` with ``converged=False`` on failure (state untouched).
         """

@@ -27,7 +27,8 @@ def integrate(system, u0, v0, dt, t_end, method="newmark", t0=0.0, store_every=1
     ----------
     system : SecondOrderSystem
     u0, v0 : (n,) arrays or None
-        Initial displacement [m] and velocity [m/s] on the full dof vector (None: zero).
+        Initial displacement [m] and velocity [m/s] on the full dof vector (None: zero,
+        and the prescribed displacement on the fixed dofs of a prescribed motion).
     dt, t_end, t0 : float
         Step and times [s]; ``ceil((t_end - t0) / dt)`` steps are taken.
     method : str, Integrator class or instance
@@ -62,9 +63,11 @@ def integrate(system, u0, v0, dt, t_end, method="newmark", t0=0.0, store_every=1
         raise ValueError(f"blowup_factor must be a finite number > 1, got {blowup_factor!r}")
     integ = make_integrator(method, **opts)
     integ.start(system, u0, v0, dt, t0)
-    rec = Recorder(system, integ.mass_ff, n, dofs, store_every, integ.damping_force)
-    rec.record(integ.t, integ.u, integ.v, integ.a, integ.f_ext, integ.f_int)
-    observations = [] if observe is None else [observe(integ.t, system.expand(integ.u))]
+    rec = Recorder(system, integ.mass_ff, n, dofs, store_every, integ.damping_force,
+                   integ.mass_full if system.has_prescribed else None)
+    rec.record(integ.t, integ.u, integ.v, integ.a, integ.f_ext, integ.f_int,
+               constrained=(integ.uc, integ.vc, integ.ac))
+    observations = [] if observe is None else [observe(integ.t, integ.full_u())]
     status, message, failed = "success", f"{n} steps completed", None
     for k in range(1, n + 1):
         tic = time.perf_counter()
@@ -75,9 +78,9 @@ def integrate(system, u0, v0, dt, t_end, method="newmark", t0=0.0, store_every=1
             message, failed = f"step {k}: {rep.message}", k
             break
         rec.record(integ.t, integ.u, integ.v, integ.a, integ.f_ext, integ.f_int, rep.iterations, True, wall,
-                   force_store=(k == n))
+                   force_store=(k == n), constrained=(integ.uc, integ.vc, integ.ac))
         if observe is not None:
-            observations.append(observe(integ.t, system.expand(integ.u)))
+            observations.append(observe(integ.t, integ.full_u()))
         mech, supplied = rec.mechanical()
         scale = max(np.max(np.abs(supplied)), 0.0)
         if not np.isfinite(mech[-1]) or (scale > 0 and mech[-1] > blowup_factor * scale):
@@ -85,7 +88,7 @@ def integrate(system, u0, v0, dt, t_end, method="newmark", t0=0.0, store_every=1
             message = (f"step {k} (t={integ.t:.6g}): energy {mech[-1]:.3e} J exceeds "
                        f"{blowup_factor:.1e} x the energy supplied ({scale:.3e} J)")
             break
-    rec.store(rec.k, integ.u, integ.v, integ.a)  # always keep the last completed state
+    rec.store(rec.k, integ.u, integ.v, integ.a, (integ.uc, integ.vc, integ.ac))  # always keep the last state
     name = getattr(integ, "name", type(integ).__name__)
     res = rec.finish(name, dt, status, message, failed, opts)
     res.observations = observations

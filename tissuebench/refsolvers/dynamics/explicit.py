@@ -14,6 +14,10 @@ damping matrix is C_L = alpha_m M_L + beta_k K0. With mass-proportional damping 
 second order); with beta_k > 0 it uses the lagged v_{n+1/2} (no solve, first order in
 the damping term). Stable for dt <= dt_cr = 2 / omega_max
 (undamped), omega_max^2 the largest eigenvalue of (K0, M_L) on the free dofs.
+
+A prescribed motion of the fixed dofs (see :mod:`.system`) needs the lumped mass (no
+inertial coupling ``M_fc``); the fixed dofs' velocity is the difference quotient
+``(u_c,n+1 - u_c,n) / dt`` (kinetic energy and support work of the energy balance).
 """
 from __future__ import annotations
 
@@ -82,6 +86,11 @@ class CentralDifference(Integrator):
     def mass_ff(self):
         return sp.diags(self._m)
 
+    @property
+    def mass_full(self):
+        # row sums of all dofs (a massless fixed dof is allowed here: only kinetic energy uses it)
+        return sp.diags(np.asarray(sp.csr_matrix(self.system.M).sum(axis=1)).ravel())
+
     def _setup(self):
         self._m = lumped_mass(self.system.M_ff)
         self.dt_critical = critical_time_step(self.system)
@@ -107,14 +116,33 @@ class CentralDifference(Integrator):
         t1 = self.t + dt
         if not np.all(np.isfinite(u1)):
             return StepReport(False, 0, f"non-finite displacement at t={t1:.6g}")
-        f_ext, f_int = sys.f_ext(t1, u1), sys.f_int(u1)
+        uc1, vc1, ac1 = _prescribed_step(self, t1)
+        coupling = _lumped_damping_coupling(sys, vc1)
+        f_ext, f_int = sys.f_ext(t1, u1, uc1), sys.f_int(u1, uc1)
         if sys.beta_k == 0:
             # diagonal C_L = alpha_m M_L: (M_L + dt/2 C_L) a1 = f - f_int - C_L v_half
             c = sys.alpha_m * self._m
             a1 = (f_ext - f_int - c * v_half) / (self._m + 0.5 * dt * c)
         else:
-            a1 = (f_ext - f_int - self.damping_force(v_half)) / self._m
-        return StepReport(), (t1, u1, v_half + 0.5 * dt * a1, a1, f_ext, f_int)
+            a1 = (f_ext - f_int - coupling - self.damping_force(v_half)) / self._m
+        return StepReport(), (t1, u1, v_half + 0.5 * dt * a1, a1, f_ext, f_int, uc1, vc1, ac1)
+
+
+def _lumped_damping_coupling(sys, vc):
+    """C_fc v_c of the lumped schemes: the diagonal M_L has no M_fc, so only beta_k K0_fc."""
+    if not (sys.has_prescribed and sys.beta_k):
+        return 0.0
+    return sys.beta_k * (sys.K0_fc @ vc)
+
+
+def _prescribed_step(integ, t1):
+    """(u_c, v_c, a_c) of the fixed dofs at t1 by difference quotients (explicit schemes)."""
+    sys = integ.system
+    if not sys.has_prescribed:
+        return integ.uc, integ.vc, integ.ac
+    uc1 = sys.prescribed_values(t1)
+    vc1 = (uc1 - integ.uc) / integ.dt
+    return uc1, vc1, (vc1 - integ.vc) / integ.dt
 
 
 class ForwardEuler(Integrator):
@@ -140,6 +168,17 @@ class ForwardEuler(Integrator):
     def mass_ff(self):
         return sp.diags(lumped_mass(self.system.M_ff)) if self.lumped else self.system.M_ff
 
+    @property
+    def mass_full(self):
+        if not self.lumped:
+            return self.system.M
+        return sp.diags(np.asarray(sp.csr_matrix(self.system.M).sum(axis=1)).ravel())
+
+    def _check_prescribed_support(self):
+        if self.system.has_prescribed and not self.lumped:
+            raise ValueError("forward_euler: a prescribed motion needs lumped=True (the consistent mass "
+                             "couples the free dofs to the prescribed acceleration)")
+
     def _advance(self):
         sys, dt = self.system, self.dt
         t1 = self.t + dt
@@ -147,6 +186,8 @@ class ForwardEuler(Integrator):
         v1 = self.v + dt * self.a
         if not (np.all(np.isfinite(u1)) and np.all(np.isfinite(v1))):
             return StepReport(False, 0, f"non-finite state at t={t1:.6g}")
-        f_ext, f_int = sys.f_ext(t1, u1), sys.f_int(u1)
-        a1 = self.solve_mass(f_ext - f_int - sys.damping_force(v1))
-        return StepReport(), (t1, u1, v1, a1, f_ext, f_int)
+        uc1, vc1, ac1 = _prescribed_step(self, t1)
+        f_ext, f_int = sys.f_ext(t1, u1, uc1), sys.f_int(u1, uc1)
+        coupling = _lumped_damping_coupling(sys, vc1) if self.lumped else sys.damping_coupling(vc1)
+        a1 = self.solve_mass(f_ext - f_int - sys.damping_force(v1) - coupling)
+        return StepReport(), (t1, u1, v1, a1, f_ext, f_int, uc1, vc1, ac1)

@@ -1,11 +1,14 @@
-"""Implicit schemes: Newmark family, HHT-alpha, Bathe composite.
+"""Implicit schemes: Newmark family, HHT-alpha, Bathe composite, backward Euler.
 
 All solve for the displacement at the end of each (sub)step with Newton iterations on
 the nonlinear residual (:func:`~tissuebench.refsolvers.dynamics.newton.newton`); for a
 linear system the effective matrix is factorised once and each step is one solve.
 
 References: Hilber, Hughes, Taylor (1977) EESD 5:283; Bathe, Baig (2005) C&S 83:2513;
-Bathe (2007) C&S 85:437.
+Bathe (2007) C&S 85:437; backward Euler as in Baraff, Witkin (1998) and the wsc paper.
+
+A prescribed motion of the fixed dofs (see :mod:`.system`) enters each residual through
+``M_fc a_c + C_fc v_c``, with ``a_c``, ``v_c`` from the scheme's own kinematics.
 """
 from __future__ import annotations
 
@@ -44,27 +47,34 @@ class NewmarkFamily(Integrator):
     def _setup(self):
         self._lu = CachedLU()  # a new system or dt invalidates the factorisation
 
-    def _kinematics(self, u1):
-        """(v_{n+1}, a_{n+1}) from the candidate u_{n+1}."""
+    def _kin(self, u1, u0, v0, a0):
+        """(v_{n+1}, a_{n+1}) from the candidate u_{n+1} and the state (u0, v0, a0) at t_n."""
         dt, b, g = self.dt, self.beta, self.gamma
-        a1 = (u1 - self.u - dt * self.v) / (b * dt * dt) - (0.5 / b - 1.0) * self.a
-        v1 = self.v + dt * ((1.0 - g) * self.a + g * a1)
+        a1 = (u1 - u0 - dt * v0) / (b * dt * dt) - (0.5 / b - 1.0) * a0
+        v1 = v0 + dt * ((1.0 - g) * a0 + g * a1)
         return v1, a1
+
+    def _kinematics(self, u1):
+        """(v_{n+1}, a_{n+1}) of the free dofs from the candidate u_{n+1}."""
+        return self._kin(u1, self.u, self.v, self.a)
 
     def _advance(self):
         sys, dt, al = self.system, self.dt, self.alpha
         t1 = self.t + dt
-        old = sys.damping_force(self.v) + self.f_int - self.f_ext
+        uc1 = sys.prescribed_values(t1) if sys.has_prescribed else self.uc
+        vc1, ac1 = self._constrained_kinematics(uc1, lambda x: self._kin(x, self.uc, self.vc, self.ac))
+        old = sys.damping_force(self.v) + sys.damping_coupling(self.vc) + self.f_int - self.f_ext
+        inertia_c, damping_c = sys.mass_coupling(ac1), sys.damping_coupling(vc1)
         cache = {}
 
         def residual(u1):
             v1, a1 = self._kinematics(u1)
-            cache["f_ext"], cache["f_int"] = sys.f_ext(t1, u1), sys.f_int(u1)
-            new = sys.damping_force(v1) + cache["f_int"] - cache["f_ext"]
-            return sys.M_ff @ a1 + (1.0 + al) * new - al * old
+            cache["f_ext"], cache["f_int"] = sys.f_ext(t1, u1, uc1), sys.f_int(u1, uc1)
+            new = sys.damping_force(v1) + damping_c + cache["f_int"] - cache["f_ext"]
+            return sys.M_ff @ a1 + inertia_c + (1.0 + al) * new - al * old
 
         def jacobian(u1):
-            J = sys.M_ff / (self.beta * dt * dt) + (1.0 + al) * sys.K_t(u1, t1)
+            J = sys.M_ff / (self.beta * dt * dt) + (1.0 + al) * sys.K_t(u1, t1, uc1)
             if sys.C_ff is not None:
                 J = J + (1.0 + al) * self.gamma / (self.beta * dt) * sys.C_ff
             return J
@@ -78,9 +88,9 @@ class NewmarkFamily(Integrator):
             rep.message = f"t={t1:.6g}: {rep.message}"
             return rep
         if sys.linear:  # the residual cache holds the predictor's forces; refresh them
-            cache["f_ext"], cache["f_int"] = sys.f_ext(t1, u1), sys.f_int(u1)
+            cache["f_ext"], cache["f_int"] = sys.f_ext(t1, u1, uc1), sys.f_int(u1, uc1)
         v1, a1 = self._kinematics(u1)
-        return rep, (t1, u1, v1, a1, cache["f_ext"], cache["f_int"])
+        return rep, (t1, u1, v1, a1, cache["f_ext"], cache["f_int"], uc1, vc1, ac1)
 
 
 class HHT(NewmarkFamily):
@@ -133,50 +143,83 @@ class Bathe(Integrator):
     def _setup(self):
         self._lu1, self._lu2 = CachedLU(), CachedLU()
 
-    def _solve(self, t1, u_pred, kin, c_m, c_c, lu, r_ref):
-        """One sub-step: Newton on M a(u) + C v(u) + f_int(u) - f_ext(t1, u) = 0."""
+    def _solve(self, t1, u_pred, kin, c_m, c_c, lu, r_ref, uc1, kin_c):
+        """One sub-step: Newton on M a(u) + C v(u) + f_int(u) - f_ext(t1, u) = 0, the fixed
+        dofs at ``uc1`` with velocity and acceleration ``kin_c(uc1)``."""
         sys, cache = self.system, {}
+        vc1, ac1 = self._constrained_kinematics(uc1, kin_c)
+        coupling = sys.coupling_force(vc1, ac1)
 
         def residual(u1):
             v1, a1 = kin(u1)
-            cache["f_ext"], cache["f_int"] = sys.f_ext(t1, u1), sys.f_int(u1)
-            return sys.M_ff @ a1 + sys.damping_force(v1) + cache["f_int"] - cache["f_ext"]
+            cache["f_ext"], cache["f_int"] = sys.f_ext(t1, u1, uc1), sys.f_int(u1, uc1)
+            return sys.M_ff @ a1 + sys.damping_force(v1) + coupling + cache["f_int"] - cache["f_ext"]
 
         def jacobian(u1):
-            J = c_m * sys.M_ff + sys.K_t(u1, t1)
+            J = c_m * sys.M_ff + sys.K_t(u1, t1, uc1)
             return J if sys.C_ff is None else J + c_c * sys.C_ff
 
         u1, rep = newton(u_pred, residual, jacobian, r_ref, self.newton_opts, sys.linear, lu)
         if rep.converged and sys.linear:
-            cache["f_ext"], cache["f_int"] = sys.f_ext(t1, u1), sys.f_int(u1)
+            cache["f_ext"], cache["f_int"] = sys.f_ext(t1, u1, uc1), sys.f_int(u1, uc1)
         v1, a1 = kin(u1)
-        return rep, u1, v1, a1, cache.get("f_ext"), cache.get("f_int")
+        return rep, u1, v1, a1, cache.get("f_ext"), cache.get("f_int"), (uc1, vc1, ac1)
 
     def _advance(self):
-        dt, h = self.dt, 0.5 * self.dt
-        u0, v0, a0 = self.u, self.v, self.a
+        sys, dt, h = self.system, self.dt, 0.5 * self.dt
         r_ref = max(np.linalg.norm(self.f_ext), np.linalg.norm(self.f_int),
-                    np.linalg.norm(self.system.M_ff @ a0), 1e-300)
+                    np.linalg.norm(sys.M_ff @ self.a), 1e-300)
 
-        def kin1(u):  # trapezoidal rule over h
-            v = 2.0 / h * (u - u0) - v0
-            return v, 2.0 / h * (v - v0) - a0
+        def trapezoidal(u0, v0, a0):  # over h
+            def kin(u):
+                v = 2.0 / h * (u - u0) - v0
+                return v, 2.0 / h * (v - v0) - a0
+            return kin
 
-        rep1, uh, vh, ah, _, _ = self._solve(self.t + h, u0 + h * v0 + 0.5 * h * h * a0, kin1,
-                                             4.0 / (h * h), 2.0 / h, self._lu1, r_ref)
+        def backward3(u0, v0, uh, vh):  # 3-point backward Euler over [t, t + dt]
+            def kin(u):
+                v = (u0 - 4.0 * uh + 3.0 * u) / dt
+                return v, (v0 - 4.0 * vh + 3.0 * v) / dt
+            return kin
+
+        u0, v0, a0 = self.u, self.v, self.a
+        uch = sys.prescribed_values(self.t + h) if sys.has_prescribed else self.uc
+        rep1, uh, vh, ah, _, _, (_, vch, _) = self._solve(
+            self.t + h, u0 + h * v0 + 0.5 * h * h * a0, trapezoidal(u0, v0, a0), 4.0 / (h * h), 2.0 / h,
+            self._lu1, r_ref, uch, trapezoidal(self.uc, self.vc, self.ac))
         if not rep1.converged:
             rep1.message = f"t={self.t + h:.6g} (first sub-step): {rep1.message}"
             return rep1
-
-        def kin2(u):  # 3-point backward Euler over [t, t + dt]
-            v = (u0 - 4.0 * uh + 3.0 * u) / dt
-            return v, (v0 - 4.0 * vh + 3.0 * v) / dt
-
-        rep2, u1, v1, a1, fe, fi = self._solve(self.t + dt, uh + h * vh + 0.5 * h * h * ah, kin2,
-                                               9.0 / (dt * dt), 3.0 / dt, self._lu2, r_ref)
+        uc1 = sys.prescribed_values(self.t + dt) if sys.has_prescribed else self.uc
+        rep2, u1, v1, a1, fe, fi, c1 = self._solve(
+            self.t + dt, uh + h * vh + 0.5 * h * h * ah, backward3(u0, v0, uh, vh), 9.0 / (dt * dt), 3.0 / dt,
+            self._lu2, r_ref, uc1, backward3(self.uc, self.vc, uch, vch))
         rep = StepReport(rep2.converged, rep1.iterations + rep2.iterations, rep2.message,
                          rep1.residuals + rep2.residuals)
         if not rep2.converged:
             rep.message = f"t={self.t + dt:.6g} (second sub-step): {rep2.message}"
             return rep
-        return rep, (self.t + dt, u1, v1, a1, fe, fi)
+        return rep, (self.t + dt, u1, v1, a1, fe, fi, *c1)
+
+
+class BackwardEuler(NewmarkFamily):
+    """Backward (implicit) Euler, the integrator of the wsc paper (and of Vega's
+    ``ImplicitBackwardEulerSparse``)::
+
+        v_{n+1} = (u_{n+1} - u_n) / dt,   a_{n+1} = (v_{n+1} - v_n) / dt,
+        M a_{n+1} + C v_{n+1} + f_int(u_{n+1}) = f_ext_{n+1}
+
+    First order, L-stable (spectral radius 0 at infinity): strongly dissipative, so the
+    energy balance shows a negative error that shrinks with dt. Newton per step.
+    """
+
+    name = "backward_euler"
+    order = 1
+
+    def __init__(self, **newton_opts):
+        # beta = 1, gamma = 1 make the Newmark Jacobian M / dt^2 + C / dt + K_t of backward Euler
+        super().__init__(0.0, 1.0, 1.0, **newton_opts)
+
+    def _kin(self, u1, u0, v0, a0):
+        v1 = (u1 - u0) / self.dt
+        return v1, (v1 - v0) / self.dt

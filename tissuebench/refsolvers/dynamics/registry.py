@@ -5,12 +5,13 @@ import inspect
 
 from .base import Integrator
 from .explicit import CentralDifference, ForwardEuler
-from .implicit import HHT, Bathe, Newmark
+from .implicit import HHT, BackwardEuler, Bathe, Newmark
 
 INTEGRATORS: dict[str, type[Integrator]] = {
     "hht": HHT,
     "bathe": Bathe,
     "newmark": Newmark,
+    "backward_euler": BackwardEuler,
     "central_difference": CentralDifference,
     "forward_euler": ForwardEuler,
 }

@@ -10,6 +10,11 @@ damping dissipation, both accumulated by the trapezoidal rule over each step
 rule on a linear system with a load constant in time this balance is exact to
 round-off; other schemes show their numerical dissipation (HHT, Bathe: negative
 error) or growth (forward Euler: positive error) in it.
+
+With a prescribed motion of the fixed dofs the balance runs over all dofs: KE uses the
+full velocity, D the full ``C v``, and W also holds the work of the support forces
+``R_c = [M a + C v + f_int]_c`` on the prescribed displacements (``reaction_work``,
+trapezoidal rule as well).
 """
 from __future__ import annotations
 
@@ -56,6 +61,9 @@ class DynamicsResult:
     energy_growth_ratio : float
         ``max_n (KE + IE + D)_n / max_n (KE_0 + IE_0 + W_n)``: 1 for an exactly
         energy-consistent scheme, < 1 with numerical dissipation, > 1 with growth.
+    reaction_work : (n_steps + 1,) array or None
+        The part of ``external_work`` done by the support forces on a prescribed motion
+        [J] (None without one).
     """
 
     method: str
@@ -80,6 +88,7 @@ class DynamicsResult:
     energy_growth_ratio: float = 1.0
     options: dict = field(default_factory=dict)
     observations: list = field(default_factory=list)
+    reaction_work: np.ndarray | None = None
 
     @property
     def success(self) -> bool:
@@ -123,10 +132,14 @@ class Recorder:
         Store the state every this many steps (and always the last one).
     damping_force : callable ``v -> (n_free,)``, optional
         The scheme's C v [N] (default the system's).
+    mass_full : sparse (n, n), optional
+        The scheme's mass on all dofs (kinetic energy with a prescribed motion; default M).
     """
 
-    def __init__(self, system, mass_ff, n_steps, dofs=None, store_every=1, damping_force=None):
+    def __init__(self, system, mass_ff, n_steps, dofs=None, store_every=1, damping_force=None, mass_full=None):
         self.system, self.M = system, mass_ff
+        self.prescribed = system.has_prescribed
+        self.M_full = system.M if mass_full is None else mass_full
         self.damping_force = system.damping_force if damping_force is None else damping_force
         n = system.n
         self.dofs = np.arange(n) if dofs is None else np.asarray(dofs, dtype=np.int64).ravel()
@@ -139,47 +152,66 @@ class Recorder:
         self.t = np.zeros(size)
         self.iters = np.zeros(size, dtype=np.int64)
         self.conv = np.ones(size, dtype=bool)
-        self.ke, self.ie, self.w, self.d, self.wall = (np.zeros(size) for _ in range(5))
+        self.ke, self.ie, self.w, self.d, self.wall, self.rw = (np.zeros(size) for _ in range(6))
         self.states, self.steps = [], []
         self.k = -1
         self._prev = None  # (u, v, f_ext, f_int) of the last recorded step
 
-    def _full_cols(self, x_f):
-        return self.system.expand(x_f)[self.dofs]
+    def _full_cols(self, x_f, x_c=None):
+        return self.system.expand(x_f, x_c)[self.dofs]
 
     def record(self, t, u, v, a, f_ext, f_int=None, iterations=0, converged=True, wall=0.0,
-               force_store=False):
-        """Record step ``k + 1``: free-dof state (u, v, a), external and internal force [N].
+               force_store=False, constrained=None):
+        """Record step ``k + 1``: free-dof state (u, v, a), external and internal force [N];
+        ``constrained = (uc, vc, ac)`` is the state of the fixed dofs (prescribed motion).
 
         ``f_int`` is only used (and recomputed when None) if the system has no
         strain-energy function.
         """
         self.k += 1
         k = self.k
+        sys = self.system
         self.t[k], self.iters[k], self.conv[k], self.wall[k] = t, iterations, converged, wall
-        self.ke[k] = 0.5 * float(v @ (self.M @ v))
-        energy = self.system.energy(u)
+        uc, vc, ac = constrained if (self.prescribed and constrained is not None) else (None, None, None)
+        if uc is None:
+            self.ke[k] = 0.5 * float(v @ (self.M @ v))
+        else:
+            v_full = sys.expand(v, vc)
+            self.ke[k] = 0.5 * float(v_full @ (self.M_full @ v_full))
+            support = sys.support_force(u, uc, v_full, sys.expand(a, ac), self.M_full)
+        energy = sys.energy(u, uc)
         if energy is None and f_int is None:
-            f_int = self.system.f_int(u)
+            f_int = sys.f_int(u, uc)
         if self._prev is None:
             self.ie[k] = 0.0 if energy is None else energy
         else:
-            u0, v0, f0, fi0 = self._prev
+            u0, v0, f0, fi0, c0 = self._prev
             du = u - u0
             self.w[k] = self.w[k - 1] + 0.5 * float((f0 + f_ext) @ du)
-            cv = self.damping_force(v0) + self.damping_force(v)
-            self.d[k] = self.d[k - 1] + 0.5 * float(cv @ du)
+            if uc is None:
+                cv = self.damping_force(v0) + self.damping_force(v)
+                self.d[k] = self.d[k - 1] + 0.5 * float(cv @ du)
+            else:
+                uc0, vc0, support0 = c0
+                self.rw[k] = self.rw[k - 1] + 0.5 * float((support0 + support) @ (uc - uc0))
+                self.w[k] += self.rw[k] - self.rw[k - 1]
+                if sys.C_full is not None:
+                    du_full = sys.expand(du, uc - uc0)
+                    cv = sys.C_full @ (sys.expand(v0, vc0) + sys.expand(v, vc))
+                    self.d[k] = self.d[k - 1] + 0.5 * float(cv @ du_full)
             # without a strain-energy function the internal work is accumulated instead
             self.ie[k] = energy if energy is not None else self.ie[k - 1] + 0.5 * float((fi0 + f_int) @ du)
-        self._prev = (u.copy(), v.copy(), np.array(f_ext, dtype=float), f_int)
+        c = None if uc is None else (uc.copy(), vc.copy(), support)
+        self._prev = (u.copy(), v.copy(), np.array(f_ext, dtype=float), f_int, c)
         if force_store or k % self.store_every == 0:
-            self.store(k, u, v, a)
+            self.store(k, u, v, a, constrained)
 
-    def store(self, k, u, v, a):
+    def store(self, k, u, v, a, constrained=None):
         if self.steps and self.steps[-1] == k:
             return
+        uc, vc, ac = constrained if constrained is not None else (None, None, None)
         self.steps.append(k)
-        self.states.append((self._full_cols(u), self._full_cols(v), self._full_cols(a)))
+        self.states.append((self._full_cols(u, uc), self._full_cols(v, vc), self._full_cols(a, ac)))
 
     def mechanical(self):
         """(KE + IE + D) and (KE_0 + IE_0 + W) up to the current step."""
@@ -207,4 +239,5 @@ class Recorder:
             strain_energy=self.ie[:k].copy(), external_work=self.w[:k].copy(),
             damping_dissipation=self.d[:k].copy(), energy_error=mech - supplied,
             wall_time=self.wall[:k].copy(), status=status, message=message, failed_step=failed_step,
-            energy_growth_ratio=self.growth_ratio(), options=dict(options))
+            energy_growth_ratio=self.growth_ratio(), options=dict(options),
+            reaction_work=self.rw[:k].copy() if self.prescribed else None)

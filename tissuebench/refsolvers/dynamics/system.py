@@ -1,10 +1,18 @@
 """The semi-discrete system ``M a + C v + f_int(u) = f_ext(t, u)`` the integrators march.
 
 A :class:`SecondOrderSystem` is all an integrator sees: it never imports a backend.
-Operators act on the full dof vector (length ``n``); dofs outside ``free`` are held
-at zero (homogeneous Dirichlet conditions; prescribed motion is not supported yet).
-The ``*_ff`` helpers restrict everything to the free dofs, which is where the
-integrators work.
+Operators act on the full dof vector (length ``n``); dofs outside ``free`` (the
+``fixed`` dofs) are held at zero, or follow a prescribed motion ``prescribed(t)``
+(non-homogeneous Dirichlet conditions). The ``*_ff`` helpers restrict everything to
+the free dofs, which is where the integrators work; ``*_fc`` blocks couple the free
+rows to the prescribed motion (inertia ``M_fc a_c`` and damping ``C_fc v_c``).
+
+Prescribed motion: the integrators impose ``u_c = prescribed(t_{n+1})`` and derive the
+velocity and acceleration of the fixed dofs with their own kinematic relations (as if
+the scheme ran on all dofs with the fixed rows replaced by ``u_c = g(t)``), so a velocity
+jump at t0 acts as the impulse ``M_fc (v_c1 - v_c0)`` it is. The energy balance then
+counts the work of the support forces ``R_c = [M a + C v + f_int]_c`` on the prescribed
+displacements (``DynamicsResult.reaction_work``).
 
 Units are whatever the caller uses consistently (SI in the cases: m, kg, s, N).
 """
@@ -15,58 +23,9 @@ from functools import cached_property
 from typing import Callable
 
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
-# Dense checks (Cholesky, eigvalsh) are exact and cheap below this many free dofs.
-DENSE_LIMIT = 1500
-
-
-def check_vector(name: str, value, n: int) -> np.ndarray:
-    """Return ``value`` as a float array of shape (n,), or raise ValueError naming it."""
-    arr = np.asarray(value, dtype=float)
-    if arr.shape != (n,):
-        raise ValueError(f"{name} must have shape ({n},), got {arr.shape}")
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"{name} contains a non-finite value {float(arr[i])!r} at index {i}")
-    return arr
-
-
-def check_spd_mass(M: sp.csr_matrix) -> None:
-    """Raise ValueError unless ``M`` (free-dof block) is symmetric positive definite.
-
-    Cheap checks first (finite, diagonal > 0, symmetric); then a Cholesky factorisation
-    for small systems, a sparse LU with a positive-pivot check for large ones (a
-    singular mass fails the LU).
-    """
-    if M.shape[0] == 0:
-        raise ValueError("M has no free dofs")
-    if not np.all(np.isfinite(M.data)):
-        raise ValueError("M contains non-finite entries")
-    diag = M.diagonal()
-    if np.any(diag <= 0):
-        i = int(np.flatnonzero(diag <= 0)[0])
-        raise ValueError(f"M is not positive definite: diagonal entry M[{i},{i}] = {float(diag[i])!r} <= 0")
-    asym = abs(M - M.T).max() if M.nnz else 0.0
-    if asym > 1e-10 * abs(M).max():
-        raise ValueError(f"M is not symmetric: max |M - M^T| = {asym:.3e}")
-    if M.shape[0] <= DENSE_LIMIT:
-        try:
-            np.linalg.cholesky(M.toarray())
-        except np.linalg.LinAlgError:
-            lam = sla.eigvalsh(M.toarray(), subset_by_index=[0, 0])[0]
-            raise ValueError(f"M is not positive definite: smallest eigenvalue {lam:.3e}") from None
-        return
-    try:
-        lu = spla.splu(M.tocsc())
-    except RuntimeError as exc:  # "Factor is exactly singular"
-        raise ValueError(f"M is singular: {exc}") from None
-    piv = lu.U.diagonal()
-    if np.any(piv <= 0) or np.min(np.abs(piv)) < 1e-14 * np.max(np.abs(piv)):
-        raise ValueError("M is not positive definite: LU pivots not all clearly positive")
+from .checks import DENSE_LIMIT, check_spd_mass, check_vector  # noqa: F401  (re-exported)
 
 
 def _constant_load(f):
@@ -101,6 +60,9 @@ class SecondOrderSystem:
         nonlinear ones the internal work is accumulated by the trapezoidal rule.
     load_tangent : callable ``(t, u) -> sparse (n, n) | None``, optional
         d load / du for follower loads.
+    prescribed : callable ``t -> (n_fixed,)``, optional
+        Displacements [m] of the fixed dofs (in the order of :attr:`fixed`) at time ``t``
+        [s]; None holds them at zero.
     """
 
     M: sp.spmatrix
@@ -114,6 +76,7 @@ class SecondOrderSystem:
     strain_energy: Callable | None = None
     load_depends_on_u: bool = False
     load_tangent: Callable | None = None
+    prescribed: Callable | None = None
 
     def __post_init__(self):
         if not sp.issparse(self.M):
@@ -133,6 +96,8 @@ class SecondOrderSystem:
                 raise ValueError(f"{name} must be finite and >= 0, got {val!r}")
         if not callable(self.load):
             self.load = _constant_load(check_vector("load", self.load, n))
+        if self.prescribed is not None and not callable(self.prescribed):
+            raise TypeError(f"prescribed must be a callable t -> (n_fixed,), got {type(self.prescribed).__name__}")
         check_spd_mass(self.M_ff)
 
     # ---------------------------------------------------------------- constructors
@@ -153,14 +118,13 @@ class SecondOrderSystem:
         """A system from a finite-element backend (any object with the Backend interface).
 
         The force at time t is ``backend.external_force(u, load_history(t))`` (follower
-        loads allowed); ``problem.fixed_dofs`` are held at zero.
+        loads allowed); ``problem.fixed_dofs`` follow ``problem.prescribed_values(
+        load_history(t))`` (prescribed translations and rotations of the Dirichlet sets),
+        or are held at zero when every Dirichlet set is homogeneous.
         """
         problem = backend.problem
         lam0 = float(load_history(0.0))
-        presc = np.asarray(problem.prescribed_values(lam0), dtype=float)
-        if np.any(presc != 0):
-            raise ValueError("from_backend: non-zero prescribed displacements are not supported "
-                             f"by the dynamics integrators (max |value| = {np.abs(presc).max():.3e})")
+        prescribed = _prescribed_motion(problem, load_history)
 
         if linear and backend.external_tangent(np.zeros(problem.ndof), lam0) is not None:
             raise ValueError("from_backend: linear=True needs dead loads (external_tangent is not None, "
@@ -173,13 +137,76 @@ class SecondOrderSystem:
                    tangent=backend.tangent, load=lambda t, u: backend.external_force(u, float(load_history(t))),
                    free=problem.free_dofs, alpha_m=alpha_m, beta_k=beta_k, linear=linear,
                    strain_energy=backend.strain_energy, load_depends_on_u=True,
-                   load_tangent=ext_tangent)
+                   load_tangent=ext_tangent, prescribed=prescribed)
 
     # ---------------------------------------------------------------- free-dof operators
     @property
     def n(self) -> int:
         """Number of dofs of the full vector."""
         return self.M.shape[0]
+
+    @cached_property
+    def fixed(self) -> np.ndarray:
+        """The constrained dofs (sorted): held at zero or following :attr:`prescribed`."""
+        return np.setdiff1d(np.arange(self.n), self.free)
+
+    @property
+    def has_prescribed(self) -> bool:
+        return self.prescribed is not None and len(self.fixed) > 0
+
+    def prescribed_values(self, t: float) -> np.ndarray:
+        """Displacements of the fixed dofs at ``t`` (zeros without a prescribed motion)."""
+        if not self.has_prescribed:
+            return np.zeros(len(self.fixed))
+        return check_vector(f"prescribed(t) at t={t!r}", self.prescribed(float(t)), len(self.fixed))
+
+    def _fc(self, A) -> sp.csr_matrix:
+        return sp.csr_matrix(A)[self.free][:, self.fixed]
+
+    @cached_property
+    def M_fc(self) -> sp.csr_matrix:
+        return self._fc(self.M)
+
+    @cached_property
+    def K0_fc(self) -> sp.csr_matrix:
+        """Tangent at u = 0, free rows and fixed columns (Rayleigh damping coupling)."""
+        return self._fc(self.tangent(np.zeros(self.n)))
+
+    @cached_property
+    def C_fc(self) -> sp.csr_matrix | None:
+        if not self.damped:
+            return None
+        return sp.csr_matrix(self.alpha_m * self.M_fc + self.beta_k * self.K0_fc)
+
+    @cached_property
+    def C_full(self) -> sp.csr_matrix | None:
+        if not self.damped:
+            return None
+        return sp.csr_matrix(self.alpha_m * self.M + self.beta_k * sp.csr_matrix(self.tangent(np.zeros(self.n))))
+
+    def mass_coupling(self, a_c) -> np.ndarray | float:
+        """``M_fc a_c`` on the free rows [N] (0.0 without a prescribed motion)."""
+        return self.M_fc @ a_c if self.has_prescribed else 0.0
+
+    def damping_coupling(self, v_c) -> np.ndarray | float:
+        """``C_fc v_c`` on the free rows [N] (0.0 without a prescribed motion or damping)."""
+        return self.C_fc @ v_c if self.has_prescribed and self.C_fc is not None else 0.0
+
+    def coupling_force(self, v_c, a_c) -> np.ndarray | float:
+        """``M_fc a_c + C_fc v_c`` on the free rows [N] (0.0 without a prescribed motion)."""
+        return self.mass_coupling(a_c) + self.damping_coupling(v_c)
+
+    def support_force(self, u_f, u_c, v_full, a_full, mass=None) -> np.ndarray:
+        """Force the supports and loads apply on the fixed dofs, ``[M a + C v + f_int]_c`` [N].
+
+        ``mass`` is the full mass the scheme uses (default :attr:`M`); ``v_full``,
+        ``a_full`` are full vectors (n,).
+        """
+        M = self.M if mass is None else mass
+        r = M @ a_full + np.asarray(self.internal_force(self.expand(u_f, u_c)), dtype=float)
+        if self.C_full is not None:
+            r = r + self.C_full @ v_full
+        return r[self.fixed]
 
     @property
     def damped(self) -> bool:
@@ -203,37 +230,55 @@ class SecondOrderSystem:
             return None
         return sp.csr_matrix(self.alpha_m * self.M_ff + self.beta_k * self.K0_ff)
 
-    def expand(self, x_f: np.ndarray) -> np.ndarray:
-        """Full vector (n,) with ``x_f`` on the free dofs and zero elsewhere."""
+    def expand(self, x_f: np.ndarray, x_c=None) -> np.ndarray:
+        """Full vector (n,) with ``x_f`` on the free dofs and ``x_c`` (default zero) on the fixed ones."""
         x = np.zeros(self.n)
         x[self.free] = x_f
+        if x_c is not None and len(self.fixed):
+            x[self.fixed] = x_c
         return x
 
-    def f_int(self, u_f):
-        return np.asarray(self.internal_force(self.expand(u_f)), dtype=float)[self.free]
+    def f_int(self, u_f, u_c=None):
+        """Internal force on the free dofs at ``u_f`` with the fixed dofs at ``u_c`` (default zero)."""
+        return np.asarray(self.internal_force(self.expand(u_f, u_c)), dtype=float)[self.free]
 
-    def K_t(self, u_f, t=None) -> sp.csr_matrix:
+    def K_t(self, u_f, t=None, u_c=None) -> sp.csr_matrix:
         """Tangent of ``f_int - f_ext`` on the free dofs (includes follower loads at ``t``)."""
-        K = self._ff(self.tangent(self.expand(u_f)))
+        u = self.expand(u_f, u_c)
+        K = self._ff(self.tangent(u))
         if self.load_tangent is not None and t is not None:
-            Ke = self.load_tangent(t, self.expand(u_f))
+            Ke = self.load_tangent(t, u)
             if Ke is not None:
                 K = sp.csr_matrix(K - self._ff(Ke))
         return K
 
-    def f_ext(self, t: float, u_f) -> np.ndarray:
+    def f_ext(self, t: float, u_f, u_c=None) -> np.ndarray:
         """External force on the free dofs; raises ValueError on a wrong shape or non-finite value."""
-        f = self.load(t, self.expand(u_f)) if self.load_depends_on_u else self.load(t)
+        f = self.load(t, self.expand(u_f, u_c)) if self.load_depends_on_u else self.load(t)
         return check_vector(f"load(t) at t={t!r}", f, self.n)[self.free]
 
     def damping_force(self, v_f):
         return np.zeros_like(v_f) if self.C_ff is None else self.C_ff @ v_f
 
-    def energy(self, u_f) -> float | None:
+    def energy(self, u_f, u_c=None) -> float | None:
         """Stored energy [J], or None when the system cannot supply it."""
         if self.strain_energy is None:
             return None
-        return float(self.strain_energy(self.expand(u_f)))
+        return float(self.strain_energy(self.expand(u_f, u_c)))
+
+
+def _prescribed_motion(problem, load_history):
+    """``t -> values of the fixed dofs (sorted)`` of ``problem`` driven by ``load_history``,
+    or None when every Dirichlet set holds its dofs at zero."""
+    motions = any(getattr(d, "motion", None) is not None for d in getattr(problem, "dirichlet", ()))
+    # without motions the values are affine in the load factor (scaled or constant): zero at 1 is zero always
+    if not motions and not np.any(np.asarray(problem.prescribed_values(1.0), dtype=float) != 0):
+        return None
+    order = np.argsort(problem.fixed_dofs)
+
+    def prescribed(t):
+        return np.asarray(problem.prescribed_values(float(load_history(t))), dtype=float)[order]
+    return prescribed
 
 
 class _LinearFlagOrCtor:

@@ -1,0 +1,58 @@
+"""Input checks of the dynamics: finite vectors of the right shape, an SPD mass."""
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+__all__ = ["DENSE_LIMIT", "check_vector", "check_spd_mass"]
+
+# Dense checks (Cholesky, eigvalsh) are exact and cheap below this many free dofs.
+DENSE_LIMIT = 1500
+
+
+def check_vector(name: str, value, n: int) -> np.ndarray:
+    """Return ``value`` as a float array of shape (n,), or raise ValueError naming it."""
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {arr.shape}")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{name} contains a non-finite value {float(arr[i])!r} at index {i}")
+    return arr
+
+
+def check_spd_mass(M: sp.csr_matrix) -> None:
+    """Raise ValueError unless ``M`` (free-dof block) is symmetric positive definite.
+
+    Cheap checks first (finite, diagonal > 0, symmetric); then a Cholesky factorisation
+    for small systems, a sparse LU with a positive-pivot check for large ones (a
+    singular mass fails the LU).
+    """
+    if M.shape[0] == 0:
+        raise ValueError("M has no free dofs")
+    if not np.all(np.isfinite(M.data)):
+        raise ValueError("M contains non-finite entries")
+    diag = M.diagonal()
+    if np.any(diag <= 0):
+        i = int(np.flatnonzero(diag <= 0)[0])
+        raise ValueError(f"M is not positive definite: diagonal entry M[{i},{i}] = {float(diag[i])!r} <= 0")
+    asym = abs(M - M.T).max() if M.nnz else 0.0
+    if asym > 1e-10 * abs(M).max():
+        raise ValueError(f"M is not symmetric: max |M - M^T| = {asym:.3e}")
+    if M.shape[0] <= DENSE_LIMIT:
+        try:
+            np.linalg.cholesky(M.toarray())
+        except np.linalg.LinAlgError:
+            lam = sla.eigvalsh(M.toarray(), subset_by_index=[0, 0])[0]
+            raise ValueError(f"M is not positive definite: smallest eigenvalue {lam:.3e}") from None
+        return
+    try:
+        lu = spla.splu(M.tocsc())
+    except RuntimeError as exc:  # "Factor is exactly singular"
+        raise ValueError(f"M is singular: {exc}") from None
+    piv = lu.U.diagonal()
+    if np.any(piv <= 0) or np.min(np.abs(piv)) < 1e-14 * np.max(np.abs(piv)):
+        raise ValueError("M is not positive definite: LU pivots not all clearly positive")
