@@ -12,7 +12,7 @@
 import numpy as np
 import pytest
 
-from tests._fe_helpers import BACKEND_PARAMS
+from _fe_helpers import BACKEND_PARAMS
 from tissuebench.cases.meshes import box_mesh
 from tissuebench.refsolvers import Dirichlet, LinearElastic, MooneyRivlin, Problem
 from tissuebench.refsolvers.backends import make_backend

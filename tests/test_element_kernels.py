@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from tests._fe_helpers import BACKEND_PARAMS, MATERIAL_NAMES, element_mesh, material_set
+from _fe_helpers import BACKEND_PARAMS, MATERIAL_NAMES, element_mesh, material_set
 from tissuebench.refsolvers import Dirichlet, Guccione, MooneyRivlin, Problem
 from tissuebench.refsolvers.backends import make_backend
 
