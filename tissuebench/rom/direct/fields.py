@@ -130,6 +130,22 @@ class SepField:
     def zeros(cls, n_space: int, meshes) -> "SepField":
         return cls(np.zeros((n_space, 0)), [np.zeros((m.n_nodes, 0)) for m in meshes])
 
+    def combined(self) -> "SepField":
+        """The same function with terms of identical parametric factors merged (zero terms dropped).
+
+        The one-step formulas repeat the input fields many times (u0 enters a Bathe step
+        five times); merging keeps the PGD right-hand sides short.
+        """
+        groups: dict = {}
+        for t in range(self.n_terms):
+            key = b"".join(g[:, t].tobytes() for g in self.factors)
+            groups.setdefault(key, []).append(t)
+        cols = [idx for idx in groups.values()]
+        X = np.column_stack([self.space[:, idx].sum(axis=1) for idx in cols]) if cols else self.space[:, :0]
+        keep = np.linalg.norm(X, axis=0) > 0.0
+        first = [idx[0] for idx, k in zip(cols, keep) if k]
+        return SepField(X[:, keep], [g[:, first] for g in self.factors])
+
     def leading(self, n: int) -> "SepField":
         """The first ``n`` terms (greedy PGD modes are nested)."""
         return SepField(self.space[:, :n], [g[:, :n] for g in self.factors])

@@ -16,8 +16,8 @@ import scipy.sparse as sp
 __all__ = ["ParameterMesh", "parameter_domain"]
 
 
-def parameter_domain(values, margin: float) -> tuple[float, float]:
-    """Interval covering ``values`` widened by ``margin`` times their span on each side.
+def parameter_domain(values, margin: float, symmetric: bool = True) -> tuple[float, float]:
+    """Interval of one parameter from its training values, widened by ``margin``.
 
     Parameters
     ----------
@@ -25,9 +25,15 @@ def parameter_domain(values, margin: float) -> tuple[float, float]:
         Training values of one parameter (a reduced coordinate [m, m/s ... in the POD
         norm] or a load factor [-]).
     margin : float, >= 0
-        Fraction of the span added below the minimum and above the maximum. The span is
-        ``max(hi - lo, max(|lo|, |hi|))`` so that a parameter constant in training (a step
-        load) still gets an interval of relative width ``2 margin`` around its value.
+        Relative widening. ``symmetric``: ``[-R, R]`` with ``R = (1 + margin) max |v|``
+        (the paper's intervals of initial conditions, ``[-3, 3]`` m/s). Otherwise
+        ``[lo - margin s, hi + margin s]`` with ``s = max(hi - lo, |lo|, |hi|)`` (a value
+        constant in training, e.g. a step load, gets relative width ``2 margin``).
+    symmetric : bool
+        Intervals centred on zero make the one-step map of a linear system (no constant
+        term) a sum of L2-orthogonal terms, which greedy PGD recovers with one mode per
+        parameter; off-centre intervals add a constant part that it approximates slowly
+        (measured: 30 modes for a 1 % error on a rank-3 map).
 
     Returns
     -------
@@ -47,6 +53,9 @@ def parameter_domain(values, margin: float) -> tuple[float, float]:
     span = max(hi - lo, abs(lo), abs(hi))
     if span == 0.0:
         raise ValueError("parameter_domain: every training value is zero; the interval is undefined")
+    if symmetric:
+        r = (1.0 + margin) * max(abs(lo), abs(hi))
+        return -r, r
     if margin == 0.0 and hi == lo:
         raise ValueError(f"parameter_domain: constant values {lo!r} with margin 0 give an empty interval")
     return lo - margin * span, hi + margin * span

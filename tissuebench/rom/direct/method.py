@@ -1,0 +1,140 @@
+"""``"pgd_direct"``: the PGD-POD direct time integrator (pgd-pod-direct-integration).
+
+Offline (:meth:`DirectIntegrator.build`): POD bases of the state fields from the training
+trajectories, an interval per reduced coordinate and for the load factor (training range
+plus ``margin``), a uniform mesh of ``n_nodes`` per parameter, and the PGD vademecum of
+one step of the inner ``integrator`` (:mod:`.offline`). Online (:class:`DirectModel`):
+each step evaluates the vademecum at the previous reduced state and the step's load
+factor and projects the result back on the bases — O(P x N) work, no full-size vector.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..base import RomMethod, Training, register
+from .meshes import ParameterMesh, parameter_domain
+from .model import DirectModel
+from .nonlinear import svk_internal_force_field
+from .offline import PgdSettings, build_vademecum
+from .operators import load_factors, state_bases, step_operators
+from .schemes import SCHEMES
+
+__all__ = ["DirectIntegrator"]
+
+
+def _positive_int(name, value, minimum=1):
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"pgd_direct: {name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+@register
+class DirectIntegrator(RomMethod):
+    """PGD-POD direct time integrator.
+
+    Parameters
+    ----------
+    pod_modes : int
+        POD modes per state field (the reduced coordinates of the initial conditions).
+    integrator : {"forward_euler", "central_difference", "bathe", "hht"}
+        Scheme inside the step (:mod:`.schemes`); the paper's "forward Euler" on
+        ``u^n, u^{n-1}`` is ``central_difference`` here.
+    pgd_modes : int, optional
+        Largest number of PGD modes of the vademecum (None: until the amplitude criterion).
+    n_nodes : int
+        Nodes of each parameter mesh (paper Remark 2: 100).
+    margin : float
+        Widening of every parameter interval beyond the training values (see
+        :func:`~.meshes.parameter_domain`).
+    symmetric : bool
+        Intervals centred on zero (default; see :func:`~.meshes.parameter_domain`).
+    dt : float, optional
+        Time step [s] (default: the training's).
+    alpha : float
+        HHT parameter in [-1/3, 0].
+    load_at : {"end", "start"}
+        Load factor held over a step: the one passed to that step (``"end"``) or the
+        previous step's (``"start"``, the paper's value at the beginning of the step).
+    mass : {"consistent", "lumped"}
+    pgd_tol, max_fixed_point, fixed_point_tol, seed
+        PGD settings (:class:`~.offline.PgdSettings`).
+    """
+
+    name = "pgd_direct"
+    kind = "trajectory"
+    nested = ("pgd_modes",)
+    training_kinds = ("trajectory",)
+
+    def __init__(self, pod_modes: int = 8, integrator: str = "forward_euler", pgd_modes: int | None = None,
+                 n_nodes: int = 100, margin: float = 0.25, symmetric: bool = True, dt: float | None = None,
+                 alpha: float = -0.05, load_at: str = "end", mass: str = "consistent", pgd_tol: float = 1e-8,
+                 max_fixed_point: int = 100, fixed_point_tol: float = 1e-12, seed: int = 0):
+        if integrator not in SCHEMES:
+            raise ValueError(f"pgd_direct: integrator = {integrator!r}; valid: {sorted(SCHEMES)}")
+        if load_at not in ("end", "start"):
+            raise ValueError(f"pgd_direct: load_at = {load_at!r}; valid: ['end', 'start']")
+        if mass not in ("consistent", "lumped"):
+            raise ValueError(f"pgd_direct: mass = {mass!r}; valid: ['consistent', 'lumped']")
+        if not (np.isfinite(alpha) and -1.0 / 3.0 <= alpha <= 0.0):
+            raise ValueError(f"pgd_direct: alpha must lie in [-1/3, 0], got {alpha!r}")
+        if not (np.isfinite(margin) and margin >= 0.0):
+            raise ValueError(f"pgd_direct: margin must be finite and >= 0, got {margin!r}")
+        if dt is not None and not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"pgd_direct: dt must be a finite time step > 0, got {dt!r}")
+        for name, v in (("pgd_tol", pgd_tol), ("fixed_point_tol", fixed_point_tol)):
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"pgd_direct: {name} must be finite and >= 0, got {v!r}")
+        self.pod_modes = _positive_int("pod_modes", pod_modes)
+        self.pgd_modes = None if pgd_modes is None else _positive_int("pgd_modes", pgd_modes)
+        self.n_nodes = _positive_int("n_nodes", n_nodes, 2)
+        self.max_fixed_point = _positive_int("max_fixed_point", max_fixed_point)
+        self.integrator, self.margin, self.symmetric, self.dt = integrator, float(margin), bool(symmetric), dt
+        self.alpha, self.load_at, self.mass = float(alpha), load_at, mass
+        self.pgd_tol, self.fixed_point_tol, self.seed = float(pgd_tol), float(fixed_point_tol), int(seed)
+
+    def _meshes(self, scheme, bases, lams):
+        meshes = []
+        for f in scheme.fields:
+            for c in bases.coordinates[scheme.basis[f]]:
+                meshes.append(ParameterMesh(*parameter_domain(c, self.margin, self.symmetric), self.n_nodes))
+        meshes.append(ParameterMesh(*parameter_domain(lams, self.margin, self.symmetric), self.n_nodes))
+        return meshes
+
+    def build(self, training: Training) -> DirectModel:
+        """Offline phase (see the module docstring); ValueError on an unusable training."""
+        t0 = time.perf_counter()
+        scheme = SCHEMES[self.integrator]
+        dt = self.dt if self.dt is not None else training.dt
+        if dt is None:
+            raise ValueError("pgd_direct: no time step (give dt or a training with dt)")
+        ops = step_operators(training, self.mass)
+        if scheme.implicit and not ops.linear:
+            raise ValueError(f"pgd_direct: integrator {self.integrator!r} is implicit and the system is "
+                             "nonlinear; use forward_euler or central_difference (explicit treatment, §6.2)")
+        kinds = list(dict.fromkeys(scheme.basis[f] for f in scheme.fields))
+        sb = state_bases(training, ops, kinds, self.pod_modes)
+        lams = load_factors(training)
+        meshes = self._meshes(scheme, sb, lams)
+        bases = {f: sb.bases[scheme.basis[f]] for f in scheme.fields}
+        fint, n_evals = None, 0
+        if not ops.linear:
+            if training.backend is None:
+                raise ValueError("pgd_direct: a nonlinear system needs training.backend (SVK polynomial force)")
+            fint, n_evals = svk_internal_force_field(training.backend, bases["u"], list(range(bases["u"].shape[1])),
+                                                     meshes, np.asarray(training.free_dofs))
+        # every output block weighs alike in the PGD norm: scaled by its training RMS (M-norm)
+        rms = {k: float(np.sqrt(np.mean(np.sum(c**2, axis=0)))) for k, c in sb.coordinates.items()}
+        scales = {f: 1.0 / rms[scheme.basis[f]] if rms[scheme.basis[f]] > 0 else 1.0 for f in scheme.outputs}
+        settings = PgdSettings(max_modes=self.pgd_modes or 200, tol=self.pgd_tol,
+                               max_fixed_point=self.max_fixed_point, fixed_point_tol=self.fixed_point_tol,
+                               seed=self.seed)
+        vad = build_vademecum(ops, scheme, bases, meshes, dt, settings, scales, fint, alpha=self.alpha)
+        vad.stats.update({"pod_energy": sb.energy, "svk_force_evaluations": n_evals,
+                          "build_s": time.perf_counter() - t0, "pod_modes": {k: b.shape[1] for k, b in bases.items()}})
+        model = DirectModel(vad, ops, bases, np.asarray(training.free_dofs), training.snapshots.shape[0],
+                            self.load_at)
+        if training.outputs:
+            model.attach_outputs(training.outputs)
+        return model

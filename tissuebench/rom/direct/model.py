@@ -1,0 +1,180 @@
+"""Online phase of the direct integrator: evaluate the vademecum, project, repeat.
+
+State: the reduced coordinates ``q`` of the scheme's fields (``u`` and ``v``, ``u`` and
+``u_prev`` for central difference, plus ``a`` for HHT) on mass-orthonormal POD bases.
+A step evaluates the separated sum at ``(q, lam)`` — its weights ``w_i = prod_d
+G_{i,d}(p_d)`` — and maps them to the next coordinates with ``R = Phi^T M F`` (reduced
+offline): P x N + n_q x N operations. The full field of the step is ``F_u w``
+(:meth:`DirectModel.reconstruct`, timed apart); monitored outputs use ``C F_u`` (n_out x N).
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..base import OnlineModel, StepResult, check_parameters
+from .schemes import SCHEMES, StepOperators, VectorAlgebra
+from .vademecum import Evaluator, Vademecum
+
+__all__ = ["DirectModel"]
+
+
+class DirectModel(OnlineModel):
+    """Trajectory model: ``start(mu0, state0, dt)`` then ``step({"time": t, "load_factor": lam})``.
+
+    Attributes
+    ----------
+    vademecum : Vademecum
+    extrapolations : int
+        Steps since ``start`` whose input lay outside the parameter intervals.
+    info : dict
+        Offline record (:attr:`Vademecum.stats`).
+    """
+
+    name = "pgd_direct"
+    kind = "trajectory"
+
+    def __init__(self, vademecum: Vademecum, ops: StepOperators, bases: dict, free_dofs, ndof: int,
+                 load_at: str = "end"):
+        self.vademecum, self.ops, self.bases = vademecum, ops, bases
+        self.free_dofs, self.ndof, self.load_at = np.asarray(free_dofs), int(ndof), load_at
+        self.scheme = SCHEMES[vademecum.scheme]
+        self.info = dict(vademecum.stats)
+        self._eval = Evaluator(vademecum)
+        sizes = [bases[f].shape[1] for f in self.scheme.fields]
+        offs = np.concatenate([[0], np.cumsum(sizes)])
+        self._slices = {f: slice(offs[i], offs[i + 1]) for i, f in enumerate(self.scheme.fields)}
+        self._nq = int(offs[-1])
+        # next coordinates = R @ weights on the computed fields; shifts copy coordinates
+        R = np.zeros((self._nq, vademecum.n_modes))
+        for f in self.scheme.outputs:
+            R[self._slices[f]] = bases[f].T @ (ops.M @ vademecum.space[f])
+        self._R = R
+        self._shift = [(self._slices[dst], self._slices[src]) for dst, src in self.scheme.shifts.items()]
+        self._p = np.zeros(self._nq + 1)
+        self._mass_lu = None
+        self._last_start = (None, None, None)
+        self.start()
+
+    # ------------------------------------------------------------------ contract
+    @property
+    def n_reduced(self) -> int:
+        return self._nq
+
+    @property
+    def envelope(self) -> dict:
+        return self.vademecum.domains
+
+    def variant(self, pgd_modes: int | None = None) -> "DirectModel":
+        """The same offline data with the first ``pgd_modes`` PGD modes (nested greedy modes)."""
+        vad = self.vademecum if pgd_modes is None else self.vademecum.leading(pgd_modes)
+        model = DirectModel(vad, self.ops, self.bases, self.free_dofs, self.ndof, self.load_at)
+        if getattr(self, "_outputs", None):
+            model.attach_outputs(dict(zip(self._outputs[0], self._outputs[1])))
+        return model
+
+    def _solve_mass(self, rhs):
+        if self._mass_lu is None:
+            self._mass_lu = spla.splu(sp.csc_matrix(self.ops.M))
+        return self._mass_lu.solve(rhs)
+
+    def start(self, mu0=None, state0=None, dt=None) -> None:
+        """Project ``state0`` (full ``u``, ``v`` (n_dof,); default rest) on the bases.
+
+        The acceleration of HHT's state and central difference's ``u_prev`` (the Taylor
+        start ``u0 - dt v0 + dt^2/2 a0``) come from equilibrium at ``mu0["load_factor"]``
+        (0 without ``mu0``). ``dt`` must be the vademecum's (ValueError otherwise).
+        """
+        vd = self.vademecum
+        if dt is not None and not np.isclose(float(dt), vd.dt, rtol=1e-9, atol=0.0):
+            raise ValueError(f"pgd_direct.start: dt = {dt!r}, but the vademecum integrates dt = {vd.dt!r}; "
+                             "build one for this dt")
+        lam0 = 0.0 if not mu0 or "load_factor" not in mu0 else float(mu0["load_factor"])
+        x = {}
+        for key in ("u", "v"):
+            val = None if state0 is None else state0.get(key)
+            x[key] = np.zeros(len(self.free_dofs)) if val is None else np.asarray(val, float)[self.free_dofs]
+        if "a" in self.scheme.fields or "u_prev" in self.scheme.fields:
+            alg = VectorAlgebra(self.ops, lam0)
+            a0 = self._solve_mass(alg.load() - alg.internal_force(x["u"]) - alg.damp(x["v"]))
+            x["a"] = a0
+            x["u_prev"] = x["u"] - vd.dt * x["v"] + 0.5 * vd.dt**2 * a0
+        self.q = np.concatenate([self.bases[f].T @ (self.ops.M @ x[f]) for f in self.scheme.fields])
+        self._lam_prev = lam0
+        self._last_start = (mu0, state0, dt)
+        self.extrapolations, self.n_steps = 0, 0
+
+    def reset(self) -> None:
+        """Restart from the last :meth:`start` arguments (the latency protocol repeats runs)."""
+        self.start(*self._last_start)
+
+    def step(self, mu) -> StepResult:
+        """Advance one step with ``mu["load_factor"]`` (see ``load_at``); reduced work only.
+
+        Status ``"extrapolation"`` when a coordinate of the previous state or the load
+        factor lies outside its interval (the value is linearly extrapolated, and counted
+        in :attr:`extrapolations`); ``"failed"`` on a non-finite state (kept unchanged).
+        """
+        mu = check_parameters(mu, ("load_factor",), self.name)
+        lam_new = float(mu["load_factor"])
+        p = self._p
+        p[:-1] = self.q
+        p[-1] = lam_new if self.load_at == "end" else self._lam_prev
+        w, s = self._eval.weights(p)
+        q = self._R @ w
+        for dst, src in self._shift:
+            q[dst] = self.q[src]
+        self.n_steps += 1
+        if not np.all(np.isfinite(q)):
+            return StepResult(None, "failed", f"step {self.n_steps}: non-finite state (extrapolated far outside "
+                              "the parameter intervals)", {"step": self.n_steps}, mu)
+        out = self._eval.outside(s)
+        self.q, self._lam_prev = q, lam_new
+        info = {"weights": w, "step": self.n_steps}
+        if out.size:
+            self.extrapolations += 1
+            d = int(out[0])
+            name, (lo, hi) = self.vademecum.param_names[d], (self.vademecum.meshes[d].lo, self.vademecum.meshes[d].hi)
+            msg = (f"step {self.n_steps}: {out.size} parameter(s) outside the vademecum, e.g. {name} = "
+                   f"{p[d]:.6g} not in [{lo:.6g}, {hi:.6g}]; linearly extrapolated")
+            return StepResult(q, "extrapolation", msg, info, mu)
+        return StepResult(q, "ok", "", info, mu)
+
+    # ------------------------------------------------------------------ fields and outputs
+    def _weights(self, result: StepResult):
+        if result.q is None:
+            raise ValueError(f"{self.name}: the step failed ({result.message}); no state")
+        return (result.info or {}).get("weights")
+
+    def field(self, result: StepResult, name: str = "u") -> np.ndarray:
+        """Full (n_dof,) vector of a computed field (``u``, ``v``, ``a``) at the step (zero on fixed dofs)."""
+        w = self._weights(result)
+        x = np.zeros(self.ndof)
+        if w is not None and name in self.vademecum.space:
+            x[self.free_dofs] = self.vademecum.space[name] @ w
+        elif name in self._slices:  # a state carried without weights: its projection
+            x[self.free_dofs] = self.bases[name] @ result.q[self._slices[name]]
+        else:
+            raise ValueError(f"{self.name}: field {name!r} is not computed by {self.scheme.name}")
+        return x
+
+    def reconstruct(self, result: StepResult) -> np.ndarray:
+        """Full displacement (n_dof,): the vademecum's ``F_u w`` (homogeneous Dirichlet dofs are zero)."""
+        return self.field(result, "u")
+
+    def attach_outputs(self, operators) -> None:
+        """Reduce linear outputs ``{name: c (n_dof,)}`` to ``c[free] F_u`` (n_out x N)."""
+        names = list(operators)
+        C = np.array([np.asarray(operators[n], float) for n in names]).reshape(len(names), -1)
+        self._outputs = (names, C, np.ascontiguousarray(C[:, self.free_dofs] @ self.vademecum.space["u"]))
+
+    def outputs(self, result: StepResult) -> dict:
+        names, _, C_r = getattr(self, "_outputs", ((), None, None))
+        if not names:
+            return {}
+        if result.q is None:
+            return {n: float("nan") for n in names}
+        w = (result.info or {}).get("weights")
+        y = C_r @ w if w is not None else self._outputs[1] @ self.reconstruct(result)
+        return dict(zip(names, y.tolist()))
