@@ -18,7 +18,7 @@ from .meshes import ParameterMesh, parameter_domain
 from .model import DirectModel
 from .nonlinear import svk_internal_force_field
 from .offline import PgdSettings, build_vademecum
-from .operators import load_factors, state_bases, step_operators
+from .operators import balance_bases, load_factors, state_bases, step_operators
 from .schemes import SCHEMES
 
 __all__ = ["DirectIntegrator"]
@@ -50,6 +50,9 @@ class DirectIntegrator(RomMethod):
         :func:`~.meshes.parameter_domain`).
     symmetric : bool
         Intervals centred on zero (default; see :func:`~.meshes.parameter_domain`).
+    balance : bool
+        Rotate each POD basis (same space) so that the step map's columns are orthogonal
+        (default; see :func:`~.operators.balance_bases`); False keeps the POD modes.
     dt : float, optional
         Time step [s] (default: the training's).
     alpha : float
@@ -68,7 +71,7 @@ class DirectIntegrator(RomMethod):
     training_kinds = ("trajectory",)
 
     def __init__(self, pod_modes: int = 8, integrator: str = "forward_euler", pgd_modes: int | None = None,
-                 n_nodes: int = 100, margin: float = 0.25, symmetric: bool = True, dt: float | None = None,
+                 n_nodes: int = 100, margin: float = 0.25, symmetric: bool = True, balance: bool = True, dt: float | None = None,
                  alpha: float = -0.05, load_at: str = "end", mass: str = "consistent", pgd_tol: float = 1e-8,
                  max_fixed_point: int = 100, fixed_point_tol: float = 1e-12, seed: int = 0):
         if integrator not in SCHEMES:
@@ -91,12 +94,13 @@ class DirectIntegrator(RomMethod):
         self.n_nodes = _positive_int("n_nodes", n_nodes, 2)
         self.max_fixed_point = _positive_int("max_fixed_point", max_fixed_point)
         self.integrator, self.margin, self.symmetric, self.dt = integrator, float(margin), bool(symmetric), dt
+        self.balance = bool(balance)
         self.alpha, self.load_at, self.mass = float(alpha), load_at, mass
         self.pgd_tol, self.fixed_point_tol, self.seed = float(pgd_tol), float(fixed_point_tol), int(seed)
 
-    def _meshes(self, scheme, bases, lams):
+    def _meshes(self, fields, scheme, bases, lams):
         meshes = []
-        for f in scheme.fields:
+        for f in fields:
             for c in bases.coordinates[scheme.basis[f]]:
                 meshes.append(ParameterMesh(*parameter_domain(c, self.margin, self.symmetric), self.n_nodes))
         meshes.append(ParameterMesh(*parameter_domain(lams, self.margin, self.symmetric), self.n_nodes))
@@ -113,26 +117,29 @@ class DirectIntegrator(RomMethod):
         if scheme.implicit and not ops.linear:
             raise ValueError(f"pgd_direct: integrator {self.integrator!r} is implicit and the system is "
                              "nonlinear; use forward_euler or central_difference (explicit treatment, §6.2)")
-        kinds = list(dict.fromkeys(scheme.basis[f] for f in scheme.fields))
+        fields = scheme.state_fields(ops.C is not None)
+        kinds = list(dict.fromkeys(scheme.basis[f] for f in fields))
         sb = state_bases(training, ops, kinds, self.pod_modes)
+        # every output block weighs alike in the PGD norm: scaled by its training RMS (M-norm)
+        rms = {k: float(np.sqrt(np.mean(np.sum(c**2, axis=0)))) for k, c in sb.coordinates.items()}
+        scales = {f: 1.0 / rms[scheme.basis[f]] if rms[scheme.basis[f]] > 0 else 1.0 for f in scheme.outputs}
+        balance = balance_bases(sb, ops, scheme, dt, scales, alpha=self.alpha) if self.balance else {}
         lams = load_factors(training)
-        meshes = self._meshes(scheme, sb, lams)
-        bases = {f: sb.bases[scheme.basis[f]] for f in scheme.fields}
+        meshes = self._meshes(fields, scheme, sb, lams)
+        bases = {f: sb.bases[scheme.basis[f]] for f in fields}
         fint, n_evals = None, 0
         if not ops.linear:
             if training.backend is None:
                 raise ValueError("pgd_direct: a nonlinear system needs training.backend (SVK polynomial force)")
             fint, n_evals = svk_internal_force_field(training.backend, bases["u"], list(range(bases["u"].shape[1])),
                                                      meshes, np.asarray(training.free_dofs))
-        # every output block weighs alike in the PGD norm: scaled by its training RMS (M-norm)
-        rms = {k: float(np.sqrt(np.mean(np.sum(c**2, axis=0)))) for k, c in sb.coordinates.items()}
-        scales = {f: 1.0 / rms[scheme.basis[f]] if rms[scheme.basis[f]] > 0 else 1.0 for f in scheme.outputs}
         settings = PgdSettings(max_modes=self.pgd_modes or 200, tol=self.pgd_tol,
                                max_fixed_point=self.max_fixed_point, fixed_point_tol=self.fixed_point_tol,
                                seed=self.seed)
         vad = build_vademecum(ops, scheme, bases, meshes, dt, settings, scales, fint, alpha=self.alpha)
         vad.stats.update({"pod_energy": sb.energy, "svk_force_evaluations": n_evals,
-                          "build_s": time.perf_counter() - t0, "pod_modes": {k: b.shape[1] for k, b in bases.items()}})
+                          "build_s": time.perf_counter() - t0, "pod_modes": {k: b.shape[1] for k, b in bases.items()},
+                          "balance_singular_values": {k: v.tolist() for k, v in balance.items()}})
         model = DirectModel(vad, ops, bases, np.asarray(training.free_dofs), training.snapshots.shape[0],
                             self.load_at)
         if training.outputs:

@@ -10,8 +10,6 @@ offline): P x N + n_q x N operations. The full field of the step is ``F_u w``
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from ..base import OnlineModel, StepResult, check_parameters
 from .schemes import SCHEMES, StepOperators, VectorAlgebra
@@ -40,20 +38,21 @@ class DirectModel(OnlineModel):
         self.vademecum, self.ops, self.bases = vademecum, ops, bases
         self.free_dofs, self.ndof, self.load_at = np.asarray(free_dofs), int(ndof), load_at
         self.scheme = SCHEMES[vademecum.scheme]
+        self.fields = self.scheme.state_fields(ops.C is not None)
         self.info = dict(vademecum.stats)
         self._eval = Evaluator(vademecum)
-        sizes = [bases[f].shape[1] for f in self.scheme.fields]
+        sizes = [bases[f].shape[1] for f in self.fields]
         offs = np.concatenate([[0], np.cumsum(sizes)])
-        self._slices = {f: slice(offs[i], offs[i + 1]) for i, f in enumerate(self.scheme.fields)}
+        self._slices = {f: slice(offs[i], offs[i + 1]) for i, f in enumerate(self.fields)}
         self._nq = int(offs[-1])
         # next coordinates = R @ weights on the computed fields; shifts copy coordinates
         R = np.zeros((self._nq, vademecum.n_modes))
         for f in self.scheme.outputs:
             R[self._slices[f]] = bases[f].T @ (ops.M @ vademecum.space[f])
         self._R = R
-        self._shift = [(self._slices[dst], self._slices[src]) for dst, src in self.scheme.shifts.items()]
+        self._shift = [(self._slices[dst], self._slices[src])
+                       for dst, src in self.scheme.state_shifts(ops.C is not None).items()]
         self._p = np.zeros(self._nq + 1)
-        self._mass_lu = None
         self._last_start = (None, None, None)
         self.start()
 
@@ -74,17 +73,13 @@ class DirectModel(OnlineModel):
             model.attach_outputs(dict(zip(self._outputs[0], self._outputs[1])))
         return model
 
-    def _solve_mass(self, rhs):
-        if self._mass_lu is None:
-            self._mass_lu = spla.splu(sp.csc_matrix(self.ops.M))
-        return self._mass_lu.solve(rhs)
-
     def start(self, mu0=None, state0=None, dt=None) -> None:
         """Project ``state0`` (full ``u``, ``v`` (n_dof,); default rest) on the bases.
 
-        The acceleration of HHT's state and central difference's ``u_prev`` (the Taylor
-        start ``u0 - dt v0 + dt^2/2 a0``) come from equilibrium at ``mu0["load_factor"]``
-        (0 without ``mu0``). ``dt`` must be the vademecum's (ValueError otherwise).
+        The other state fields come from the scheme's start (:attr:`Scheme.initial`: the
+        Taylor ``u_prev`` of central difference with the equilibrium acceleration at
+        ``mu0["load_factor"]``, 0 without ``mu0``; ``u_prev = u0`` for HHT). ``dt`` must be
+        the vademecum's (ValueError otherwise).
         """
         vd = self.vademecum
         if dt is not None and not np.isclose(float(dt), vd.dt, rtol=1e-9, atol=0.0):
@@ -95,12 +90,8 @@ class DirectModel(OnlineModel):
         for key in ("u", "v"):
             val = None if state0 is None else state0.get(key)
             x[key] = np.zeros(len(self.free_dofs)) if val is None else np.asarray(val, float)[self.free_dofs]
-        if "a" in self.scheme.fields or "u_prev" in self.scheme.fields:
-            alg = VectorAlgebra(self.ops, lam0)
-            a0 = self._solve_mass(alg.load() - alg.internal_force(x["u"]) - alg.damp(x["v"]))
-            x["a"] = a0
-            x["u_prev"] = x["u"] - vd.dt * x["v"] + 0.5 * vd.dt**2 * a0
-        self.q = np.concatenate([self.bases[f].T @ (self.ops.M @ x[f]) for f in self.scheme.fields])
+        x = VectorAlgebra(self.ops, lam0).initial_state(self.scheme, x["u"], x["v"], vd.dt)
+        self.q = np.concatenate([self.bases[f].T @ (self.ops.M @ x[f]) for f in self.fields])
         self._lam_prev = lam0
         self._last_start = (mu0, state0, dt)
         self.extrapolations, self.n_steps = 0, 0
@@ -121,11 +112,15 @@ class DirectModel(OnlineModel):
         p = self._p
         p[:-1] = self.q
         p[-1] = lam_new if self.load_at == "end" else self._lam_prev
+        self.n_steps += 1
+        if not np.all(np.isfinite(p)):
+            return StepResult(None, "failed", f"step {self.n_steps}: non-finite input (load factor {lam_new!r} "
+                              "or the previous state)", {"step": self.n_steps}, mu)
         w, s = self._eval.weights(p)
-        q = self._R @ w
+        with np.errstate(over="ignore", invalid="ignore"):
+            q = self._R @ w
         for dst, src in self._shift:
             q[dst] = self.q[src]
-        self.n_steps += 1
         if not np.all(np.isfinite(q)):
             return StepResult(None, "failed", f"step {self.n_steps}: non-finite state (extrapolated far outside "
                               "the parameter intervals)", {"step": self.n_steps}, mu)

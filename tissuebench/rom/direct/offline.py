@@ -133,6 +133,11 @@ class SeparatedAlgebra:
             raise RuntimeError(f"{name}: the PGD returned no mode ({sol.message})")
         return SepField.from_modes(sol.modes), sol
 
+    def mass_solve(self, rhs):
+        """``M y = rhs`` in separated form (an acceleration inside a step)."""
+        y, _ = self.pgd("mass", self.ops.M, rhs, self.settings.stage_max_modes)
+        return y
+
     def solve(self, name, c_m, c_c, w, rhs):
         """Implicit sub-step ``(c_m M + w (c_c C + K)) y = rhs`` in separated form."""
         y, _ = self.pgd(name, self.ops.effective(c_m, c_c, w), rhs, self.settings.stage_max_modes)
@@ -148,7 +153,7 @@ def build_vademecum(ops: StepOperators, scheme: Scheme, bases: dict, meshes, dt:
     ops : StepOperators
     scheme : Scheme
     bases : dict
-        State field (``scheme.fields``) -> (n_free, m_k) basis of its reduced coordinates.
+        State field (``scheme.state_fields(damped)``) -> (n_free, m_k) basis of its coordinates.
     meshes : list of ParameterMesh
         ``sum m_k`` coordinate meshes in field order, then the load-factor mesh.
     dt : float
@@ -164,15 +169,16 @@ def build_vademecum(ops: StepOperators, scheme: Scheme, bases: dict, meshes, dt:
     """
     t0 = time.perf_counter()
     options = {k: v for k, v in options.items() if k in scheme.options}
+    fields = scheme.state_fields(ops.C is not None)
     dims, start, names = {}, 0, []
-    for f in scheme.fields:
+    for f in fields:
         m = bases[f].shape[1]
         dims[f] = list(range(start, start + m))
         names += [f"{f}:{j}" for j in range(m)]
         start += m
     if len(meshes) != start + 1:
         raise ValueError(f"build_vademecum: {len(meshes)} meshes for {start} coordinates + the load")
-    inputs = {f: coordinate_field(bases[f], dims[f], meshes) for f in scheme.fields}
+    inputs = {f: coordinate_field(bases[f], dims[f], meshes) for f in fields}
     alg = SeparatedAlgebra(ops, meshes, inputs, settings, internal_force_field)
     out = scheme_step(scheme, alg, inputs, dt, **options)
     scales = {k: float((scales or {}).get(k, 1.0)) for k in scheme.outputs}

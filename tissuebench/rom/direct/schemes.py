@@ -27,9 +27,11 @@ Schemes (state fields in brackets)
 ``bathe`` [u, v]
     Bathe's composite scheme (trapezoidal half step, then 3-point backward Euler), as
     ``refsolvers`` Bathe; the acceleration at ``t_n`` comes from equilibrium at ``lam``.
-``hht`` [u, v, a]
-    HHT-alpha (beta = (1 - alpha)^2 / 4, gamma = 1/2 - alpha); the acceleration is part
-    of the state because HHT's is not in equilibrium.
+``hht`` [u, v, u_prev (, v_prev when damped)]
+    HHT-alpha (beta = (1 - alpha)^2 / 4, gamma = 1/2 - alpha). HHT's acceleration is not
+    in equilibrium; it follows from the previous step's HHT equation, so the previous
+    displacement (and velocity) are state fields (better captured by the POD of
+    displacements than accelerations are: 77 % of the energy in 8 modes on wave_block).
 Implicit schemes need a linear system (the separated nonlinear solve is not implemented).
 """
 from __future__ import annotations
@@ -114,16 +116,39 @@ def _bathe(alg, x, dt):
 
 def _hht(alg, x, dt, alpha=-0.05):
     beta, gamma = (1.0 - alpha) ** 2 / 4.0, 0.5 - alpha
-    u0, v0, a0 = x["u"], x["v"], x["a"]
+    u0, v0, up = x["u"], x["v"], x["u_prev"]
+    vp = x.get("v_prev")
+    w = 1.0 + alpha
+    f = alg.load()
+    # HHT's a0 from the equation of the previous step, with the load factor of this step
+    # (a piecewise-constant load: the acceleration jumps with the load at t_n)
+    Ma0 = f - w * (alg.K(u0) + alg.damp(v0)) + alpha * alg.K(up)
+    if vp is not None:
+        Ma0 = Ma0 + alpha * alg.damp(vp)
+    a0 = alg.mass_solve(Ma0)
     # Newmark kinematics: a = c_m u + a_hat, v = c_c u + v_hat
     c_m, c_c = 1.0 / (beta * dt * dt), gamma / (beta * dt)
-    a_hat = -c_m * (u0 + dt * v0) - (0.5 / beta - 1.0) * a0
-    v_hat = v0 + (dt * (1.0 - gamma)) * a0 + (gamma * dt) * a_hat
-    w = 1.0 + alpha
+    Ma_hat = -c_m * alg.M(u0 + dt * v0) - (0.5 / beta - 1.0) * Ma0
+    v_hat = v0 - (c_c * dt) * v0 - c_c * u0 + (dt * (1.0 - gamma / (2.0 * beta))) * a0
     # M a1 + (1 + alpha)(C v1 + K u1 - f) - alpha (C v0 + K u0 - f) = 0, f held over the step
-    rhs = alg.load() + alpha * (alg.damp(v0) + alg.K(u0)) - alg.M(a_hat) - w * alg.damp(v_hat)
+    rhs = f + alpha * (alg.damp(v0) + alg.K(u0)) - Ma_hat - w * alg.damp(v_hat)
     u1 = alg.solve("hht", c_m, c_c, w, rhs)
-    return {"u": ("value", u1), "v": ("value", c_c * u1 + v_hat), "a": ("value", c_m * u1 + a_hat)}
+    return {"u": ("value", u1), "v": ("value", c_c * u1 + v_hat)}
+
+
+def _cd_initial(alg, x, dt):
+    """u^{-1} of the Taylor start: u0 - dt v0 + dt^2/2 a0 (a0 from equilibrium)."""
+    a0 = alg.mass_solve(alg.load() - alg.internal_force(x["u"]) - alg.damp(x["v"]))
+    return {"u_prev": x["u"] - dt * x["v"] + (0.5 * dt * dt) * a0}
+
+
+def _hht_initial(alg, x, dt):
+    """u_prev = u0, v_prev = v0: HHT's a0 is then the equilibrium acceleration (its start)."""
+    return {"u_prev": x["u"], "v_prev": x["v"]}
+
+
+def _no_initial(alg, x, dt):
+    return {}
 
 
 @dataclass(frozen=True)
@@ -140,10 +165,14 @@ class Scheme:
     shifts : dict
         ``next field -> current field`` copied exactly (central difference: u_prev <- u).
     basis : dict
-        Field -> POD basis it is projected on ("u", "v" or "a").
+        Field -> POD basis it is projected on ("u" or "v").
     implicit : bool
     options : tuple of str
         Scheme options (HHT: alpha).
+    damped_fields : tuple of str
+        Extra state fields when the system is damped (HHT: v_prev).
+    initial : callable ``(alg, {"u", "v"}, dt) -> dict``
+        The other state fields of a start from displacement and velocity.
     """
 
     name: str
@@ -154,16 +183,26 @@ class Scheme:
     shifts: dict = field(default_factory=dict)
     basis: dict = field(default_factory=dict)
     options: tuple = ()
+    damped_fields: tuple = ()
+    initial: Callable = _no_initial
+
+    def state_fields(self, damped: bool) -> tuple:
+        """The state fields for a damped or undamped system."""
+        return self.fields + (self.damped_fields if damped else ())
+
+    def state_shifts(self, damped: bool) -> dict:
+        return {k: v for k, v in self.shifts.items() if k in self.state_fields(damped)}
 
 
 SCHEMES = {
     "forward_euler": Scheme("forward_euler", ("u", "v"), ("u", "v"), False, _forward_euler,
                             basis={"u": "u", "v": "v"}),
     "central_difference": Scheme("central_difference", ("u", "u_prev"), ("u",), False, _central_difference,
-                                 shifts={"u_prev": "u"}, basis={"u": "u", "u_prev": "u"}),
+                                 shifts={"u_prev": "u"}, basis={"u": "u", "u_prev": "u"}, initial=_cd_initial),
     "bathe": Scheme("bathe", ("u", "v"), ("u", "v"), True, _bathe, basis={"u": "u", "v": "v"}),
-    "hht": Scheme("hht", ("u", "v", "a"), ("u", "v", "a"), True, _hht, basis={"u": "u", "v": "v", "a": "a"},
-                  options=("alpha",)),
+    "hht": Scheme("hht", ("u", "v", "u_prev"), ("u", "v"), True, _hht,
+                  shifts={"u_prev": "u", "v_prev": "v"}, basis={"u": "u", "v": "v", "u_prev": "u", "v_prev": "v"},
+                  options=("alpha",), damped_fields=("v_prev",), initial=_hht_initial),
 }
 
 
@@ -209,11 +248,19 @@ class VectorAlgebra:
             self._lu["mass"] = spla.splu(sp.csc_matrix(self.ops.M))
         return self._lu["mass"].solve(rhs)
 
+    def initial_state(self, scheme: Scheme, u, v, dt: float, lam: float | None = None) -> dict:
+        """The full state of ``scheme`` starting from displacement ``u`` and velocity ``v`` at ``lam``."""
+        if lam is not None:
+            self.lam = float(lam)
+        x = {"u": np.asarray(u, dtype=float), "v": np.asarray(v, dtype=float)}
+        x.update(scheme.initial(self, x, dt))
+        return {k: x[k] for k in scheme.state_fields(self.ops.C is not None)}
+
     def step(self, scheme: Scheme, state: dict, dt: float, lam: float | None = None, **options) -> dict:
         """Next state ``{field: (n,) array}`` (shifts included) from ``state`` at load factor ``lam``."""
         if lam is not None:
             self.lam = float(lam)
         out = scheme_step(scheme, self, state, dt, **options)
         nxt = {k: (x if kind == "value" else self.mass_solve(x)) for k, (kind, x) in out.items()}
-        nxt.update({k: state[src] for k, src in scheme.shifts.items()})
+        nxt.update({k: state[src] for k, src in scheme.shifts.items() if k in state})
         return nxt

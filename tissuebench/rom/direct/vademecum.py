@@ -127,12 +127,13 @@ class Evaluator:
     def weights(self, p: np.ndarray):
         """(weights (N,), s (P,)): ``s`` is the position in element units (outside ``[0, n-1]``: extrapolated)."""
         s = (p - self.lo) * self.inv_h
-        k = np.minimum(np.maximum(s.astype(np.int64), 0), self.last)  # truncation = floor for s >= 0
-        k[s < 0] = 0
+        # clip before the cast: truncation is the floor for s >= 0, and s < 0 maps to element 0
+        k = np.clip(s, 0.0, self.last).astype(np.int64)
         w = (s - k)[:, None]
         vals = self.left[self.rows, k]
         vals += w * self.diff[self.rows, k]
-        return vals.prod(axis=0), s
+        with np.errstate(over="ignore", invalid="ignore"):  # far extrapolation: reported by the caller
+            return vals.prod(axis=0), s
 
     def outside(self, s) -> np.ndarray:
         """Indices of the parameters outside their interval."""
