@@ -18,7 +18,8 @@ from .meshes import ParameterMesh, parameter_domain
 from .model import DirectModel
 from .nonlinear import svk_internal_force_field
 from .offline import PgdSettings, build_vademecum
-from .operators import balance_bases, load_factors, state_bases, step_operators
+from .balance import rotate_fields
+from .operators import load_factors, state_bases, step_operators
 from .schemes import SCHEMES
 
 __all__ = ["DirectIntegrator"]
@@ -42,7 +43,8 @@ class DirectIntegrator(RomMethod):
         Scheme inside the step (:mod:`.schemes`); the paper's "forward Euler" on
         ``u^n, u^{n-1}`` is ``central_difference`` here.
     pgd_modes : int, optional
-        Largest number of PGD modes of the vademecum (None: until the amplitude criterion).
+        Largest number of modes of every PGD solve of the step (None: 200; the amplitude
+        criterion ``pgd_tol`` usually stops first).
     n_nodes : int
         Nodes of each parameter mesh (paper Remark 2: 100).
     margin : float
@@ -50,9 +52,10 @@ class DirectIntegrator(RomMethod):
         :func:`~.meshes.parameter_domain`).
     symmetric : bool
         Intervals centred on zero (default; see :func:`~.meshes.parameter_domain`).
-    balance : bool
-        Rotate each POD basis (same space) so that the step map's columns are orthogonal
-        (default; see :func:`~.operators.balance_bases`); False keeps the POD modes.
+    balance : {"field", "none"}
+        Coordinates in which the PGD sees the previous state (:mod:`.balance`): each POD
+        basis rotated in its space so that the step map's columns are orthogonal
+        ("field", default), or the POD modes themselves ("none").
     dt : float, optional
         Time step [s] (default: the training's).
     alpha : float
@@ -67,11 +70,11 @@ class DirectIntegrator(RomMethod):
 
     name = "pgd_direct"
     kind = "trajectory"
-    nested = ("pgd_modes",)
+    nested = ()
     training_kinds = ("trajectory",)
 
     def __init__(self, pod_modes: int = 8, integrator: str = "forward_euler", pgd_modes: int | None = None,
-                 n_nodes: int = 100, margin: float = 0.25, symmetric: bool = True, balance: bool = True, dt: float | None = None,
+                 n_nodes: int = 100, margin: float = 0.25, symmetric: bool = True, balance: str = "field", dt: float | None = None,
                  alpha: float = -0.05, load_at: str = "end", mass: str = "consistent", pgd_tol: float = 1e-8,
                  max_fixed_point: int = 100, fixed_point_tol: float = 1e-12, seed: int = 0):
         if integrator not in SCHEMES:
@@ -94,15 +97,14 @@ class DirectIntegrator(RomMethod):
         self.n_nodes = _positive_int("n_nodes", n_nodes, 2)
         self.max_fixed_point = _positive_int("max_fixed_point", max_fixed_point)
         self.integrator, self.margin, self.symmetric, self.dt = integrator, float(margin), bool(symmetric), dt
-        self.balance = bool(balance)
+        if balance not in ("field", "none"):
+            raise ValueError(f"pgd_direct: balance = {balance!r}; valid: ['field', 'none']")
+        self.balance = balance
         self.alpha, self.load_at, self.mass = float(alpha), load_at, mass
         self.pgd_tol, self.fixed_point_tol, self.seed = float(pgd_tol), float(fixed_point_tol), int(seed)
 
-    def _meshes(self, fields, scheme, bases, lams):
-        meshes = []
-        for f in fields:
-            for c in bases.coordinates[scheme.basis[f]]:
-                meshes.append(ParameterMesh(*parameter_domain(c, self.margin, self.symmetric), self.n_nodes))
+    def _meshes(self, coords, lams):
+        meshes = [ParameterMesh(*parameter_domain(c, self.margin, self.symmetric), self.n_nodes) for c in coords]
         meshes.append(ParameterMesh(*parameter_domain(lams, self.margin, self.symmetric), self.n_nodes))
         return meshes
 
@@ -123,10 +125,9 @@ class DirectIntegrator(RomMethod):
         # every output block weighs alike in the PGD norm: scaled by its training RMS (M-norm)
         rms = {k: float(np.sqrt(np.mean(np.sum(c**2, axis=0)))) for k, c in sb.coordinates.items()}
         scales = {f: 1.0 / rms[scheme.basis[f]] if rms[scheme.basis[f]] > 0 else 1.0 for f in scheme.outputs}
-        balance = balance_bases(sb, ops, scheme, dt, scales, alpha=self.alpha) if self.balance else {}
-        lams = load_factors(training)
-        meshes = self._meshes(fields, scheme, sb, lams)
+        balance = rotate_fields(sb, ops, scheme, dt, scales, alpha=self.alpha) if self.balance == "field" else {}
         bases = {f: sb.bases[scheme.basis[f]] for f in fields}
+        meshes = self._meshes(np.vstack([sb.coordinates[scheme.basis[f]] for f in fields]), load_factors(training))
         fint, n_evals = None, 0
         if not ops.linear:
             if training.backend is None:
@@ -136,10 +137,10 @@ class DirectIntegrator(RomMethod):
         settings = PgdSettings(max_modes=self.pgd_modes or 200, tol=self.pgd_tol,
                                max_fixed_point=self.max_fixed_point, fixed_point_tol=self.fixed_point_tol,
                                seed=self.seed)
-        vad = build_vademecum(ops, scheme, bases, meshes, dt, settings, scales, fint, alpha=self.alpha)
+        vad = build_vademecum(ops, scheme, bases, meshes, dt, settings, fint, alpha=self.alpha)
         vad.stats.update({"pod_energy": sb.energy, "svk_force_evaluations": n_evals,
                           "build_s": time.perf_counter() - t0, "pod_modes": {k: b.shape[1] for k, b in bases.items()},
-                          "balance_singular_values": {k: v.tolist() for k, v in balance.items()}})
+                          "balance": self.balance, "balance_singular_values": {k: v.tolist() for k, v in balance.items()}})
         model = DirectModel(vad, ops, bases, np.asarray(training.free_dofs), training.snapshots.shape[0],
                             self.load_at)
         if training.outputs:

@@ -65,14 +65,6 @@ class DirectModel(OnlineModel):
     def envelope(self) -> dict:
         return self.vademecum.domains
 
-    def variant(self, pgd_modes: int | None = None) -> "DirectModel":
-        """The same offline data with the first ``pgd_modes`` PGD modes (nested greedy modes)."""
-        vad = self.vademecum if pgd_modes is None else self.vademecum.leading(pgd_modes)
-        model = DirectModel(vad, self.ops, self.bases, self.free_dofs, self.ndof, self.load_at)
-        if getattr(self, "_outputs", None):
-            model.attach_outputs(dict(zip(self._outputs[0], self._outputs[1])))
-        return model
-
     def start(self, mu0=None, state0=None, dt=None) -> None:
         """Project ``state0`` (full ``u``, ``v`` (n_dof,); default rest) on the bases.
 

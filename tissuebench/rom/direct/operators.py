@@ -20,7 +20,7 @@ import scipy.sparse.linalg as spla
 from ..pod import pod_basis
 from .schemes import StepOperators
 
-__all__ = ["step_operators", "load_factors", "StateBases", "state_bases", "balance_bases"]
+__all__ = ["step_operators", "load_factors", "StateBases", "state_bases"]
 
 
 def load_factors(training) -> np.ndarray:
@@ -135,48 +135,3 @@ def state_bases(training, ops: StepOperators, fields, n_modes: int) -> StateBase
         energy[name] = pod.energy_captured
     return StateBases(bases, coords, energy)
 
-
-def balance_bases(sb: StateBases, ops: StepOperators, scheme, dt: float, scales: dict, **options) -> dict:
-    """Rotate each POD basis so that the step map's columns of its coordinates are orthogonal.
-
-    The one-step map of a linear system is ``z = sum_j z_j p_j`` (one column per reduced
-    coordinate). Greedy PGD recovers such a sum with one mode per coordinate when the
-    columns are orthogonal in the norm of the final solve; with strongly correlated
-    columns (the ``M^{-1} K phi_j`` of a velocity update) it builds mixed modes and
-    converges slowly (measured on wave_block, 8 POD modes, forward Euler: 40 modes for a
-    10 % residual). An orthogonal change of basis of each POD space (eigenvectors of the
-    Gram matrix of its columns, largest first) removes this without changing the space
-    spanned or the projection. The columns come from the scheme on unit coordinates
-    (:class:`~.schemes.VectorAlgebra`; a nonlinear system is linearised at rest).
-
-    Returns
-    -------
-    dict
-        Basis name -> singular values of its columns (decreasing).
-    """
-    from .schemes import VectorAlgebra
-
-    lin = StepOperators(ops.M, ops.K, ops.f, ops.C)
-    alg = VectorAlgebra(lin)
-    fields = scheme.state_fields(ops.C is not None)
-    zero = np.zeros(ops.n)
-    W = ops.M
-    sing = {}
-    for kind in dict.fromkeys(scheme.basis[f] for f in fields):
-        B = sb.bases[kind]
-        G = np.zeros((B.shape[1], B.shape[1]))
-        for field in (f for f in fields if scheme.basis[f] == kind):
-            cols = []
-            for j in range(B.shape[1]):
-                state = {f: zero for f in fields}
-                state[field] = B[:, j]
-                nxt = alg.step(scheme, state, dt, 0.0, **options)
-                cols.append(np.concatenate([scales.get(k, 1.0) * nxt[k] for k in scheme.outputs]))
-            Z = np.array(cols).T
-            WZ = np.concatenate([W @ Z[i * ops.n:(i + 1) * ops.n] for i in range(len(scheme.outputs))])
-            G += Z.T @ WZ
-        lam, V = np.linalg.eigh(0.5 * (G + G.T))
-        order = np.argsort(lam)[::-1]
-        sb.rotate(kind, V[:, order])
-        sing[kind] = np.sqrt(np.maximum(lam[order], 0.0))
-    return sing

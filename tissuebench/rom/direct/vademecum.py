@@ -56,6 +56,7 @@ class Vademecum:
 
     @property
     def n_modes(self) -> int:
+        """Separated terms evaluated online (PGD modes of every solve plus input terms)."""
         return self.factors.shape[2]
 
     @property
@@ -66,17 +67,8 @@ class Vademecum:
     def domains(self) -> dict:
         return {name: (m.lo, m.hi) for name, m in zip(self.param_names, self.meshes)}
 
-    def leading(self, n: int) -> "Vademecum":
-        """The first ``n`` PGD modes (the greedy modes are nested)."""
-        if not 1 <= int(n) <= self.n_modes:
-            raise ValueError(f"pgd_modes = {n!r}: the vademecum has {self.n_modes} modes")
-        n = int(n)
-        return Vademecum(self.scheme, self.dt, dict(self.options), list(self.param_names), list(self.meshes),
-                         {k: v[:, :n] for k, v in self.space.items()}, self.factors[:, :, :n],
-                         {**self.stats, "pgd_modes_used": n})
-
     def weights(self, params) -> np.ndarray:
-        """``prod_d G_{i,d}(p_d)`` for every mode, shape (N,)."""
+        """``prod_d G_{i,d}(p_d)`` for every term, shape (N,)."""
         return Evaluator(self).weights(np.asarray(params, dtype=float))[0]
 
     def evaluate(self, params) -> dict:
