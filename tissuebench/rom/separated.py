@@ -43,7 +43,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 __all__ = ["SeparatedOperator", "SeparatedVector", "SeparatedSolution", "pgd_solve"]
 
@@ -231,4 +230,4 @@ class SeparatedSolution:
 
 
 # ------------------------------------------------------------------------ solver
-from .separated_solver import pgd_solve  # noqa: E402  (the algorithm; it imports the types above)
+from .separated_solver import pgd_solve  # the algorithm; it imports the types above

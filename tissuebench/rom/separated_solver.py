@@ -27,6 +27,14 @@ class _DimSolver:
         self.mats, self.custom, self._factor = mats, custom, None
         self.shared = all(m is mats[0] for m in mats)
 
+    @staticmethod
+    def _factorise(M):
+        """A ``solve(b)`` of the matrix M, factorised once (SuperLU or dense LU)."""
+        if sp.issparse(M):
+            return spla.splu(sp.csc_matrix(M)).solve
+        lu = sla.lu_factor(np.asarray(M, float))
+        return lambda b: sla.lu_solve(lu, b)
+
     def _solve_one(self, M, rhs):
         if sp.issparse(M):
             return spla.spsolve(sp.csc_matrix(M), rhs)
@@ -37,9 +45,7 @@ class _DimSolver:
             return np.asarray(self.custom(self._combine(c), rhs), float).ravel()
         if self.shared:
             if self._factor is None:
-                M = self.mats[0]
-                self._factor = (spla.splu(sp.csc_matrix(M)).solve if sp.issparse(M)
-                                else (lambda b, lu=sla.lu_factor(np.asarray(M, float)): sla.lu_solve(lu, b)))
+                self._factor = self._factorise(self.mats[0])
             return self._factor(rhs) / float(np.sum(c))
         return np.asarray(self._solve_one(self._combine(c), rhs), float).ravel()
 
@@ -145,7 +151,7 @@ def _new_mode(rng, ctx, max_fixed_point, fixed_point_tol):
 def _update_last(modes, ctx):
     """Galerkin re-solve of every mode's last factor with the other factors frozen
     (the "update" step of PGD): ``sum_t A_t[L] V C_t^T = R`` for V = [F_1[L] .. F_n[L]]."""
-    D, ops, F, L = ctx["D"], ctx["ops"], ctx["F"], ctx["D"] - 1
+    ops, F, L = ctx["ops"], ctx["F"], ctx["D"] - 1
     n = len(modes)
     C = []
     for t in range(len(ops)):

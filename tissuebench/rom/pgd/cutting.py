@@ -1,0 +1,246 @@
+"""``"pgd_cutting"``: PGD vademecum + cracking-node enrichment, the coupled system (28) of
+pgd-vademecum-cutting §4.3, on one incision of the scene's ``[cut]``.
+
+Offline: the vademecum of the scalpel contact over the accessible strip (or the whole
+anterior surface), the srb or prb reduced stiffness, the enrichment operators of the
+strip (:mod:`.enrichment`) projected on the modes, i.e. every block of
+
+    [ K_bb   K_bq ] [beta]   [f_b(s_p)]          srb: K_bb = Phi^T K Phi = I, K_bq = Phi^T K_ud, K_qq = K_dd
+    [ K_qb   K_qq ] [ q  ] = [   0    ]          prb: K_bb = alpha ∘ X^T K X, K_bq = diag(gamma) X^T K_ud,
+                                                      K_qq = |S| K_dd (doubly weak form, eq. 24-26)
+
+for the longest cut. Linear elasticity (small strain about the intact cornea, the
+tangent at u = 0 of the SVK material), as the paper's system (28).
+
+Online, ``step({"position": j, "cut_length": c})`` (position: :mod:`.online`; cut
+length: :mod:`.strip`): when the cut has advanced to a length never reached before, the
+new cracked nodes are enriched on the fly: the inverse of the coupled matrix is extended
+by a Schur complement (O(n^2 k) for k new dofs; n <= N + 3 x cracked nodes) and kept per
+length; then ``x = M_c^{-1} b``. The contact force of the step (``force_x, force_y,
+force_z`` in N, default ``load_factor`` x the scene's contact force) is split into the
+parts normal and parallel to the surface at the contact; ``info["cuts"]`` says whether
+|F_parallel| > F_cut (the cutting criterion of §3; the study drives the cut length
+itself). No full-size vector is touched; :meth:`reconstruct` returns the field on the
+mesh cut to length c (:func:`~.enrichment.to_cut_mesh`).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..base import OnlineModel, RomMethod, StepResult, Training, register
+from .enrichment import Enrichment, enrichment_operators, to_cut_mesh
+from .linear import check_pgd_options
+from .online import locate
+from .projections import make_projection
+from .strip import incision_strip
+from .training import family_from_training, scene_of, uncut_backend
+from .vademecum import Vademecum, build_vademecum
+
+__all__ = ["CuttingModel", "PgdCutting"]
+
+
+class CuttingModel(OnlineModel):
+    """Online coupled system (module docstring); ``q = [coefficients on the basis; d]``
+    with the coefficients on X at s_p for prb (``beta ∘ S(s_p)``)."""
+
+    kind = "map"
+
+    def __init__(self, name, vademecum: Vademecum, projection: str, enrichment: Enrichment, F_cut: float,
+                 points: np.ndarray, problem=None):
+        self.name, self.vademecum, self.projection = name, vademecum, projection
+        self.enrichment, self.strip, self.F_cut, self.problem = enrichment, enrichment.strip, float(F_cut), problem
+        proj = make_projection(projection, vademecum)
+        self.proj, self.basis = proj, proj.basis
+        fam = vademecum.family
+        self.free_dofs, self.ndof, self.force = fam.free_dofs, fam.ndof, np.asarray(fam.force, float)
+        r = self.basis.shape[1]
+        if projection == "srb":
+            K_bq, K_qq, self._gamma = self.basis.T @ enrichment.K_ud, enrichment.K_dd, None
+        else:  # doubly weak form: the enrichment does not depend on s, its s-integrals are gamma and |S|
+            K_bq = proj.gamma[:, None] * (self.basis.T @ enrichment.K_ud)
+            K_qq, self._gamma = fam.weights.sum() * enrichment.K_dd, proj.gamma
+        n_e = K_qq.shape[0]
+        self.M = np.zeros((r + n_e, r + n_e))
+        self.M[:r, :r], self.M[:r, r:], self.M[r:, :r], self.M[r:, r:] = proj.K_r, K_bq, K_bq.T, K_qq
+        self.M = 0.5 * (self.M + self.M.T)
+        self.r = r
+        lam, V = np.linalg.eigh(proj.K_r)
+        keep = lam > 1e-12 * lam.max()  # (pseudo-)inverse: prb's K_bb may be singular for dependent modes
+        self._inv = {0: (V[:, keep] / lam[keep]) @ V[:, keep].T}  # inverse of the coupled matrix per cut length
+        self._normals = {}
+        self.points = points
+        self._c = 0
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def n_reduced(self) -> int:
+        return self.r + 3 * int(self.strip.n_enriched[self._c])
+
+    @property
+    def envelope(self) -> dict:
+        return {"position": (0, self.vademecum.family.n_parameters - 1), "cut_length": (0, self.strip.max_cut_length)}
+
+    @property
+    def build_info(self) -> dict:
+        return {**self.vademecum.build_info(), "projection": self.projection,
+                "max_cut_length": self.strip.max_cut_length, "enriched_nodes": len(self.strip.enriched),
+                "enrichment_K_uu_check": self.enrichment.K_uu_check, "F_cut_N": self.F_cut}
+
+    # ------------------------------------------------------------------ enrichment on the fly
+    def _inverse(self, c: int) -> np.ndarray:
+        """``M_c^{-1}``, extended from the longest known shorter cut by Schur complements."""
+        inv = self._inv.get(c)
+        if inv is not None:
+            return inv
+        k = max(k for k in self._inv if k < c)
+        Minv, n0 = self._inv[k], self.r + 3 * int(self.strip.n_enriched[k])
+        n1 = self.r + 3 * int(self.strip.n_enriched[c])
+        B, D = self.M[:n0, n0:n1], self.M[n0:n1, n0:n1]
+        Z = Minv @ B
+        S_inv = np.linalg.inv(D - B.T @ Z)
+        ZS = Z @ S_inv
+        out = np.empty((n1, n1))
+        out[:n0, :n0] = Minv + ZS @ Z.T
+        out[:n0, n0:] = -ZS
+        out[n0:, :n0] = -ZS.T
+        out[n0:, n0:] = S_inv
+        self._inv[c] = out
+        return out
+
+    def start(self, mu0=None, state0=None, dt=None) -> None:
+        """Forget the enrichment built online (the next cut re-enriches from the intact state)."""
+        self._inv = {0: self._inv[0]}
+        self._c = 0
+
+    # ------------------------------------------------------------------ step
+    def _force(self, mu, lam):
+        keys = ("force_x", "force_y", "force_z")
+        if any(k in mu for k in keys):
+            F = np.array([float(mu.get(k, 0.0)) for k in keys])
+            if not np.all(np.isfinite(F)):
+                raise ValueError(f"{self.name}.step: non-finite contact force {F.tolist()}")
+            return F
+        return lam * self.force
+
+    def step(self, mu) -> StepResult:
+        """Coupled reduced solve at the contact position and cut length of ``mu``."""
+        if "cut_length" not in mu:
+            raise ValueError(f"{self.name}.step: parameter 'cut_length' missing from mu = {dict(mu)}")
+        c = self.strip.check_length(mu["cut_length"])
+        ct, status, msg, lam = locate(self.vademecum, mu, self.name, need_S=self.projection == "prb")
+        if ct is None:
+            return StepResult(None, "failed", msg, mu=dict(mu))
+        F = self._force(mu, lam)
+        fam = self.vademecum.family
+        node = int(ct.where)
+        rows = fam.free_index[3 * node + np.arange(3)]
+        keep = rows >= 0
+        rows, Fv = rows[keep], F[keep]
+        Minv = self._inverse(c)
+        self._c = c
+        b = np.zeros(Minv.shape[0])
+        b[:self.r] = self.basis[rows].T @ Fv if self._gamma is None else self._gamma * (self.basis[rows].T @ Fv)
+        x = Minv @ b
+        if ct.S_p is not None and self.projection == "prb":
+            x[:self.r] *= ct.S_p
+        u_c = self.basis[rows] @ x[:self.r]  # the contact node is a crack-front node: not enriched
+        n = self._normals.get(node)
+        if n is None:
+            n = self._normals[node] = self.strip.normal(self.points, node)
+        F_n = float(F @ n)
+        F_par = float(np.linalg.norm(F - F_n * n))
+        info = {"cut_length": c, "contact_node": node, "contact_displacement": u_c, "F_normal": F_n,
+                "F_parallel": F_par, "cuts": F_par > self.F_cut, "parameter_index": ct.index}
+        return StepResult(x, status, msg, info=info, mu=dict(mu))
+
+    def outputs(self, result: StepResult) -> dict:
+        """Contact displacement (mm) and the parallel contact force (N) of a step."""
+        if result.q is None:
+            return {k: float("nan") for k in ("contact_ux", "contact_uy", "contact_uz", "F_parallel")}
+        u = np.zeros(3)
+        fam = self.vademecum.family
+        rows = fam.free_index[3 * result.info["contact_node"] + np.arange(3)]
+        u[rows >= 0] = result.info["contact_displacement"]
+        return {"contact_ux": u[0], "contact_uy": u[1], "contact_uz": u[2], "F_parallel": result.info["F_parallel"]}
+
+    def reconstruct(self, result: StepResult) -> np.ndarray:
+        """Displacement on the mesh cut to the step's length (originals, then copies)."""
+        if result.q is None:
+            raise ValueError(f"{self.name}.reconstruct: the step failed ({result.message}); no state")
+        c = int(result.info["cut_length"])
+        u = np.zeros(self.ndof)
+        u[self.free_dofs] = self.basis @ result.q[:self.r]
+        return to_cut_mesh(u, result.q[self.r:], self.strip, c)
+
+
+@register
+class PgdCutting(RomMethod):
+    """PGD vademecum + cracking-node cutting on one incision of the scene's ``[cut]``.
+
+    Options
+    -------
+    n_modes, projection ("srb" | "prb"), tol, max_fixed_point, fixed_point_tol, seed :
+        of the vademecum (:class:`~.linear.Pgd`)
+    incision : int, index in ``[cut].incisions`` (default 0)
+    radii : [r0, r1] mm, optional, replaces the incision's radii
+    accessible : "strip" (the incision's anterior nodes and ``strip_rings`` rings of
+        neighbours: the vademecum's parameter domain) or "anterior" (the whole surface)
+    strip_rings : int >= 0
+    F_cut : float, N, threshold of the cutting criterion (default: the scene's
+        ``[methods.pgd_cutting] F_cut_N``, else 3)
+    """
+
+    name = "pgd_cutting"
+    kind = "map"
+    nested = ("n_modes",)
+    training_kinds = ("operators",)
+
+    def __init__(self, n_modes: int = 6, projection: str = "srb", incision: int = 0, radii=None,
+                 accessible: str = "strip", strip_rings: int = 1, F_cut: float | None = None, tol: float = 1e-8,
+                 max_fixed_point: int = 50, fixed_point_tol: float = 1e-8, seed: int = 0):
+        check_pgd_options(self.name, n_modes, tol, max_fixed_point, fixed_point_tol, seed)
+        if projection not in ("srb", "prb"):
+            raise ValueError(f"{self.name}: projection = {projection!r}; valid: ['srb', 'prb']")
+        if accessible not in ("strip", "anterior"):
+            raise ValueError(f"{self.name}: accessible = {accessible!r}; valid: ['strip', 'anterior']")
+        if isinstance(incision, bool) or not isinstance(incision, (int, np.integer)) or incision < 0:
+            raise ValueError(f"{self.name}: incision must be an index >= 0, got {incision!r}")
+        if isinstance(strip_rings, bool) or not isinstance(strip_rings, (int, np.integer)) or strip_rings < 0:
+            raise ValueError(f"{self.name}: strip_rings must be an integer >= 0, got {strip_rings!r}")
+        if radii is not None and not (len(radii) == 2 and 0 <= radii[0] < radii[1]):
+            raise ValueError(f"{self.name}: radii = {radii!r}; expected [r0, r1] with 0 <= r0 < r1 (mm)")
+        if F_cut is not None and not (np.isfinite(F_cut) and F_cut > 0):
+            raise ValueError(f"{self.name}: F_cut must be a force > 0 (N), got {F_cut!r}")
+        self.n_modes, self.projection, self.incision, self.radii = int(n_modes), projection, int(incision), radii
+        self.accessible, self.strip_rings, self.F_cut = accessible, int(strip_rings), F_cut
+        self.tol, self.max_fixed_point, self.fixed_point_tol, self.seed = tol, max_fixed_point, fixed_point_tol, seed
+
+    def strip(self, training: Training):
+        """(scene, intact backend, IncisionStrip) of the training's scene."""
+        scene = scene_of(training, self.name)
+        if scene.cut is None:
+            raise ValueError(f"{self.name}: scene {scene.name!r} has no [cut] table (no incision to follow)")
+        incs = scene.cut["incisions"]
+        if self.incision >= len(incs):
+            raise ValueError(f"{self.name}: incision = {self.incision}; the scene has {len(incs)} incision(s)")
+        inc = dict(incs[self.incision])
+        if self.radii is not None:
+            inc["radii"] = [float(r) for r in self.radii]
+        be = uncut_backend(training, scene, self.name)
+        intact = dataclasses.replace(scene, cut=None)
+        st = incision_strip(intact.mesh, intact.mesh_info, inc, scene.cut["depth_fraction"], be.problem.free_dofs,
+                            self.strip_rings)
+        return scene, be, st
+
+    def build(self, training: Training) -> OnlineModel:
+        scene, be, st = self.strip(training)
+        info = dict(training.info or {})
+        if self.accessible == "strip":
+            info["accessible_nodes"] = st.accessible
+        fam = family_from_training(Training(backend=be, info=info), self.name)
+        vad = build_vademecum(fam, self.n_modes, self.tol, self.max_fixed_point, self.fixed_point_tol, self.seed)
+        F_cut = self.F_cut or float((scene.methods.get("pgd_cutting", {}) or {}).get("F_cut_N", 3.0))
+        return CuttingModel(self.name, vad, self.projection, enrichment_operators(scene, be, st), F_cut,
+                            be.problem.nodes, be.problem)

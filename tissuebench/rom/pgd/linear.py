@@ -1,0 +1,122 @@
+"""``"pgd"``: the linear PGD vademecum of a moving point load, evaluated online by srb,
+prb or the vademecum itself (pgd-vademecum-cutting §2).
+
+Offline: the point-load family of the scene (:mod:`.training`: the stiffness K of the
+space discretisation and the point loads in separated form, no snapshot), its PGD
+vademecum (:func:`~.vademecum.build_vademecum`) and the reduced operators of the chosen
+projection (:mod:`.projections`). Online, ``step({"position": s_p})`` (see
+:mod:`.online` for the keys and the statuses) costs a few rows of the basis times the
+force and an N x N product; ``reconstruct`` returns the full field.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..base import LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, register
+from .online import locate
+from .projections import make_projection
+from .training import family_from_training
+from .vademecum import Vademecum, build_vademecum
+
+__all__ = ["Pgd", "PgdModel", "check_pgd_options"]
+
+_PROJECTIONS = ("srb", "prb", "vademecum")
+
+
+def check_pgd_options(who, n_modes, tol, max_fixed_point, fixed_point_tol, seed):
+    """ValueError naming the first invalid vademecum option."""
+    for name, v in (("n_modes", n_modes), ("max_fixed_point", max_fixed_point)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValueError(f"{who}: {name} must be a positive integer, got {v!r}")
+    for name, v in (("tol", tol), ("fixed_point_tol", fixed_point_tol)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and v >= 0):
+            raise ValueError(f"{who}: {name} must be a finite number >= 0, got {v!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise ValueError(f"{who}: seed must be an integer, got {seed!r}")
+
+
+@register
+class Pgd(RomMethod):
+    """PGD vademecum + online projection.
+
+    Options
+    -------
+    n_modes : int, largest number of modes (the build may stop earlier, see ``tol``)
+    projection : {"srb", "prb", "vademecum"}
+    tol, max_fixed_point, fixed_point_tol, seed, update_last :
+        of :func:`~tissuebench.rom.separated.pgd_solve` (amplitude criterion relative to
+        the first mode; sweeps and convergence of the alternating directions)
+    s_nodes : int, optional, number of parameter nodes of a 1D scene (default: the
+        scene's ``[methods.pgd] s_nodes_<resolution>``, else the mesh nodes)
+    """
+
+    name = "pgd"
+    kind = "map"
+    nested = ("n_modes",)
+    training_kinds = ("operators",)
+
+    def __init__(self, n_modes: int = 10, projection: str = "srb", tol: float = 1e-8, max_fixed_point: int = 50,
+                 fixed_point_tol: float = 1e-8, seed: int = 0, update_last: bool = False, s_nodes=None):
+        check_pgd_options(self.name, n_modes, tol, max_fixed_point, fixed_point_tol, seed)
+        if projection not in _PROJECTIONS:
+            raise ValueError(f"{self.name}: projection = {projection!r}; valid: {list(_PROJECTIONS)}")
+        self.n_modes, self.projection, self.tol = int(n_modes), projection, float(tol)
+        self.max_fixed_point, self.fixed_point_tol, self.seed = int(max_fixed_point), float(fixed_point_tol), int(seed)
+        self.update_last, self.s_nodes = bool(update_last), s_nodes
+
+    def vademecum(self, training: Training) -> Vademecum:
+        """The offline vademecum alone (shared by the projections of a study)."""
+        fam = family_from_training(training, self.name, self.s_nodes)
+        return build_vademecum(fam, self.n_modes, self.tol, self.max_fixed_point, self.fixed_point_tol,
+                               self.seed, self.update_last)
+
+    def build(self, training: Training) -> OnlineModel:
+        vad = self.vademecum(training)
+        return PgdModel(self.name, vad, self.projection, getattr(training.backend, "problem", None))
+
+
+class PgdModel(LinearReconstruction, OnlineModel):
+    """Online vademecum; ``q`` = coefficients on :attr:`basis` (srb: K-orthonormal basis
+    of span X; prb and vademecum: the modes X)."""
+
+    kind = "map"
+
+    def __init__(self, name, vademecum: Vademecum, projection: str, problem=None):
+        self.name, self.vademecum, self.projection = name, vademecum, projection
+        self.proj = None if projection == "vademecum" else make_projection(projection, vademecum)
+        self.basis = vademecum.X if self.proj is None else self.proj.basis
+        fam = vademecum.family
+        self.free_dofs, self.ndof, self.problem = fam.free_dofs, fam.ndof, problem
+
+    @property
+    def n_reduced(self) -> int:
+        return self.basis.shape[1]
+
+    @property
+    def envelope(self) -> dict:
+        fam = self.vademecum.family
+        if fam.kind == "line":
+            return {"position": (float(fam.coords[0]), float(fam.coords[-1]))}
+        return {"position": (0, fam.n_parameters - 1)}
+
+    @property
+    def build_info(self) -> dict:
+        return {**self.vademecum.build_info(), "projection": self.projection,
+                "dropped_directions": getattr(self.proj, "n_dropped", 0)}
+
+    def prescribed(self, mu):  # homogeneous Dirichlet conditions only (checked offline)
+        fixed = np.setdiff1d(np.arange(self.ndof), self.free_dofs)
+        return fixed, np.zeros(len(fixed))
+
+    def step(self, mu) -> StepResult:
+        """Reduced state at the contact position of ``mu`` (see :mod:`.online`)."""
+        c, status, msg, lam = locate(self.vademecum, mu, self.name, need_S=self.projection != "srb")
+        if c is None:
+            return StepResult(None, "failed", msg, mu=dict(mu))
+        if self.proj is None:
+            q = lam * c.S_p
+        else:
+            q = lam * self.proj.coefficients(c.rows, c.values, c.S_p)
+        u_c = self.basis[c.rows] @ q  # displacement at the loaded dofs (tool tip)
+        return StepResult(q, status, msg, info={"contact_displacement": u_c, "parameter_index": c.index},
+                          mu=dict(mu))

@@ -1,0 +1,67 @@
+"""Full-FE references of the cutting model: the same cut mesh (node duplication,
+:mod:`tissuebench.cases.cutting`) with the contact force on the scalpel node.
+
+* :func:`cut_problem` — the Problem of the scene cut to length ``c`` of a strip, loaded by
+  ``force`` on the strip's tip node (the crack-front node: same id in the cut mesh).
+* :func:`linear_reference` — ``K u = f`` with the stiffness at u = 0 (the linear system
+  the cutting model (28) reduces), factorisation and solve timed separately: the "full
+  FE step of the same cut" the speed-up is measured against (a cut changes the mesh, so
+  a full simulator refactorises at every new cut length).
+* :func:`l2_error` — relative L2 error ``|u - u_ref|_M / |u_ref|_M`` with the mass
+  matrix of the cut mesh (unit density; the paper's "L2-error norm").
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+__all__ = ["cut_problem", "linear_reference", "l2_error"]
+
+
+def cut_problem(scene, strip, c: int, force, node: int | None = None):
+    """Problem of ``scene`` cut to length ``c`` along ``strip``, point load ``force`` (3,)
+    on ``node`` (default: the scalpel tip of length c)."""
+    from ...refsolvers import PointLoad
+
+    c = strip.check_length(c)
+    if c == 0:
+        s = dataclasses.replace(scene, cut=None)
+    else:
+        s = dataclasses.replace(scene, cut={"incisions": [strip.incision(c)], "depth_fraction": strip.depth_fraction})
+    node = strip.tip(c) if node is None else int(node)
+    return dataclasses.replace(s.to_problem(), loads=(PointLoad(np.array([node]), np.asarray(force, float)),))
+
+
+def linear_reference(backend) -> tuple[np.ndarray, dict]:
+    """Linear solve of ``backend``'s problem at load factor 1 (homogeneous Dirichlet).
+
+    Returns
+    -------
+    u : (ndof,) displacement
+    times : dict, ``assemble_s`` (stiffness at 0 and load), ``factor_s``, ``solve_s``
+    """
+    t0 = time.perf_counter()
+    z = np.zeros(backend.ndof)
+    K, f = backend.tangent(z), backend.external_force(z, 1.0)
+    free = np.asarray(backend.problem.free_dofs)
+    Kff = sp.csc_matrix(K[free][:, free])
+    t1 = time.perf_counter()
+    lu = spla.splu(Kff, permc_spec="MMD_AT_PLUS_A")
+    t2 = time.perf_counter()
+    u = np.zeros(backend.ndof)
+    u[free] = lu.solve(f[free])
+    t3 = time.perf_counter()
+    return u, {"assemble_s": t1 - t0, "factor_s": t2 - t1, "solve_s": t3 - t2}
+
+
+def l2_error(u, u_ref, mass) -> float:
+    """``|u - u_ref|_M / |u_ref|_M`` (mass-matrix L2 norm of the displacement fields)."""
+    e = np.asarray(u) - np.asarray(u_ref)
+    den = float(u_ref @ (mass @ u_ref))
+    if not den > 0:
+        raise ValueError("l2_error: the reference field is zero")
+    return float(np.sqrt(max(float(e @ (mass @ e)), 0.0) / den))
