@@ -176,7 +176,7 @@ def test_non_finite_state_is_a_failed_step(frame_fe):
 
 
 @pytest.mark.parametrize("opts, match", [({"integrator": "rk4"}, "integrator"), ({"pod_modes": 0}, "pod_modes"),
-                                         ({"n_nodes": 1}, "n_nodes"), ({"load_at": "mid"}, "load_at"),
+                                         ({"n_nodes": 1}, "n_nodes"), ({"load_at": "middle"}, "load_at"),
                                          ({"alpha": -0.5}, "alpha"), ({"margin": -1.0}, "margin"),
                                          ({"mass": "diagonal"}, "mass"), ({"dt": 0.0}, "dt"),
                                          ({"n_modes": 3}, "n_modes")])
@@ -234,3 +234,10 @@ def test_load_at_start_reproduces_forward_euler_with_a_time_varying_load():
         U = np.array([model.reconstruct(r) for r in _run(model, tr)])
         errs[load_at] = np.abs(U - res.u[1:]).max() / np.abs(res.u).max()
     assert errs["start"] < 1e-10 and errs["end"] > 1e-3, errs
+    # "mid": the mean of the previous and the new load factor is held over the step
+    model = make_method("pgd_direct", pod_modes=2, load_at="mid").build(tr)
+    model.start({"time": 0.0, "load_factor": 0.2}, None, 0.01)
+    r = model.step({"time": 0.01, "load_factor": 0.6})
+    x = VectorAlgebra(model.ops).initial_state(SCHEMES["forward_euler"], np.zeros(2), np.zeros(2), 0.01, 0.2)
+    ref = VectorAlgebra(model.ops).step(SCHEMES["forward_euler"], x, 0.01, 0.4)
+    np.testing.assert_allclose(model.field(r, "v")[tr.free_dofs], ref["v"], rtol=0, atol=1e-10 * np.abs(ref["v"]).max())

@@ -60,9 +60,10 @@ class DirectIntegrator(RomMethod):
         Time step [s] (default: the training's).
     alpha : float
         HHT parameter in [-1/3, 0].
-    load_at : {"end", "start"}
-        Load factor held over a step: the one passed to that step (``"end"``) or the
-        previous step's (``"start"``, the paper's value at the beginning of the step).
+    load_at : {"end", "start", "mid"}
+        Load factor held over a step: the one passed to that step (``"end"``), the
+        previous step's (``"start"``, the paper's value at the beginning of the step) or
+        their mean (``"mid"``: second order in dt for a smooth load history).
     mass : {"consistent", "lumped"}
     pgd_tol, max_fixed_point, fixed_point_tol, seed
         PGD settings (:class:`~.offline.PgdSettings`).
@@ -79,8 +80,8 @@ class DirectIntegrator(RomMethod):
                  max_fixed_point: int = 100, fixed_point_tol: float = 1e-12, seed: int = 0):
         if integrator not in SCHEMES:
             raise ValueError(f"pgd_direct: integrator = {integrator!r}; valid: {sorted(SCHEMES)}")
-        if load_at not in ("end", "start"):
-            raise ValueError(f"pgd_direct: load_at = {load_at!r}; valid: ['end', 'start']")
+        if load_at not in ("end", "start", "mid"):
+            raise ValueError(f"pgd_direct: load_at = {load_at!r}; valid: ['end', 'start', 'mid']")
         if mass not in ("consistent", "lumped"):
             raise ValueError(f"pgd_direct: mass = {mass!r}; valid: ['consistent', 'lumped']")
         if not (np.isfinite(alpha) and -1.0 / 3.0 <= alpha <= 0.0):
@@ -103,8 +104,19 @@ class DirectIntegrator(RomMethod):
         self.alpha, self.load_at, self.mass = float(alpha), load_at, mass
         self.pgd_tol, self.fixed_point_tol, self.seed = float(pgd_tol), float(fixed_point_tol), int(seed)
 
-    def _meshes(self, coords, lams):
-        meshes = [ParameterMesh(*parameter_domain(c, self.margin, self.symmetric), self.n_nodes) for c in coords]
+    def _meshes(self, coords: dict, lams):
+        """One mesh per coordinate (field by field), then the load factor's.
+
+        A coordinate's interval is ``(1 + margin)`` times its largest training value, but at
+        least ``margin`` times the largest training norm of its field's coordinates: a
+        direction hardly excited in training (a small singular value) must not flag every
+        small deviation of the reduced trajectory as an extrapolation.
+        """
+        meshes = []
+        for Q in coords.values():
+            floor = self.margin * float(np.max(np.linalg.norm(Q, axis=0)))
+            for c in Q:
+                meshes.append(ParameterMesh(*parameter_domain(c, self.margin, self.symmetric, floor), self.n_nodes))
         meshes.append(ParameterMesh(*parameter_domain(lams, self.margin, self.symmetric), self.n_nodes))
         return meshes
 
@@ -127,7 +139,7 @@ class DirectIntegrator(RomMethod):
         scales = {f: 1.0 / rms[scheme.basis[f]] if rms[scheme.basis[f]] > 0 else 1.0 for f in scheme.outputs}
         balance = rotate_fields(sb, ops, scheme, dt, scales, alpha=self.alpha) if self.balance == "field" else {}
         bases = {f: sb.bases[scheme.basis[f]] for f in fields}
-        meshes = self._meshes(np.vstack([sb.coordinates[scheme.basis[f]] for f in fields]), load_factors(training))
+        meshes = self._meshes({f: sb.coordinates[scheme.basis[f]] for f in fields}, load_factors(training))
         fint, n_evals = None, 0
         if not ops.linear:
             if training.backend is None:

@@ -103,7 +103,8 @@ class DirectModel(OnlineModel):
         lam_new = float(mu["load_factor"])
         p = self._p
         p[:-1] = self.q
-        p[-1] = lam_new if self.load_at == "end" else self._lam_prev
+        p[-1] = (lam_new if self.load_at == "end" else self._lam_prev if self.load_at == "start"
+                 else 0.5 * (lam_new + self._lam_prev))
         self.n_steps += 1
         if not np.all(np.isfinite(p)):
             return StepResult(None, "failed", f"step {self.n_steps}: non-finite input (load factor {lam_new!r} "
