@@ -10,7 +10,7 @@ import numpy as np
 
 from tissuebench.reports.figures import pyplot
 
-__all__ = ["frame", "beam", "wave", "curves", "long_run", "liver"]
+__all__ = ["beam", "curves", "frame", "liver", "long_run", "wave"]
 
 
 def _save(fig, path):

@@ -3,6 +3,8 @@ step against the explicit update formula of its inner integrator, convergence wi
 and parameter-mesh nodes, extrapolation and failure reporting, bad input."""
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -103,7 +105,7 @@ def test_error_decreases_with_pgd_modes_to_exactness_at_the_rank(beam):
         errs.append(np.sqrt(err2 / np.einsum("si,ij,sj->", refs, model.ops.M.toarray(), refs)))
     # exact at the rank (one mode per coordinate and the load), large with one mode
     assert errs[0] > 1e-1 and errs[P - 1] < 1e-10, errs
-    assert all(b < a for a, b in zip(errs[:P], errs[1:P])), errs
+    assert all(b < a for a, b in itertools.pairwise(errs[:P])), errs
 
 
 def test_linear_map_is_exact_on_the_coarsest_parameter_mesh(beam):

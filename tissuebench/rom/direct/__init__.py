@@ -13,5 +13,13 @@ from .model import DirectModel
 from .schemes import SCHEMES, StepOperators, VectorAlgebra
 from .vademecum import Vademecum
 
-__all__ = ["ParameterMesh", "parameter_domain", "DirectIntegrator", "DirectModel", "SCHEMES", "StepOperators",
-           "VectorAlgebra", "Vademecum"]
+__all__ = [
+           "SCHEMES",
+           "DirectIntegrator",
+           "DirectModel",
+           "ParameterMesh",
+           "StepOperators",
+           "Vademecum",
+           "VectorAlgebra",
+           "parameter_domain",
+]

@@ -24,7 +24,7 @@ import numpy as np
 
 from .schemes import StepOperators, VectorAlgebra
 
-__all__ = ["step_columns", "rotate_fields"]
+__all__ = ["rotate_fields", "step_columns"]
 
 
 def step_columns(ops: StepOperators, scheme, bases: dict, dt: float, scales: dict, **options):

@@ -86,7 +86,7 @@ class SepField:
     def __truediv__(self, c):
         return self * (1.0 / float(c))
 
-    def apply(self, A) -> "SepField":
+    def apply(self, A) -> SepField:
         """``A`` (sparse or dense (n', n)) applied to every spatial factor."""
         return SepField(np.asarray(A @ self.space).reshape(-1, self.n_terms), [g.copy() for g in self.factors])
 
@@ -118,7 +118,7 @@ class SepField:
         return [(X[:, t],) + tuple(g[:, t] for g in Gs) for t in range(self.n_terms)]
 
     @classmethod
-    def from_modes(cls, modes) -> "SepField":
+    def from_modes(cls, modes) -> SepField:
         """SepField of PGD modes ``[(X_i, G_1i, ..., G_Pi), ...]`` (amplitudes folded in)."""
         if not modes:
             raise ValueError("SepField.from_modes: no modes")
@@ -127,10 +127,10 @@ class SepField:
         return cls(cols[0], cols[1:])
 
     @classmethod
-    def zeros(cls, n_space: int, meshes) -> "SepField":
+    def zeros(cls, n_space: int, meshes) -> SepField:
         return cls(np.zeros((n_space, 0)), [np.zeros((m.n_nodes, 0)) for m in meshes])
 
-    def combined(self) -> "SepField":
+    def combined(self) -> SepField:
         """The same function with terms of identical parametric factors merged (zero terms dropped).
 
         The one-step formulas repeat the input fields many times (u0 enters a Bathe step
@@ -146,7 +146,7 @@ class SepField:
         first = [idx[0] for idx, k in zip(cols, keep) if k]
         return SepField(X[:, keep], [g[:, first] for g in self.factors])
 
-    def leading(self, n: int) -> "SepField":
+    def leading(self, n: int) -> SepField:
         """The first ``n`` terms (greedy PGD modes are nested)."""
         return SepField(self.space[:, :n], [g[:, :n] for g in self.factors])
 

@@ -14,11 +14,11 @@ import time
 import numpy as np
 
 from ..base import RomMethod, Training, register
+from .balance import rotate_fields
 from .meshes import ParameterMesh, parameter_domain
 from .model import DirectModel
 from .nonlinear import svk_internal_force_field
 from .offline import PgdSettings, build_vademecum
-from .balance import rotate_fields
 from .operators import load_factors, state_bases, step_operators
 from .schemes import SCHEMES
 
@@ -75,9 +75,9 @@ class DirectIntegrator(RomMethod):
     training_kinds = ("trajectory",)
 
     def __init__(self, pod_modes: int = 8, integrator: str = "forward_euler", pgd_modes: int | None = None,
-                 n_nodes: int = 100, margin: float = 0.25, symmetric: bool = True, balance: str = "field", dt: float | None = None,
-                 alpha: float = -0.05, load_at: str = "end", mass: str = "consistent", pgd_tol: float = 1e-8,
-                 max_fixed_point: int = 100, fixed_point_tol: float = 1e-12, seed: int = 0):
+                 n_nodes: int = 100, margin: float = 0.25, symmetric: bool = True, balance: str = "field",
+                 dt: float | None = None, alpha: float = -0.05, load_at: str = "end", mass: str = "consistent",
+                 pgd_tol: float = 1e-8, max_fixed_point: int = 100, fixed_point_tol: float = 1e-12, seed: int = 0):
         if integrator not in SCHEMES:
             raise ValueError(f"pgd_direct: integrator = {integrator!r}; valid: {sorted(SCHEMES)}")
         if load_at not in ("end", "start", "mid"):
@@ -120,9 +120,8 @@ class DirectIntegrator(RomMethod):
         meshes.append(ParameterMesh(*parameter_domain(lams, self.margin, self.symmetric), self.n_nodes))
         return meshes
 
-    def build(self, training: Training) -> DirectModel:
-        """Offline phase (see the module docstring); ValueError on an unusable training."""
-        t0 = time.perf_counter()
+    def _operators(self, training: Training):
+        """(scheme, dt, StepOperators) with the checks that need the training."""
         scheme = SCHEMES[self.integrator]
         dt = self.dt if self.dt is not None else training.dt
         if dt is None:
@@ -131,15 +130,25 @@ class DirectIntegrator(RomMethod):
         if scheme.implicit and not ops.linear:
             raise ValueError(f"pgd_direct: integrator {self.integrator!r} is implicit and the system is "
                              "nonlinear; use forward_euler or central_difference (explicit treatment, §6.2)")
+        return scheme, dt, ops
+
+    def _bases(self, training, ops, scheme, dt):
+        """(bases per state field, coordinates per state field, StateBases, balance record)."""
         fields = scheme.state_fields(ops.C is not None)
-        kinds = list(dict.fromkeys(scheme.basis[f] for f in fields))
-        sb = state_bases(training, ops, kinds, self.pod_modes)
-        # every output block weighs alike in the PGD norm: scaled by its training RMS (M-norm)
+        sb = state_bases(training, ops, list(dict.fromkeys(scheme.basis[f] for f in fields)), self.pod_modes)
+        # each output field weighs by its training RMS (M-norm) in the balancing Gram matrix
         rms = {k: float(np.sqrt(np.mean(np.sum(c**2, axis=0)))) for k, c in sb.coordinates.items()}
         scales = {f: 1.0 / rms[scheme.basis[f]] if rms[scheme.basis[f]] > 0 else 1.0 for f in scheme.outputs}
         balance = rotate_fields(sb, ops, scheme, dt, scales, alpha=self.alpha) if self.balance == "field" else {}
-        bases = {f: sb.bases[scheme.basis[f]] for f in fields}
-        meshes = self._meshes({f: sb.coordinates[scheme.basis[f]] for f in fields}, load_factors(training))
+        return ({f: sb.bases[scheme.basis[f]] for f in fields}, {f: sb.coordinates[scheme.basis[f]] for f in fields},
+                sb, balance)
+
+    def build(self, training: Training) -> DirectModel:
+        """Offline phase (see the module docstring); ValueError on an unusable training."""
+        t0 = time.perf_counter()
+        scheme, dt, ops = self._operators(training)
+        bases, coords, sb, balance = self._bases(training, ops, scheme, dt)
+        meshes = self._meshes(coords, load_factors(training))
         fint, n_evals = None, 0
         if not ops.linear:
             if training.backend is None:
@@ -150,9 +159,9 @@ class DirectIntegrator(RomMethod):
                                max_fixed_point=self.max_fixed_point, fixed_point_tol=self.fixed_point_tol,
                                seed=self.seed)
         vad = build_vademecum(ops, scheme, bases, meshes, dt, settings, fint, alpha=self.alpha)
-        vad.stats.update({"pod_energy": sb.energy, "svk_force_evaluations": n_evals,
+        vad.stats.update({"pod_energy": sb.energy, "svk_force_evaluations": n_evals, "balance": self.balance,
                           "build_s": time.perf_counter() - t0, "pod_modes": {k: b.shape[1] for k, b in bases.items()},
-                          "balance": self.balance, "balance_singular_values": {k: v.tolist() for k, v in balance.items()}})
+                          "balance_singular_values": {k: v.tolist() for k, v in balance.items()}})
         model = DirectModel(vad, ops, bases, np.asarray(training.free_dofs), training.snapshots.shape[0],
                             self.load_at)
         if training.outputs:

@@ -15,12 +15,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from ..pod import pod_basis
 from .schemes import StepOperators
 
-__all__ = ["step_operators", "load_factors", "StateBases", "state_bases"]
+__all__ = ["StateBases", "load_factors", "state_bases", "step_operators"]
 
 
 def load_factors(training) -> np.ndarray:

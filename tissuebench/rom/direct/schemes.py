@@ -36,14 +36,14 @@ Implicit schemes need a linear system (the separated nonlinear solve is not impl
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["Scheme", "SCHEMES", "VectorAlgebra", "StepOperators", "scheme_step"]
+__all__ = ["SCHEMES", "Scheme", "StepOperators", "VectorAlgebra", "scheme_step"]
 
 
 @dataclass

@@ -20,7 +20,7 @@ from ...refsolvers.line_models import assemble_line_model
 from ...refsolvers.plan import plan_for
 from ..base import Training
 
-__all__ = ["SceneSystem", "scene_system", "reference_run", "trajectory_training", "output_functionals"]
+__all__ = ["SceneSystem", "output_functionals", "reference_run", "scene_system", "trajectory_training"]
 
 
 @dataclass

@@ -19,7 +19,7 @@ import numpy as np
 
 from .meshes import ParameterMesh
 
-__all__ = ["Vademecum", "Evaluator"]
+__all__ = ["Evaluator", "Vademecum"]
 
 
 @dataclass
@@ -88,7 +88,7 @@ class Vademecum:
         return path
 
     @classmethod
-    def load(cls, path) -> "Vademecum":
+    def load(cls, path) -> Vademecum:
         with np.load(Path(path), allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
             space = {k: data[f"space_{k}"] for k in meta["fields"]}
