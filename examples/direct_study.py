@@ -30,13 +30,31 @@ import numpy as np
 from tissuebench.refsolvers.dynamics import make_integrator
 from tissuebench.refsolvers.line_models import frame_step_response
 from tissuebench.rom import make_method
-from tissuebench.rom.direct.diagnostics import (energy_history, full_run, relative_rmse, simulate, spectrum_peaks,
-                                                velocities_from_displacements)
-from tissuebench.rom.direct.training import output_functionals, reference_run, scene_system, trajectory_training
+from tissuebench.rom.direct.diagnostics import (
+    energy_history,
+    full_run,
+    relative_rmse,
+    simulate,
+    spectrum_peaks,
+    velocities_from_displacements,
+)
+from tissuebench.rom.direct.training import (
+    output_functionals,
+    reference_run,
+    scene_system,
+    trajectory_training,
+)
 from tissuebench.studies.timing import latency_stats
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import direct_study_plots as plots  # noqa: E402
+
+def _plots():
+    """The figure module next to this script (``direct_study_plots.py``)."""
+    here = str(Path(__file__).resolve().parent)
+    if here not in sys.path:
+        sys.path.insert(0, here)
+    import direct_study_plots
+
+    return direct_study_plots
 
 LATENCY_STEPS, WARMUP = 400, 40
 
@@ -127,7 +145,7 @@ def frame(out, quick=False):
                               rmse_vs_full_same_integrator=relative_rmse(u, full.u[:n, 1:3]),
                               extrapolated_steps=traj.extrapolations, failed_at=traj.failed_at,
                               reference="analytical (modal)"))
-    plots.frame(curves, out / "fig2_frame.png")
+    _plots().frame(curves, out / "fig2_frame.png")
     return rows
 
 
@@ -145,18 +163,20 @@ def beam(out, quick=False):
         times = tr.parameter_values("time")
         ref = np.interp(times, fine.t, w_fine)
         ref_lat = time_full_step(ss, dt, "hht", alpha=-0.05)
-        for integ in ("forward_euler", "central_difference", "bathe"):
-            model, bs = build(tr, pod_modes=4, integrator=integ)
+        for integ, load_at in (("forward_euler", "end"), ("central_difference", "end"), ("bathe", "end"),
+                               ("bathe", "mid")):
+            model, bs = build(tr, pod_modes=4, integrator=integ, load_at=load_at)
             traj = simulate(model, times, tr.history)
             w = traj.u @ mid
-            curves[(integ, dt)] = (traj.t, w)
+            if load_at == "end":
+                curves[(integ, dt)] = (traj.t, w)
             lat, rec = time_direct(model, times, tr.history)
             stable = traj.failed_at is None and np.max(np.abs(w)) < 10 * np.max(np.abs(ref))
-            rows.append(model_row("clamped_beam", model, bs, lat, rec, ref_lat, dt=dt,
+            rows.append(model_row("clamped_beam", model, bs, lat, rec, ref_lat, dt=dt, load_at=load_at,
                                   rmse_vs_reference=relative_rmse(w, ref[:len(w)]) if stable else np.inf,
                                   stable=bool(stable), extrapolated_steps=traj.extrapolations,
                                   failed_at=traj.failed_at, reference="full Bathe, dt = 1e-4 s"))
-    plots.beam(curves, rows, out / "fig5_beam.png")
+    _plots().beam(curves, rows, out / "fig5_beam.png")
     return rows
 
 
@@ -211,7 +231,7 @@ def wave(out, quick=False):
                 figs[(variant, integ, m)] = {k: traj.outputs.get(k) for k in tr.outputs}
         figs[(variant, "reference")] = {k: U_ref[1:] @ c for k, c in tr.outputs.items()}
         figs[(variant, "t")] = times
-    plots.wave(figs, out / "fig15_16_wave.png")
+    _plots().wave(figs, out / "fig15_16_wave.png")
     rows += wave_curves(out, quick)
     rows += wave_long_run(out, t_end=2.0 if quick else 10.0)
     return rows
@@ -244,7 +264,7 @@ def wave_curves(out, quick=False):
                      "rmse_vs_reference": relative_rmse(traj.u, U_ref[:n]),
                      "rmse_vs_full_same_integrator": relative_rmse(traj.u, full.u[:n]),
                      "extrapolated_steps": traj.extrapolations})
-    plots.curves([r for r in rows if r.get("curve")], out / "wave_error_vs_modes_and_nodes.png")
+    _plots().curves([r for r in rows if r.get("curve")], out / "wave_error_vs_modes_and_nodes.png")
     return rows
 
 
@@ -253,7 +273,7 @@ def wave_long_run(out, t_end=10.0):
     ss = scene_system("wave_block")
     tr = trajectory_training(ss)
     dt = tr.dt
-    times = np.arange(int(round(t_end / dt)) + 1) * dt
+    times = np.arange(round(t_end / dt) + 1) * dt
     rows, hist = [], {}
     ref = reference_run(ss, t_end=t_end)
     hist["reference"] = (ref.t, ref.u @ tr.outputs["top_uz"], ref.relative_energy_error)
@@ -269,7 +289,7 @@ def wave_long_run(out, t_end=10.0):
                      "energy_drift_final": float(e["relative_error"][-1]),
                      "energy_drift_max": float(np.max(np.abs(e["relative_error"]))),
                      "reference_energy_drift_final": float(ref.relative_energy_error[-1])})
-    plots.long_run(hist, out / "fig17_wave_bathe.png")
+    _plots().long_run(hist, out / "fig17_wave_bathe.png")
     return rows
 
 
@@ -284,30 +304,34 @@ def liver(out, quick=False):
     ref_peaks = spectrum_peaks(y_ref[free], tr.dt)
     ref_lat = time_full_step(ss, tr.dt, "hht", alpha=-0.05)
     rows, hist = [], {"t": times, "reference": y_ref}
-    for integ in ("hht",) if quick else ("hht", "bathe", "central_difference"):
-        for m in (1, 3, 7):
-            model, bs = build(tr, pod_modes=m, integrator=integ)
-            traj = simulate(model, times, tr.history)
-            n = len(traj.u)
-            y = traj.u @ tip
+    cases = [(i, m, "end") for i in (("hht",) if quick else ("hht", "bathe", "central_difference")) for m in (1, 3, 7)]
+    for integ, m, load_at in cases + [("hht", 7, "mid")]:
+        model, bs = build(tr, pod_modes=m, integrator=integ, load_at=load_at)
+        traj = simulate(model, times, tr.history)
+        full = full_run(model, times, tr.history)
+        n, nf = len(traj.u), min(len(traj.u), len(full.u))
+        y = traj.u @ tip
+        if load_at == "end":
             hist[(integ, m)] = y
-            peaks = spectrum_peaks(y[free[:n]], tr.dt) if n == len(times) else (np.array([]), np.array([]))
-            lat, rec = time_direct(model, times, tr.history)
-            rows.append(model_row("liver_dynamic", model, bs, lat, rec, ref_lat,
-                                  rmse_vs_reference=relative_rmse(traj.u, U_ref[:n]),
-                                  tip_rmse_vs_reference=relative_rmse(y, y_ref[:n]),
-                                  projection_floor=_projection_error(U_ref, model, model.ops.M),
-                                  peaks_hz=json.dumps(np.round(peaks[0], 2).tolist()),
-                                  reference_peaks_hz=json.dumps(np.round(ref_peaks[0], 2).tolist()),
-                                  extrapolated_steps=traj.extrapolations, failed_at=traj.failed_at,
-                                  reference="HHT alpha=-0.05"))
+        peaks = spectrum_peaks(y[free[:n]], tr.dt) if n == len(times) else (np.array([]), np.array([]))
+        lat, rec = time_direct(model, times, tr.history)
+        rows.append(model_row("liver_dynamic", model, bs, lat, rec, ref_lat, load_at=load_at,
+                              rmse_vs_reference=relative_rmse(traj.u, U_ref[:n]),
+                              rmse_full_same_integrator_vs_reference=relative_rmse(full.u[:nf], U_ref[:nf]),
+                              rmse_vs_full_same_integrator=relative_rmse(traj.u[:nf], full.u[:nf]),
+                              tip_rmse_vs_reference=relative_rmse(y, y_ref[:n]),
+                              projection_floor=_projection_error(U_ref, model, model.ops.M),
+                              peaks_hz=json.dumps(np.round(peaks[0], 2).tolist()),
+                              reference_peaks_hz=json.dumps(np.round(ref_peaks[0], 2).tolist()),
+                              extrapolated_steps=traj.extrapolations, failed_at=traj.failed_at,
+                              reference="HHT alpha=-0.05"))
     for m in ((10,) if quick else (2, 5, 10, 15)):
         model, bs = build(tr, pod_modes=m, integrator="hht")
         traj = simulate(model, times, tr.history)
         rows.append({"scene": "liver_dynamic", "curve": "modes", "integrator": "hht", "pod_modes": m,
                      "offline_s": bs, "rmse_vs_reference": relative_rmse(traj.u, U_ref[:len(traj.u)]),
                      "projection_floor": _projection_error(U_ref, model, model.ops.M)})
-    plots.liver(hist, rows, out / "fig20_liver.png")
+    _plots().liver(hist, rows, out / "fig20_liver.png")
     return rows
 
 
@@ -345,8 +369,9 @@ def main(argv=None):
 
 def summary(df):
     """The columns of the closing note: error, median, p99, speed-up, extrapolations, drift."""
-    cols = [c for c in ("scene", "variant", "curve", "integrator", "dt", "pod_modes", "n_nodes", "separated_terms",
-                        "rmse_vs_reference", "rmse_vs_full_same_integrator", "projection_floor", "median_step_s",
+    cols = [c for c in ("scene", "variant", "curve", "integrator", "load_at", "dt", "pod_modes", "n_nodes", "separated_terms",
+                        "rmse_vs_reference", "rmse_full_same_integrator_vs_reference", "rmse_vs_full_same_integrator",
+                        "projection_floor", "median_step_s",
                         "p99_step_s", "speedup_vs_hht", "extrapolated_steps", "failed_at", "energy_drift_final",
                         "offline_s") if c in df]
     return df[cols]

@@ -54,11 +54,12 @@ def beam(curves, rows, path):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     ax = axes[2]
-    for integ, mk in (("forward_euler", "v"), ("central_difference", "o"), ("bathe", "s")):
-        rr = [r for r in rows if r["integrator"] == integ]
+    for integ, load_at, mk in (("forward_euler", "end", "v"), ("central_difference", "end", "o"),
+                                ("bathe", "end", "s"), ("bathe", "mid", "D")):
+        rr = [r for r in rows if r["integrator"] == integ and r["load_at"] == load_at]
         dts = [r["dt"] for r in rr]
         err = [r["rmse_vs_reference"] if r["stable"] else np.nan for r in rr]
-        ax.loglog(dts, err, mk + "-", label=integ.replace("_", " "))
+        ax.loglog(dts, err, mk + "-", label=f"{integ.replace('_', ' ')}, load at {load_at}")
         for r in rr:
             if not r["stable"]:
                 ax.annotate("unstable", (r["dt"], 1.0), fontsize=6, rotation=90)
