@@ -172,8 +172,15 @@ def beam(out, quick=False):
                 curves[(integ, dt)] = (traj.t, w)
             lat, rec = time_direct(model, times, tr.history)
             stable = traj.failed_at is None and np.max(np.abs(w)) < 10 * np.max(np.abs(ref))
+            full = full_run(model, times, tr.history)
+            w_full = full.u @ mid
+            full_ok = full.failed_at is None and np.max(np.abs(w_full)) < 10 * np.max(np.abs(ref))
             rows.append(model_row("clamped_beam", model, bs, lat, rec, ref_lat, dt=dt, load_at=load_at,
                                   rmse_vs_reference=relative_rmse(w, ref[:len(w)]) if stable else np.inf,
+                                  rmse_full_same_integrator_vs_reference=(
+                                      relative_rmse(w_full, ref[:len(w_full)]) if full_ok else np.inf),
+                                  rmse_vs_full_same_integrator=(
+                                      relative_rmse(w, w_full) if stable and full_ok else np.nan),
                                   stable=bool(stable), extrapolated_steps=traj.extrapolations,
                                   failed_at=traj.failed_at, reference="full Bathe, dt = 1e-4 s"))
     _plots().beam(curves, rows, out / "fig5_beam.png")
@@ -191,7 +198,11 @@ def _projection_error(U_ref, model, M):
 def _wave_energy(traj, model, ss, lams):
     free = model.free_dofs
     u = traj.u[:, free]
-    v = traj.v[:, free] if traj.v is not None else velocities_from_displacements(u, traj.t[1] - traj.t[0])
+    if traj.v is None:  # central difference: centred velocities, the one-sided last sample dropped
+        v = velocities_from_displacements(u, traj.t[1] - traj.t[0])[:-1]
+        u, lams = u[:-1], lams[:-1]
+    else:
+        v = traj.v[:, free]
     K = model.ops.K
     if model.ops.linear:
         def se(x):
@@ -213,21 +224,23 @@ def wave(out, quick=False):
         # forward Euler blows up on the linear block (shown there); its SVK build costs minutes for nothing
         integs = ("central_difference", "forward_euler", "bathe", "hht") if variant == "linear" else (
             "central_difference",)
-        for integ in integs:
-            for m in (3, 8):
-                model, bs = build(tr, pod_modes=m, integrator=integ)
-                traj = simulate(model, times, tr.history)
-                full = full_run(model, times, tr.history)
-                n = len(traj.u)
-                lat, rec = time_direct(model, times, tr.history)
-                nf = min(n, len(full.u))
-                rows.append(model_row(
-                    "wave_block", model, bs, lat, rec, ref_lat, variant=variant,
-                    rmse_vs_reference=relative_rmse(traj.u, U_ref[:n]),
-                    rmse_full_same_integrator_vs_reference=relative_rmse(full.u[:nf], U_ref[:nf]),
-                    rmse_vs_full_same_integrator=relative_rmse(traj.u[:nf], full.u[:nf]),
-                    projection_floor=_projection_error(U_ref, model, model.ops.M),
-                    extrapolated_steps=traj.extrapolations, failed_at=traj.failed_at, reference="HHT alpha=-0.05"))
+        cases = [(i, m, "velocity") for i in integs for m in (3, 8)]
+        cases += [(i, m, "displacement") for i in integs if i in ("bathe", "hht") for m in (3, 8)]
+        for integ, m, vb in cases:
+            model, bs = build(tr, pod_modes=m, integrator=integ, velocity_basis=vb)
+            traj = simulate(model, times, tr.history)
+            full = full_run(model, times, tr.history)
+            n = len(traj.u)
+            lat, rec = time_direct(model, times, tr.history)
+            nf = min(n, len(full.u))
+            rows.append(model_row(
+                "wave_block", model, bs, lat, rec, ref_lat, variant=variant, velocity_basis=vb,
+                rmse_vs_reference=relative_rmse(traj.u, U_ref[:n]),
+                rmse_full_same_integrator_vs_reference=relative_rmse(full.u[:nf], U_ref[:nf]),
+                rmse_vs_full_same_integrator=relative_rmse(traj.u[:nf], full.u[:nf]),
+                projection_floor=_projection_error(U_ref, model, model.ops.M),
+                extrapolated_steps=traj.extrapolations, failed_at=traj.failed_at, reference="HHT alpha=-0.05"))
+            if vb == "velocity":
                 figs[(variant, integ, m)] = {k: traj.outputs.get(k) for k in tr.outputs}
         figs[(variant, "reference")] = {k: U_ref[1:] @ c for k, c in tr.outputs.items()}
         figs[(variant, "t")] = times
@@ -244,13 +257,8 @@ def wave_curves(out, quick=False):
     ss = scene_system("wave_block")
     tr = trajectory_training(ss)
     times, U_ref = tr.parameter_values("time"), tr.snapshots.T
-    for m in ((1, 3, 8) if quick else (1, 2, 3, 4, 6, 8, 10, 12, 16)):
-        model, bs = build(tr, pod_modes=m, integrator="hht")
-        traj = simulate(model, times, tr.history)
-        rows.append({"scene": "wave_block", "curve": "modes", "variant": "linear", "integrator": "hht",
-                     "pod_modes": m, "n_nodes": 100, "offline_s": bs,
-                     "rmse_vs_reference": relative_rmse(traj.u, U_ref[:len(traj.u)]),
-                     "projection_floor": _projection_error(U_ref, model, model.ops.M)})
+    rows += modes_curve("wave_block", tr, (1, 3, 8) if quick else (1, 2, 3, 4, 6, 8, 10, 12, 16, 20, 24),
+                        variant="linear")
     ss = scene_system("wave_block", variant="svk")
     tr = trajectory_training(ss)
     times, U_ref = tr.parameter_values("time"), tr.snapshots.T
@@ -264,7 +272,39 @@ def wave_curves(out, quick=False):
                      "rmse_vs_reference": relative_rmse(traj.u, U_ref[:n]),
                      "rmse_vs_full_same_integrator": relative_rmse(traj.u, full.u[:n]),
                      "extrapolated_steps": traj.extrapolations})
+    rows += step_map_nodes_curve()
     _plots().curves([r for r in rows if r.get("curve")], out / "wave_error_vs_modes_and_nodes.png")
+    return rows
+
+
+def step_map_nodes_curve(nodes=(5, 9, 17, 33, 65)):
+    """The parameter-mesh error where it exists: the SVK step map at large amplitudes.
+
+    At the scene's 4 kPa the SVK terms are ~1e-5 of the linear ones and the mesh has no
+    visible effect (the "nodes" rows above); with the training amplitudes scaled by 300
+    (strains of a few percent) the P1 interpolation of the quadratic and cubic terms in
+    the coordinates shows its second order (2 POD modes, central difference, L2 error of
+    one step over 200 uniform samples of the parameter box, as in the unit test).
+    """
+    from tissuebench.rom.direct import SCHEMES, VectorAlgebra
+
+    tr = trajectory_training("wave_block", variant="svk", t_end=0.05)
+    tr.snapshots *= 300.0
+    tr.velocities *= 300.0
+    rows = []
+    for n in nodes:
+        model, bs = build(tr, pod_modes=2, integrator="central_difference", n_nodes=n)
+        vad, alg = model.vademecum, VectorAlgebra(model.ops)
+        lo, hi = np.array([m.lo for m in vad.meshes]), np.array([m.hi for m in vad.meshes])
+        num = den = 0.0
+        for p in lo + (hi - lo) * np.random.default_rng(11).random((200, len(lo))):
+            x = {f: model.bases[f] @ p[model._slices[f]] for f in model.fields}
+            ref = alg.step(SCHEMES["central_difference"], x, vad.dt, p[-1])["u"]
+            num += np.sum((vad.evaluate(p)["u"] - ref) ** 2)
+            den += np.sum(ref**2)
+        rows.append({"scene": "wave_block", "curve": "step_nodes", "variant": "svk x300",
+                     "integrator": "central_difference", "pod_modes": 2, "n_nodes": n, "offline_s": bs,
+                     "step_map_l2_error": float(np.sqrt(num / den))})
     return rows
 
 
@@ -293,6 +333,14 @@ def wave_long_run(out, t_end=10.0):
     return rows
 
 
+def _liver_cases(quick):
+    """(integrator, POD modes, load_at, velocity basis) of the liver rows."""
+    integs = ("hht",) if quick else ("hht", "bathe", "central_difference")
+    cases = [(i, m, "end", "velocity") for i in integs for m in (1, 3, 7)]
+    cases += [(i, m, "end", "displacement") for i in integs if i != "central_difference" for m in (1, 3, 7)]
+    return cases + [("hht", 7, "mid", "displacement")]
+
+
 def liver(out, quick=False):
     """Fig. 20: 5 N ramp and release, free vibration; 1, 3, 7 modes vs HHT: error history, spectrum."""
     ss = scene_system("liver_dynamic")
@@ -304,18 +352,17 @@ def liver(out, quick=False):
     ref_peaks = spectrum_peaks(y_ref[free], tr.dt)
     ref_lat = time_full_step(ss, tr.dt, "hht", alpha=-0.05)
     rows, hist = [], {"t": times, "reference": y_ref}
-    cases = [(i, m, "end") for i in (("hht",) if quick else ("hht", "bathe", "central_difference")) for m in (1, 3, 7)]
-    for integ, m, load_at in cases + [("hht", 7, "mid")]:
-        model, bs = build(tr, pod_modes=m, integrator=integ, load_at=load_at)
+    for integ, m, load_at, vb in _liver_cases(quick):
+        model, bs = build(tr, pod_modes=m, integrator=integ, load_at=load_at, velocity_basis=vb)
         traj = simulate(model, times, tr.history)
         full = full_run(model, times, tr.history)
         n, nf = len(traj.u), min(len(traj.u), len(full.u))
         y = traj.u @ tip
         if load_at == "end":
-            hist[(integ, m)] = y
+            hist[(integ, m, vb)] = y
         peaks = spectrum_peaks(y[free[:n]], tr.dt) if n == len(times) else (np.array([]), np.array([]))
         lat, rec = time_direct(model, times, tr.history)
-        rows.append(model_row("liver_dynamic", model, bs, lat, rec, ref_lat, load_at=load_at,
+        rows.append(model_row("liver_dynamic", model, bs, lat, rec, ref_lat, load_at=load_at, velocity_basis=vb,
                               rmse_vs_reference=relative_rmse(traj.u, U_ref[:n]),
                               rmse_full_same_integrator_vs_reference=relative_rmse(full.u[:nf], U_ref[:nf]),
                               rmse_vs_full_same_integrator=relative_rmse(traj.u[:nf], full.u[:nf]),
@@ -325,13 +372,24 @@ def liver(out, quick=False):
                               reference_peaks_hz=json.dumps(np.round(ref_peaks[0], 2).tolist()),
                               extrapolated_steps=traj.extrapolations, failed_at=traj.failed_at,
                               reference="HHT alpha=-0.05"))
-    for m in ((10,) if quick else (2, 5, 10, 15)):
-        model, bs = build(tr, pod_modes=m, integrator="hht")
-        traj = simulate(model, times, tr.history)
-        rows.append({"scene": "liver_dynamic", "curve": "modes", "integrator": "hht", "pod_modes": m,
-                     "offline_s": bs, "rmse_vs_reference": relative_rmse(traj.u, U_ref[:len(traj.u)]),
-                     "projection_floor": _projection_error(U_ref, model, model.ops.M)})
+    rows += modes_curve("liver_dynamic", tr, (10,) if quick else (2, 5, 10, 15, 20))
     _plots().liver(hist, rows, out / "fig20_liver.png")
+    return rows
+
+
+def modes_curve(scene, tr, modes, integrator="hht", variant=None):
+    """Error versus POD modes for both velocity bases, with the projection floor."""
+    times, U_ref = tr.parameter_values("time"), tr.snapshots.T
+    rows = []
+    for vb in ("velocity", "displacement"):
+        for m in modes:
+            model, bs = build(tr, pod_modes=m, integrator=integrator, velocity_basis=vb)
+            traj = simulate(model, times, tr.history)
+            rows.append({"scene": scene, "curve": "modes", "variant": variant, "integrator": integrator,
+                         "velocity_basis": vb, "pod_modes": m, "n_nodes": 100, "offline_s": bs,
+                         "rmse_vs_reference": relative_rmse(traj.u, U_ref[:len(traj.u)]),
+                         "extrapolated_steps": traj.extrapolations,
+                         "projection_floor": _projection_error(U_ref, model, model.ops.M)})
     return rows
 
 
@@ -369,7 +427,7 @@ def main(argv=None):
 
 def summary(df):
     """The columns of the closing note: error, median, p99, speed-up, extrapolations, drift."""
-    cols = [c for c in ("scene", "variant", "curve", "integrator", "load_at", "dt", "pod_modes", "n_nodes", "separated_terms",
+    cols = [c for c in ("scene", "variant", "curve", "integrator", "velocity_basis", "load_at", "dt", "pod_modes", "n_nodes", "separated_terms",
                         "rmse_vs_reference", "rmse_full_same_integrator_vs_reference", "rmse_vs_full_same_integrator",
                         "projection_floor", "median_step_s",
                         "p99_step_s", "speedup_vs_hht", "extrapolated_steps", "failed_at", "energy_drift_final",

@@ -58,21 +58,50 @@ def _eig_desc(G):
     return np.sqrt(np.maximum(lam[order], 0.0)), V[:, order]
 
 
-def rotate_fields(sb, ops, scheme, dt, scales, **options) -> dict:
+def _break_ties(lam, V, C, rtol=1e-6):
+    """Within clusters of (relatively) equal eigenvalues of G, rotate to diagonalise C.
+
+    Any orthonormal basis of a degenerate eigenspace keeps the columns orthogonal; the one
+    that also decorrelates the training coordinates (covariance C) gives coordinates of
+    distinct amplitude, so the PGD terms have distinct weights (ties between equal-weight
+    terms stall its fixed point: the velocity columns of forward Euler are all equal).
+    """
+    V = V.copy()
+    i = 0
+    while i < len(lam):
+        j = i + 1
+        while j < len(lam) and abs(lam[j] - lam[i]) <= rtol * max(abs(lam[0]), 1e-300):
+            j += 1
+        if j - i > 1:
+            Vc = V[:, i:j]
+            mu, W = np.linalg.eigh(Vc.T @ C @ Vc)
+            V[:, i:j] = Vc @ W[:, np.argsort(mu)[::-1]]
+        i = j
+    return V
+
+
+def rotate_fields(sb, ops, scheme, dt, scales, basis_of: dict | None = None, covariances: dict | None = None,
+                  **options) -> dict:
     """Rotate each basis of ``sb`` (:class:`~.operators.StateBases`) in place ("field" balancing).
 
-    Fields sharing a basis (central difference's u and u_prev) sum their Gram blocks.
-    Returns basis name -> singular values of its columns (decreasing).
+    ``basis_of`` maps each state field to its basis (default ``scheme.basis``). Fields
+    sharing a basis (u and u_prev; u and v with ``velocity_basis="displacement"``) sum
+    their Gram blocks. ``covariances`` (basis -> covariance of its training coordinates)
+    break ties between equal singular values (:func:`_break_ties`). Returns basis name ->
+    singular values of its columns (decreasing).
     """
+    basis_of = scheme.basis if basis_of is None else basis_of
     fields = scheme.state_fields(ops.C is not None)
-    bases = {f: sb.bases[scheme.basis[f]] for f in fields}
+    bases = {f: sb.bases[basis_of[f]] for f in fields}
     G = step_columns(ops, scheme, bases, dt, scales, **options)
     offs = np.concatenate([[0], np.cumsum([bases[f].shape[1] for f in fields])])
     out = {}
-    for kind in dict.fromkeys(scheme.basis[f] for f in fields):
-        idx = [i for i, f in enumerate(fields) if scheme.basis[f] == kind]
+    for kind in dict.fromkeys(basis_of[f] for f in fields):
+        idx = [i for i, f in enumerate(fields) if basis_of[f] == kind]
         Gk = sum(G[offs[i]:offs[i + 1], offs[i]:offs[i + 1]] for i in idx)
         sing, V = _eig_desc(Gk)
+        if covariances is not None and kind in covariances:
+            V = _break_ties(sing**2, V, covariances[kind])
         sb.rotate(kind, V)
         out[kind] = sing
     return out

@@ -52,6 +52,11 @@ class DirectIntegrator(RomMethod):
         :func:`~.meshes.parameter_domain`).
     symmetric : bool
         Intervals centred on zero (default; see :func:`~.meshes.parameter_domain`).
+    velocity_basis : {"velocity", "displacement"}
+        Basis of the velocity fields: their own POD ("velocity", default) or the
+        displacement basis (as in a Galerkin ROM, where v lies in the span of the
+        displacement modes; fewer distinct spaces, the velocity coordinates' intervals
+        still come from the training velocities).
     balance : {"field", "none"}
         Coordinates in which the PGD sees the previous state (:mod:`.balance`): each POD
         basis rotated in its space so that the step map's columns are orthogonal
@@ -76,6 +81,7 @@ class DirectIntegrator(RomMethod):
 
     def __init__(self, pod_modes: int = 8, integrator: str = "forward_euler", pgd_modes: int | None = None,
                  n_nodes: int = 100, margin: float = 0.25, symmetric: bool = True, balance: str = "field",
+                 velocity_basis: str = "velocity",
                  dt: float | None = None, alpha: float = -0.05, load_at: str = "end", mass: str = "consistent",
                  pgd_tol: float = 1e-8, max_fixed_point: int = 100, fixed_point_tol: float = 1e-12, seed: int = 0):
         if integrator not in SCHEMES:
@@ -101,6 +107,9 @@ class DirectIntegrator(RomMethod):
         if balance not in ("field", "none"):
             raise ValueError(f"pgd_direct: balance = {balance!r}; valid: ['field', 'none']")
         self.balance = balance
+        if velocity_basis not in ("velocity", "displacement"):
+            raise ValueError(f"pgd_direct: velocity_basis = {velocity_basis!r}; valid: ['velocity', 'displacement']")
+        self.velocity_basis = velocity_basis
         self.alpha, self.load_at, self.mass = float(alpha), load_at, mass
         self.pgd_tol, self.fixed_point_tol, self.seed = float(pgd_tol), float(fixed_point_tol), int(seed)
 
@@ -133,15 +142,30 @@ class DirectIntegrator(RomMethod):
         return scheme, dt, ops
 
     def _bases(self, training, ops, scheme, dt):
-        """(bases per state field, coordinates per state field, StateBases, balance record)."""
+        """(bases per state field, training coordinates per state field, StateBases, balance record)."""
         fields = scheme.state_fields(ops.C is not None)
-        sb = state_bases(training, ops, list(dict.fromkeys(scheme.basis[f] for f in fields)), self.pod_modes)
+        basis_of = {f: "u" if self.velocity_basis == "displacement" else scheme.basis[f] for f in fields}
+        sb = state_bases(training, ops, list(dict.fromkeys(basis_of.values())), self.pod_modes,
+                         need_velocities=any(scheme.basis[f] == "v" for f in fields))
+        free = np.asarray(training.free_dofs)
+        data = {"u": training.snapshots[free],
+                "v": None if training.velocities is None else training.velocities[free]}
         # each output field weighs by its training RMS (M-norm) in the balancing Gram matrix
-        rms = {k: float(np.sqrt(np.mean(np.sum(c**2, axis=0)))) for k, c in sb.coordinates.items()}
+        rms = {k: float(np.sqrt(np.mean(np.einsum("is,is->s", X, ops.M @ X)))) for k, X in data.items()
+               if X is not None}
         scales = {f: 1.0 / rms[scheme.basis[f]] if rms[scheme.basis[f]] > 0 else 1.0 for f in scheme.outputs}
-        balance = rotate_fields(sb, ops, scheme, dt, scales, alpha=self.alpha) if self.balance == "field" else {}
-        return ({f: sb.bases[scheme.basis[f]] for f in fields}, {f: sb.coordinates[scheme.basis[f]] for f in fields},
-                sb, balance)
+        balance = {}
+        if self.balance == "field":
+            cov = {}
+            for kind in dict.fromkeys(scheme.basis[f] for f in fields):  # u, v data in the bases they use
+                b = {scheme.basis[f]: basis_of[f] for f in fields}[kind]
+                Q = sb.bases[b].T @ (ops.M @ data[kind])
+                cov[b] = cov.get(b, 0.0) + (Q @ Q.T) / max(np.trace(Q @ Q.T), 1e-300)
+            balance = rotate_fields(sb, ops, scheme, dt, scales, basis_of, cov, alpha=self.alpha)
+        bases = {f: sb.bases[basis_of[f]] for f in fields}
+        # a field's coordinates: its own snapshots (u_prev: displacements) projected on its basis
+        coords = {f: bases[f].T @ (ops.M @ data[scheme.basis[f]]) for f in fields}
+        return bases, coords, sb, balance
 
     def build(self, training: Training) -> DirectModel:
         """Offline phase (see the module docstring); ValueError on an unusable training."""

@@ -1,7 +1,8 @@
 """Online phase of the direct integrator: evaluate the vademecum, project, repeat.
 
-State: the reduced coordinates ``q`` of the scheme's fields (``u`` and ``v``, ``u`` and
-``u_prev`` for central difference, plus ``a`` for HHT) on mass-orthonormal POD bases.
+State: the reduced coordinates ``q`` of the scheme's fields (``u`` and ``v``; ``u`` and
+``u_prev`` for central difference; ``u``, ``v``, ``u_prev`` (and ``v_prev`` when damped) for
+HHT) on mass-orthonormal POD bases (rotated, :mod:`.balance`).
 A step evaluates the separated sum at ``(q, lam)`` — its weights ``w_i = prod_d
 G_{i,d}(p_d)`` — and maps them to the next coordinates with ``R = Phi^T M F`` (reduced
 offline): P x N + n_q x N operations. The full field of the step is ``F_u w``
@@ -136,7 +137,11 @@ class DirectModel(OnlineModel):
         return (result.info or {}).get("weights")
 
     def field(self, result: StepResult, name: str = "u") -> np.ndarray:
-        """Full (n_dof,) vector of a computed field (``u``, ``v``, ``a``) at the step (zero on fixed dofs)."""
+        """Full (n_dof,) vector of a field (``u``, ``v``) at the step (zero on the fixed dofs).
+
+        A computed field is the vademecum's ``F w``; a shifted one (``u_prev``) the
+        projection of its coordinates. Offline use (energy, plots); ValueError otherwise.
+        """
         w = self._weights(result)
         x = np.zeros(self.ndof)
         if w is not None and name in self.vademecum.space:

@@ -62,6 +62,7 @@ class PgdSettings:
     max_fixed_point: int = 50
     fixed_point_tol: float = 1e-8
     seed: int = 0
+    update_last: bool = False
 
 
 def _record(name, sol, t0, n_terms):
@@ -127,7 +128,8 @@ class SeparatedAlgebra:
         s = self.settings
         sol = pgd_solve(SeparatedOperator([(A, *self.W)]), SeparatedVector(rhs.weak_terms(None, self.W)),
                         max_modes=max_modes, tol=s.tol, residual_tol=s.residual_tol,
-                        max_fixed_point=s.max_fixed_point, fixed_point_tol=s.fixed_point_tol, rng=self.rng)
+                        max_fixed_point=s.max_fixed_point, fixed_point_tol=s.fixed_point_tol, rng=self.rng,
+                        update_last=s.update_last)
         self.records.append(_record(name, sol, t0, rhs.n_terms))
         if not sol.modes:
             raise RuntimeError(f"{name}: the PGD returned no mode ({sol.message})")

@@ -104,7 +104,7 @@ class StateBases:
         self.coordinates[field] = V.T @ self.coordinates[field]
 
 
-def state_bases(training, ops: StepOperators, fields, n_modes: int) -> StateBases:
+def state_bases(training, ops: StepOperators, fields, n_modes: int, need_velocities: bool = False) -> StateBases:
     """POD bases (mass inner product) of the fields a scheme needs.
 
     Parameters
@@ -116,12 +116,14 @@ def state_bases(training, ops: StepOperators, fields, n_modes: int) -> StateBase
         Bases to build.
     n_modes : int
         Modes per field (fewer when the snapshots have a lower rank; reported).
+    need_velocities : bool
+        Refuse a training without velocities even when no velocity basis is built.
     """
     if training.snapshots is None:
         raise ValueError("direct integrator: training.snapshots (displacements) are required")
     free = np.asarray(training.free_dofs)
     U = training.snapshots[free]
-    need_v = "v" in fields
+    need_v = "v" in fields or need_velocities
     if need_v and training.velocities is None:
         raise ValueError("direct integrator: training.velocities are required for this inner integrator")
     V = training.velocities[free] if training.velocities is not None else None
