@@ -257,7 +257,7 @@ def wave_curves(out, quick=False):
     ss = scene_system("wave_block")
     tr = trajectory_training(ss)
     times, U_ref = tr.parameter_values("time"), tr.snapshots.T
-    rows += modes_curve("wave_block", tr, (1, 3, 8) if quick else (1, 2, 3, 4, 6, 8, 10, 12, 16, 20, 24),
+    rows += modes_curve("wave_block", tr, (1, 3, 8) if quick else (1, 2, 3, 4, 6, 8, 12, 16, 24),
                         variant="linear")
     ss = scene_system("wave_block", variant="svk")
     tr = trajectory_training(ss)
