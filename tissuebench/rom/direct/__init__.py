@@ -2,10 +2,11 @@
 
 Modules: :mod:`.meshes` (parameter intervals and 1D meshes), :mod:`.fields` (separated
 functions), :mod:`.schemes` (the inner integrators, on vectors and separated fields),
-:mod:`.operators` (system and POD bases from a Training), :mod:`.nonlinear` (separated
-SVK force), :mod:`.offline` (the PGD solves of one step), :mod:`.vademecum` (storage and
-evaluation), :mod:`.model` (online), :mod:`.method` (the registered method),
-:mod:`.training` (trajectory trainings from catalogue scenes).
+:mod:`.operators` (system and POD bases from a Training), :mod:`.balance` (the
+coordinates the PGD sees), :mod:`.nonlinear` (separated SVK force), :mod:`.offline` (the
+PGD solves of one step), :mod:`.vademecum` (storage and evaluation), :mod:`.model`
+(online), :mod:`.method` (the registered method), :mod:`.training` (trajectory trainings
+from catalogue scenes), :mod:`.diagnostics` (runs, errors, energy, spectra).
 """
 from .meshes import ParameterMesh, parameter_domain
 from .method import DirectIntegrator
