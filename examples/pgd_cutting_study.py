@@ -7,8 +7,9 @@ length c (cracked nodes along it, :mod:`tissuebench.rom.pgd.strip`), with the sc
 the crack tip pressing with the scene's contact force:
 
 * **error**: relative L2 error (mass norm) of the reduced field against the full linear
-  FE of the same cut mesh, for modes 1..N x {srb, prb} (one vademecum of N modes, the
-  modes being nested: built once, truncated);
+  FE of the same cut mesh, for modes 1..N x {srb, prb} x {cracking_node (the paper's
+  enrichment), condensed (corrected by the intact response, :mod:`tissuebench.rom.pgd.enrichment`)}
+  (one vademecum of N modes, the modes being nested: built once, truncated);
 * **latency**: the haptic step (``step`` + ``outputs``: reduced solve at s_p including the
   enrichment after a cut, the contact force split and the cut criterion), per call, a
   session advancing the cut from 0 to its longest with ``steps_per_length`` steps per
@@ -39,6 +40,7 @@ from tissuebench.cases.scene import load
 from tissuebench.refsolvers import make_backend
 from tissuebench.rom import make_method
 from tissuebench.rom.pgd import CuttingModel, PgdSvkModel, pgd_training
+from tissuebench.rom.pgd.enrichment import condense
 from tissuebench.rom.pgd.projections import srb_beta_in_modes
 from tissuebench.rom.pgd.reference import cut_problem, l2_error, linear_reference
 from tissuebench.studies.timing import latency_stats
@@ -47,18 +49,26 @@ __all__ = ["build_family", "cut_references", "error_rows", "latency_rows", "heat
            "plot_errors", "plot_latency", "main"]
 
 
+ENRICHMENTS = ("cracking_node", "condensed")
+
+
 def build_family(scene, n_modes: int, backend: str = "skfem", **options) -> dict:
-    """{(n, projection): CuttingModel} for n = 1..n_modes from one build (nested modes)."""
+    """{(n, projection, enrichment): CuttingModel} for n = 1..n_modes from one build
+    (nested modes; the condensed enrichment from the same operators)."""
     t0 = time.perf_counter()
     base = make_method("pgd_cutting", n_modes=n_modes, projection="srb", **options).build(pgd_training(scene, backend))
     build_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    enr = {"cracking_node": base.enrichment, "condensed": condense(base.enrichment, base.vademecum.family.K)}
+    condense_s = time.perf_counter() - t0
     models = {}
     for n in range(1, base.vademecum.n_modes + 1):
         vad = base.vademecum.truncated(n)
         for proj in ("srb", "prb"):
-            models[n, proj] = CuttingModel("pgd_cutting", vad, proj, base.enrichment, base.F_cut, base.points,
-                                           base.problem)
-    models["build_s"], models["base"] = build_s, base
+            for kind in ENRICHMENTS:
+                models[n, proj, kind] = CuttingModel("pgd_cutting", vad, proj, enr[kind], base.F_cut, base.points,
+                                                     base.problem)
+    models["build_s"], models["condense_s"], models["base"] = build_s, condense_s, base
     return models
 
 
@@ -88,7 +98,7 @@ def error_rows(models, refs) -> pd.DataFrame:
         m.start()
         for ref in refs:
             r = m.step(_mu(m, ref["c"]))
-            rows.append({"n_modes": key[0], "projection": key[1], "cut_length": ref["c"],
+            rows.append({"n_modes": key[0], "projection": key[1], "enrichment": key[2], "cut_length": ref["c"],
                          "cracked_nodes": ref["cracked_nodes"], "status": r.status,
                          "l2_error": l2_error(m.reconstruct(r), ref["u"], ref["mass"])})
     return pd.DataFrame(rows)
@@ -121,7 +131,8 @@ def latency_rows(models, steps_per_length: int = 20, repeats: int = 10, modes=No
             sel = np.ones(len(mus), bool) if c == -1 else cut == c
             st = latency_stats(samples[:, sel].ravel())
             en = latency_stats(samples[:, sel & first].ravel())
-            rows.append({"n_modes": key[0], "projection": key[1], "cut_length": c, **st.as_dict("step_"),
+            rows.append({"n_modes": key[0], "projection": key[1], "enrichment": key[2], "cut_length": c,
+                         **st.as_dict("step_"),
                          "enrich_step_median_s": en.median, "enrich_step_max_s": en.max,
                          "n_reduced_max": m.r + 3 * int(m.strip.n_enriched[-1])})
     return pd.DataFrame(rows)
@@ -144,22 +155,24 @@ def heat1d_identity(resolution: str = "ci", positions=(0.5, 0.3, 0.71)) -> pd.Da
 
 def svk_rows(scene, modes=(2, 4, 6, 8, 10), backend: str = "skfem", steps: int = 200) -> pd.DataFrame:
     """pgd_svk (intact cornea, scene load node) against the full SVK Newton solve."""
-    from tissuebench.refsolvers.newton import newton_solve
+    from tissuebench.refsolvers.newton import NewtonOptions, newton_solve
 
     tr = pgd_training(scene, backend)
     t0 = time.perf_counter()
-    ref = newton_solve(tr.backend, 1.0)
+    n_steps = int(scene.analysis.get("load_steps", 1))  # as the reference runner: the scene's increments
+    ref = newton_solve(tr.backend, 1.0, NewtonOptions(n_increments=n_steps, max_increment=1.0 / n_steps))
     full_s = time.perf_counter() - t0
     node = int(tr.backend.problem.loads[0].nodes[0])
     t0 = time.perf_counter()
     big = make_method("pgd_svk", n_modes=max(modes)).build(tr)
     build_s = time.perf_counter() - t0
     rows = []
-    for n in modes:  # nested: the leading modes, basis columns and reduced tensors of one build
+    for n in [n for n in modes if n <= big.n_reduced]:  # the build may stop earlier (its record says why)  # nested: the leading modes, basis columns and reduced tensors of one build
         m = PgdSvkModel(big.name, big.vademecum.truncated(n), big.basis[:, :n], big.poly.leading(n), big.problem,
                         big.rtol, big.max_iterations, big.max_increments)
         r = m.step({"node": node})
-        err = np.linalg.norm(m.reconstruct(r) - ref.u) / np.linalg.norm(ref.u)
+        # no error against a reference that did not reach the load (its last state is another load)
+        err = np.linalg.norm(m.reconstruct(r) - ref.u) / np.linalg.norm(ref.u) if ref.success else np.nan
         ts = []
         for _ in range(steps):
             t = time.perf_counter()
@@ -168,7 +181,9 @@ def svk_rows(scene, modes=(2, 4, 6, 8, 10), backend: str = "skfem", steps: int =
         st = latency_stats(ts)
         rows.append({"n_modes": n, "status": r.status, "rel_error": err, "newton_iterations": len(r.info.get(
             "residual_norms", [])) - 1, "step_median_s": st.median, "step_p99_s": st.p99, "build_s": build_s,
-            "full_newton_s": full_s, "full_newton_success": ref.success})
+            "full_newton_s": full_s, "full_newton_success": ref.success, "full_newton_load_factor": ref.load_factor,
+            "full_newton_message": ref.message,
+            "vademecum_stop": big.build_info["stop_reason"], "vademecum_modes": big.n_reduced})
     return pd.DataFrame(rows)
 
 
@@ -178,11 +193,14 @@ def plot_errors(errors: pd.DataFrame, path, modes=(6, 10)):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    modes = [n for n in modes if n <= errors.n_modes.max()]
     for n in modes:
-        for proj, style in (("srb", "o-"), ("prb", "s--")):
-            d = errors[(errors.n_modes == n) & (errors.projection == proj)].sort_values("cut_length")
-            ax.semilogy(d.cracked_nodes, d.l2_error, style, label=f"{proj}, {n} modes")
+        for proj, kind, style in (("srb", "cracking_node", "o-"), ("prb", "cracking_node", "s--"),
+                                  ("srb", "condensed", "^-")):
+            d = errors[(errors.n_modes == n) & (errors.projection == proj) & (errors.enrichment == kind)]
+            d = d.sort_values("cut_length")
+            ax.semilogy(d.cracked_nodes, d.l2_error, style, label=f"{proj}, {kind}, {n} modes")
     ax.axhline(7e-3, color="k", lw=0.8, ls=":", label="paper bound 7e-3")
     ax.xaxis.set_major_locator(plt.MaxNLocator(integer=True))
     ax.set_xlabel("nodes in the cut zone (cracked nodes)")
@@ -201,7 +219,8 @@ def plot_latency(latency: pd.DataFrame, path, n_modes=6):
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for proj, dx in (("srb", -0.15), ("prb", 0.15)):
-        d = latency[(latency.n_modes == n_modes) & (latency.projection == proj) & (latency.cut_length >= 0)]
+        d = latency[(latency.n_modes == n_modes) & (latency.projection == proj) & (latency.cut_length >= 0)
+                    & (latency.enrichment == "cracking_node")]
         x = d.cut_length.to_numpy() + dx
         ax.errorbar(x, 1e3 * d.step_median_s, yerr=[0 * x, 1e3 * (d.step_p99_s - d.step_median_s)], fmt="o",
                     capsize=3, label=f"{proj}: median, bar to p99")
@@ -220,9 +239,10 @@ def plot_latency(latency: pd.DataFrame, path, n_modes=6):
 
 def _table(errors, latency, refs):
     full = np.median([r["full_step_s"] for r in refs])
-    err = errors.groupby(["n_modes", "projection"]).l2_error.agg(["max", "median"]).rename(
+    keys = ["enrichment", "projection", "n_modes"]
+    err = errors.groupby(keys).l2_error.agg(["max", "median"]).rename(
         columns={"max": "err_max", "median": "err_median"})
-    lat = latency[latency.cut_length == -1].set_index(["n_modes", "projection"])[
+    lat = latency[latency.cut_length == -1].set_index(keys)[
         ["step_median_s", "step_p99_s", "enrich_step_max_s"]]
     t = err.join(lat)
     t["speedup"] = full / t["step_median_s"]
@@ -251,25 +271,27 @@ def main(argv=None):
     latency.to_parquet(args.out / "latency.parquet")
     pd.DataFrame([{k: v for k, v in r.items() if k not in ("u", "mass")} for r in refs]).to_parquet(
         args.out / "reference.parquet")
-    plot_errors(errors, args.out / "fig7_error_vs_cut_length.png")
+    plot_errors(errors, args.out / "fig7_error_vs_cut_length.png", sorted({6, 10, args.modes}))
     plot_latency(latency, args.out / "fig8_step_time.png", min(6, args.modes))
     table, full = _table(errors, latency, refs)
-    summary = {"resolution": args.resolution, "build_s": models["build_s"], "full_fe_step_median_s": full,
+    summary = {"resolution": args.resolution, "build_s": models["build_s"], "condense_s": models["condense_s"],
+               "full_fe_step_median_s": full,
                "cut_lengths": len(refs) - 1, "n_dof_cut_max": refs[-1]["n_dof"],
                "build_info": {k: v for k, v in models["base"].build_info.items() if k != "operators"},
                "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS"), "heat1d": heat.to_dict("records")}
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    pd.set_option("display.width", 200)
+    print(heat.to_string(index=False))
+    print(errors.pivot_table(index=["enrichment", "projection", "n_modes"], columns="cut_length",
+                             values="l2_error").to_string(float_format=lambda x: f"{x:.2e}"))
+    print(f"full FE step of the same cut (assemble + factorise + solve), median over cut lengths: {full:.3f} s")
+    print(table.to_string(float_format=lambda x: f"{x:.3g}"))
     if args.svk:
         svk = svk_rows(scene)
         svk.to_parquet(args.out / "svk.parquet")
         summary["svk"] = svk.to_dict("records")
+        (args.out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
         print(svk.to_string(index=False))
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
-    pd.set_option("display.width", 200)
-    print(heat.to_string(index=False))
-    print(errors.pivot_table(index=["projection", "n_modes"], columns="cut_length", values="l2_error").to_string(
-        float_format=lambda x: f"{x:.2e}"))
-    print(f"full FE step of the same cut (assemble + factorise + solve), median over cut lengths: {full:.3f} s")
-    print(table.to_string(float_format=lambda x: f"{x:.3g}"))
     return summary
 
 

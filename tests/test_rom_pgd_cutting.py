@@ -13,6 +13,7 @@ from tissuebench.cases.scene import load
 from tissuebench.refsolvers import make_backend
 from tissuebench.rom import make_method
 from tissuebench.rom.pgd import CuttingModel, pgd_training
+from tissuebench.rom.pgd.enrichment import condense
 from tissuebench.rom.pgd.reference import cut_problem, l2_error, linear_reference
 from tissuebench.rom.pgd.vademecum import Vademecum
 
@@ -145,3 +146,28 @@ def _rotated(training, angle):
     scene = training.info["scene"]
     cut = {**scene.cut, "incisions": [{"angle_deg": angle, "radii": RADII}]}
     return dataclasses.replace(training, info={**training.info, "scene": dataclasses.replace(scene, cut=cut)})
+
+
+def test_condensed_enrichment_leaves_only_the_vademecum_error(scene, models, references):
+    """psi = N H - K^{-1} K_ud: the coupling to the modes vanishes, the jump is the FE one, and
+    the error at every cut length is that of the intact vademecum at the contact node."""
+    m = models["srb"]
+    fam = m.vademecum.family
+    cond = condense(m.enrichment, fam.K)
+    full = Vademecum(fam, np.eye(fam.n_free), np.ones((fam.n_parameters, fam.n_free)), m.vademecum.record)
+    exact = CuttingModel("exact", full, "srb", cond, 3.0, m.points)
+    model = CuttingModel("condensed", m.vademecum, "srb", cond, 3.0, m.points)
+    r = model.r
+    assert np.abs(model.M[:r, r:]).max() < 1e-10 * np.abs(model.M).max()
+    for c, (u_ref, M) in enumerate(references):
+        assert l2_error(exact.reconstruct(_step(exact, c)), u_ref, M) < 1e-11
+        err = l2_error(model.reconstruct(_step(model, c)), u_ref, M)
+        be = make_backend("skfem", cut_problem(scene, m.strip, 0, m.force, node=m.strip.tip(c)))
+        u0 = linear_reference(be)[0]
+        intact = l2_error(model.reconstruct(model.step({"node": m.strip.tip(c), "cut_length": 0})), u0, be.mass())
+        # measured: 1.7e-4 / 1.7e-4, 2.46e-2 / 2.63e-2, 0.697 / 0.711 (cut / intact)
+        assert err < 1.1 * intact, (c, err, intact)
+    plain = l2_error(m.reconstruct(_step(m, 1)), *references[1])
+    assert l2_error(model.reconstruct(_step(model, 1)), *references[1]) < 0.5 * plain  # 2.5e-2 vs 6.9e-2
+    with pytest.raises(ValueError, match="enrichment"):
+        make_method("pgd_cutting", enrichment="xfem")

@@ -30,7 +30,7 @@ import dataclasses
 import numpy as np
 
 from ..base import OnlineModel, RomMethod, StepResult, Training, register
-from .enrichment import Enrichment, enrichment_operators, to_cut_mesh
+from .enrichment import Enrichment, condense, enrichment_operators, to_cut_mesh
 from .linear import check_pgd_options
 from .online import locate
 from .projections import make_projection
@@ -56,11 +56,16 @@ class CuttingModel(OnlineModel):
         fam = vademecum.family
         self.free_dofs, self.ndof, self.force = fam.free_dofs, fam.ndof, np.asarray(fam.force, float)
         r = self.basis.shape[1]
-        if projection == "srb":
-            K_bq, K_qq, self._gamma = self.basis.T @ enrichment.K_ud, enrichment.K_dd, None
-        else:  # doubly weak form: the enrichment does not depend on s, its s-integrals are gamma and |S|
-            K_bq = proj.gamma[:, None] * (self.basis.T @ enrichment.K_ud)
-            K_qq, self._gamma = fam.weights.sum() * enrichment.K_dd, proj.gamma
+        K_bq, K_qq, self._G_rows = self.basis.T @ enrichment.K_ud, enrichment.K_dd, None
+        if enrichment.G is not None:  # condensed: psi = N H - G (enrichment.py)
+            G = enrichment.G
+            K_bq = K_bq - (fam.K @ self.basis).T @ G  # = 0 up to round-off
+            K_qq = K_qq - enrichment.K_ud.T @ G
+            self._G_rows = G  # rows at the contact give the load of psi: -G[rows]^T F
+        self._gamma, self._S_measure = None, 1.0
+        if projection == "prb":  # doubly weak form: the enrichment does not depend on s, its s-integrals are gamma and |S|
+            self._gamma, self._S_measure = proj.gamma, float(fam.weights.sum())
+            K_bq, K_qq = proj.gamma[:, None] * K_bq, self._S_measure * K_qq
         n_e = K_qq.shape[0]
         self.M = np.zeros((r + n_e, r + n_e))
         self.M[:r, :r], self.M[:r, r:], self.M[r:, :r], self.M[r:, r:] = proj.K_r, K_bq, K_bq.T, K_qq
@@ -84,7 +89,7 @@ class CuttingModel(OnlineModel):
 
     @property
     def build_info(self) -> dict:
-        return {**self.vademecum.build_info(), "projection": self.projection,
+        return {**self.vademecum.build_info(), "projection": self.projection, "enrichment": self.enrichment.kind,
                 "max_cut_length": self.strip.max_cut_length, "enriched_nodes": len(self.strip.enriched),
                 "enrichment_K_uu_check": self.enrichment.K_uu_check, "F_cut_N": self.F_cut}
 
@@ -142,6 +147,8 @@ class CuttingModel(OnlineModel):
         self._c = c
         b = np.zeros(Minv.shape[0])
         b[:self.r] = self.basis[rows].T @ Fv if self._gamma is None else self._gamma * (self.basis[rows].T @ Fv)
+        if self._G_rows is not None and c:
+            b[self.r:] = -self._S_measure * (self._G_rows[rows, :len(b) - self.r].T @ Fv)
         x = Minv @ b
         if ct.S_p is not None and self.projection == "prb":
             x[:self.r] *= ct.S_p
@@ -171,8 +178,11 @@ class CuttingModel(OnlineModel):
             raise ValueError(f"{self.name}.reconstruct: the step failed ({result.message}); no state")
         c = int(result.info["cut_length"])
         u = np.zeros(self.ndof)
+        d = result.q[self.r:]
         u[self.free_dofs] = self.basis @ result.q[:self.r]
-        return to_cut_mesh(u, result.q[self.r:], self.strip, c)
+        if self._G_rows is not None and len(d):
+            u[self.free_dofs] -= self._G_rows[:, :len(d)] @ d
+        return to_cut_mesh(u, d, self.strip, c)
 
 
 @register
@@ -190,6 +200,8 @@ class PgdCutting(RomMethod):
     strip_rings : int >= 0
     F_cut : float, N, threshold of the cutting criterion (default: the scene's
         ``[methods.pgd_cutting] F_cut_N``, else 3)
+    enrichment : "cracking_node" (the paper's N_a H_+ functions) or "condensed" (each
+        corrected by the intact response G = K^{-1} K_ud, :mod:`.enrichment`)
     """
 
     name = "pgd_cutting"
@@ -199,10 +211,13 @@ class PgdCutting(RomMethod):
 
     def __init__(self, n_modes: int = 6, projection: str = "srb", incision: int = 0, radii=None,
                  accessible: str = "strip", strip_rings: int = 1, F_cut: float | None = None, tol: float = 1e-8,
-                 max_fixed_point: int = 50, fixed_point_tol: float = 1e-8, seed: int = 0):
+                 max_fixed_point: int = 50, fixed_point_tol: float = 1e-8, seed: int = 0,
+                 enrichment: str = "cracking_node"):
         check_pgd_options(self.name, n_modes, tol, max_fixed_point, fixed_point_tol, seed)
         if projection not in ("srb", "prb"):
             raise ValueError(f"{self.name}: projection = {projection!r}; valid: ['srb', 'prb']")
+        if enrichment not in ("cracking_node", "condensed"):
+            raise ValueError(f"{self.name}: enrichment = {enrichment!r}; valid: ['cracking_node', 'condensed']")
         if accessible not in ("strip", "anterior"):
             raise ValueError(f"{self.name}: accessible = {accessible!r}; valid: ['strip', 'anterior']")
         if isinstance(incision, bool) or not isinstance(incision, (int, np.integer)) or incision < 0:
@@ -214,7 +229,7 @@ class PgdCutting(RomMethod):
         if F_cut is not None and not (np.isfinite(F_cut) and F_cut > 0):
             raise ValueError(f"{self.name}: F_cut must be a force > 0 (N), got {F_cut!r}")
         self.n_modes, self.projection, self.incision, self.radii = int(n_modes), projection, int(incision), radii
-        self.accessible, self.strip_rings, self.F_cut = accessible, int(strip_rings), F_cut
+        self.accessible, self.strip_rings, self.F_cut, self.enrichment = accessible, int(strip_rings), F_cut, enrichment
         self.tol, self.max_fixed_point, self.fixed_point_tol, self.seed = tol, max_fixed_point, fixed_point_tol, seed
 
     def strip(self, training: Training):
@@ -242,5 +257,7 @@ class PgdCutting(RomMethod):
         fam = family_from_training(Training(backend=be, info=info), self.name)
         vad = build_vademecum(fam, self.n_modes, self.tol, self.max_fixed_point, self.fixed_point_tol, self.seed)
         F_cut = self.F_cut or float((scene.methods.get("pgd_cutting", {}) or {}).get("F_cut_N", 3.0))
-        return CuttingModel(self.name, vad, self.projection, enrichment_operators(scene, be, st), F_cut,
-                            be.problem.nodes, be.problem)
+        enr = enrichment_operators(scene, be, st)
+        if self.enrichment == "condensed":
+            enr = condense(enr, fam.K)
+        return CuttingModel(self.name, vad, self.projection, enr, F_cut, be.problem.nodes, be.problem)
