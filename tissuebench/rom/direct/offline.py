@@ -8,8 +8,8 @@ implicit sub-step, ``M`` for the explicit update) becomes
 
     (A ⊗ W_1 ⊗ ... ⊗ W_P) y = sum_t r_t ⊗ W_1 g_1t ⊗ ... ⊗ W_P g_Pt,
 
-with ``W_d`` the P1 mass matrix of parameter ``d`` and the right-hand side a
-:class:`~.fields.SepField` built from the inputs (``u_n = sum_j phi_j ⊗ q_j``, ``lam f``)
+with ``W_d`` the P1 mass matrix of parameter ``d`` (divided by its interval length) and
+the right-hand side a :class:`~.fields.SepField` built from the inputs (``u_n = sum_j phi_j ⊗ q_j``, ``lam f``)
 and earlier sub-steps. Each is solved by greedy PGD with alternating directions
 (:func:`tissuebench.rom.separated.pgd_solve`) over space x each reduced coordinate x
 load: the explicit update ``M z = r`` of the paper's explicit schemes, the sub-steps of
@@ -90,7 +90,11 @@ class SeparatedAlgebra:
     def __init__(self, ops: StepOperators, meshes, inputs: dict, settings: PgdSettings,
                  internal_force_field: SepField | None = None):
         self.ops, self.meshes, self.inputs, self.settings = ops, list(meshes), inputs, settings
-        self.W = [m.mass() for m in self.meshes]
+        # the L2 inner product of each parameter normalised by its interval length: the
+        # Galerkin solution is unchanged (every W_d scales both sides), but the products of
+        # P parameter norms in the alternating directions stay O(1) (with 61 parameters of
+        # width ~1e-4 they underflowed and the first mode broke down on liver_dynamic)
+        self.W = [m.mass() / (m.hi - m.lo) for m in self.meshes]
         self._load = parameter_field(ops.f, len(self.meshes) - 1, self.meshes)
         self._fint = internal_force_field
         self.rng = np.random.default_rng(settings.seed)
