@@ -1,7 +1,8 @@
 """Reduced-order models: one module per method family, one offline/online contract (:mod:`.base`)."""
 from .base import (METHODS, MODEL_KINDS, STEP_STATUSES, LinearReconstruction, OnlineModel, RomMethod, StepResult,
                    Training, check_parameters, make_method, method_class, register)
-from . import anm, anm_interp, anm_pod, baselines, interpolation, pgd, pod, wsc  # noqa: F401  (registers the methods)
+from . import (anm, anm_interp, anm_pod, baselines, direct, interpolation, pgd, pod,  # noqa: F401  (registers
+               wsc)
 
 __all__ = ["METHODS", "MODEL_KINDS", "STEP_STATUSES", "LinearReconstruction", "OnlineModel", "RomMethod",
            "StepResult", "Training", "check_parameters", "make_method", "method_class", "register"]
