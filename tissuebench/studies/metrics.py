@@ -33,6 +33,8 @@ def point_rows(evaluation, driven) -> list[dict]:
             rel, dmax = np.nan, np.nan
         elif u is None:
             rel, dmax = np.inf, np.inf
+        elif not np.all(np.isfinite(u)) or np.abs(u).max() > 1e150:  # a blow-up: its error is inf
+            rel, dmax = np.inf, np.inf
         else:
             den = np.linalg.norm(ref)
             rel = float(np.linalg.norm(u - ref) / den) if den > 0 else float(np.linalg.norm(u))
@@ -87,7 +89,8 @@ def summarise_points(points: pd.DataFrame, outputs: pd.DataFrame, evaluation, fi
     for p, u, use in zip(evaluation.points, fields, has_ref):
         if not use:
             continue
-        num += np.inf if u is None else float(np.sum((u - p.reference) ** 2))
+        with np.errstate(over="ignore", invalid="ignore"):  # a blown-up step counts as inf, said once
+            num += np.inf if u is None or not np.all(np.isfinite(u)) else float(np.sum((u - p.reference) ** 2))
         den += float(np.sum(p.reference ** 2))
     counts = points["status"].value_counts()
     row = {"n_points": int(len(points)), "n_reference_points": int(has_ref.sum()),
