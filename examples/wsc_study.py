@@ -76,7 +76,7 @@ def reference(scene, out: Path, tag: str) -> dict:
     """FE reference trajectory ``{"t", "u" (n_steps + 1, ndof), "wall" (per step)}``, cached."""
     path = out / f"ref_{tag}.npz"
     if path.is_file():
-        z = np.load(path)
+        z = np.load(path, allow_pickle=False)
         return {k: z[k] for k in z.files}
     from tissuebench.studies.reference import solve
 

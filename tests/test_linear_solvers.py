@@ -185,3 +185,12 @@ def test_amg_cg_bad_options(kw):
     name = next(iter(kw))
     with pytest.raises(ValueError, match=name):
         AmgCgSolver(**kw)
+
+
+def test_run_command_offers_every_linear_solver():
+    from tissuebench.cli import _parser
+    from tissuebench.refsolvers.linear_solvers import LINEAR_SOLVERS
+
+    action = next(a for a in _parser()._subparsers._group_actions[0].choices["run"]._actions
+                  if a.dest == "linear_solver")
+    assert sorted(action.choices) == sorted(LINEAR_SOLVERS)

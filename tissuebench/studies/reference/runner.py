@@ -46,7 +46,7 @@ def solve(case, backend: str = "skfem", resolution: str = "ci", variant: str | N
         Used when ``case`` is a name or path.
     progress : callable, optional
         ``progress(done, total)`` with the load factor or time reached.
-    linear_solver : {"direct", "amg-cg"}
+    linear_solver : {"direct", "cholesky", "amg-cg"}
         Linear solver of the Newton iterations (FE statics).
     """
     scene = _scene_of(case, resolution, variant)
