@@ -161,3 +161,32 @@ reference's scheme inside the step (forward Euler on (u, v) is 20 % off); clampe
         assert lin[wopts.format("central_difference", m)] < 0.08
     assert lin.idxmin() == wopts.format("hht", 8)  # the reference's own scheme, the most modes
     assert (wave.loc["wave-svk", "rmse_rel"] < 0.08).all()
+
+
+def test_extremes_preset(tmp_path_factory):
+    """Numerical extremes (issue "Reliability"), measured at ci on the shipped meshes: every
+    unit has a status and no step past the training envelope is returned as "ok"; P1 locking
+    of the liver as nu -> 0.5 (tool tip at 3.6 N: 2.40, 1.77, 0.99, 0.41 mm for nu = 0.45,
+    0.49, 0.499, 0.4999); the cornea pinched 200x harder stalls (inverted elements), stored
+    as the reference's status; a duplicated rank-4 snapshot set asked for 15 modes gives 4
+    and says so."""
+    import json
+
+    from tissuebench.studies.results import read_outputs, read_points
+
+    out = tmp_path_factory.mktemp("extremes") / "out"
+    assert main(["sweep", "--preset", "extremes", "--out", str(out), "--quiet"]) == 0
+    units, points, outputs = read_units(out), read_points(out), read_outputs(out)
+    assert len(units) == 55 and (units["unit_status"] == "ok").all()
+    beyond = points[~points["has_reference"]]
+    assert len(beyond) > 100 and not (beyond["status"] == "ok").any()
+    tips = []
+    for nu in ("0.45", "0.49", "0.499", "0.4999"):
+        o = outputs[(outputs["case"] == f"liver-nu{nu}") & (outputs["monitor"] == "tool_tip_uy")]
+        tips.append(-1e3 * o.dropna(subset=["reference"]).sort_values("x")["reference"].iloc[-1])
+    assert tips == pytest.approx([2.40, 1.77, 0.99, 0.41], abs=0.01)
+    stalled = units[units["case"] == "cornea-compression"]
+    assert (stalled["reference_status"] == "stalled").all()
+    dup = units[(units["case"] == "cornea-duplicated") & units["label"].str.contains("n_modes=15")]
+    info = json.loads(dup["model_info"].iloc[0])
+    assert info["n_modes"] == 4 and "rank 4 < requested 15" in info["pod_message"]
