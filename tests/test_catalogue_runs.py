@@ -227,23 +227,8 @@ def test_liver_palpation_small_load_limit_is_linear_elasticity():
 
 
 # --------------------------------------------------------------------------- refinement, backends
-def _refined_values(case, variant, monitor, levels, analysis=None):
-    scene = load(case, variant=variant)
-    vals = []
-    for params in levels:
-        r = solve(with_changes(scene, mesh=params, analysis=analysis))
-        assert r.status == "success", r.message
-        vals.append(r.table[monitor].dropna().iloc[-1])
-    return np.array(vals)
-
-
-@pytest.mark.slow
-def test_land_beam_converges_under_refinement():
-    vals = _refined_values("land_beam", None, "tip_z", [{"divisions": [5, 1, 1]}, {"divisions": [10, 2, 2]},
-                                                         {"divisions": [20, 4, 4]}], {"load_steps": 4})
-    d1, d2 = abs(vals[1] - vals[0]), abs(vals[2] - vals[1])
-    assert d2 < 0.5 * d1, vals
-    assert 3.5 < vals[-1] < 4.5, vals  # deflected tip z [mm] (Land et al. report about 4.2 incompressible)
+# land_beam's refinement (the scene is mixed u-p since issue 11): monotone from below into the
+# published spread, tests/test_external_anchors.py::test_land_beam_mixed_converges_into_the_published_spread
 
 
 @pytest.mark.slow
