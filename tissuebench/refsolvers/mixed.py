@@ -62,7 +62,7 @@ class MixedBackend(Backend):
     problem : Problem
         ``element="P2"``; a material with a volumetric part (neo-Hookean, decoupled
         neo-Hookean, Mooney-Rivlin, Guccione).
-    backend : {"ngsolve", "skfem"}
+    backend : {"ngsolve", "skfem"} or Backend (a displacement backend of ``problem``, reused)
     bulk_modulus : float or None
         None: incompressible (J = 1); a number > 0: perturbed Lagrangian with that modulus.
     penalty_weight : float
@@ -86,7 +86,9 @@ class MixedBackend(Backend):
             raise ValueError(f"bulk_modulus must be None or a finite number > 0, got {bulk_modulus!r}")
         if not (isinstance(penalty_weight, (int, float)) and 0.0 <= penalty_weight <= 1.0):
             raise ValueError(f"penalty_weight must be a number in [0, 1], got {penalty_weight!r}")
-        self.displacement_backend = make_backend(backend, problem)
+        # a displacement backend of the same problem may be handed in (the scene runner's): not built twice
+        self.displacement_backend = backend if isinstance(backend, Backend) and backend.problem is problem \
+            else make_backend(backend, problem)
         super().__init__(MixedLayout(problem))
         if self.displacement_backend.name == "ngsolve":
             from .backends.mixed_ngsolve import NgsolveMixedForms as Forms
@@ -185,7 +187,8 @@ def static_run(problem, backend, n_steps, target, monitors, needs_force=False, p
     Parameters
     ----------
     problem : Problem
-    backend : {"ngsolve", "skfem"}
+    backend : {"ngsolve", "skfem"} or Backend
+        A backend name, or a displacement backend of ``problem`` to reuse.
     n_steps : int
         Load increments (the step is never larger; it is cut when Newton fails).
     target : float
@@ -207,19 +210,12 @@ def static_run(problem, backend, n_steps, target, monitors, needs_force=False, p
 
     mb = MixedBackend(problem, backend, bulk_modulus, penalty_weight)
     res = newton_solve(mb, target, n_increments=n_steps, max_increment=1.0 / n_steps, progress=progress)
-    states, rows, k = [np.zeros(mb.n_u)], [], 0
-    for inc in res.increments:
-        row = {"step": len(rows) + 1, "load_factor": inc.load_factor, "newton_iterations": inc.iterations,
-               "converged": inc.converged, "wall_s": inc.wall_s, "assembly_s": inc.assembly_s,
-               "solve_s": inc.solve_s, "final_residual": inc.residual_norms[-1] if inc.residual_norms else np.nan,
-               "message": inc.message}
-        if inc.converged:
-            z = res.states[k]
-            k += 1
-            u = z[:mb.n_u].copy()
-            states.append(u)
-            row.update(monitors(u, mb.internal_force(z)[:mb.n_u] if needs_force else None))
-        rows.append(row)
+
+    def on_converged(z):
+        u = z[:mb.n_u].copy()
+        return u, monitors(u, mb.internal_force(z)[:mb.n_u] if needs_force else None)
+    stored, rows = res.increment_rows(on_converged)
+    states = [np.zeros(mb.n_u)] + stored
     nodes, cell_nodes = problem.layout
     p = res.u[mb.n_u:]
     info = {"formulation": "mixed u-p, Taylor-Hood P2-P1", "bulk_modulus": bulk_modulus,

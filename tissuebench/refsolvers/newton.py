@@ -115,6 +115,24 @@ class StaticResult:
     def converged_increments(self):
         return [inc for inc in self.increments if inc.converged]
 
+    def increment_rows(self, on_converged) -> tuple[list, list]:
+        """``(stored, rows)``: one row per attempted increment (step, load factor, Newton
+        iterations, converged, wall/assembly/solve time, final residual, message); for each
+        converged increment ``on_converged(state) -> (stored_state, {name: value})`` gives
+        what to store and the values added to its row (a scene's monitors)."""
+        stored, rows, states = [], [], iter(self.states)
+        for inc in self.increments:
+            row = {"step": len(rows) + 1, "load_factor": inc.load_factor, "newton_iterations": inc.iterations,
+                   "converged": inc.converged, "wall_s": inc.wall_s, "assembly_s": inc.assembly_s,
+                   "solve_s": inc.solve_s,
+                   "final_residual": inc.residual_norms[-1] if inc.residual_norms else np.nan, "message": inc.message}
+            if inc.converged:
+                state, values = on_converged(next(states))
+                stored.append(state)
+                row.update(values)
+            rows.append(row)
+        return stored, rows
+
     def table(self) -> pd.DataFrame:
         """One row per attempted increment."""
         rows = [{"load_factor": i.load_factor, "converged": i.converged, "newton_iterations": i.iterations,

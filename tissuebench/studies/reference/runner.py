@@ -106,7 +106,7 @@ def _mixed_static(scene, be, n_steps, target, progress):
     from ...refsolvers.mixed import static_run
 
     pb = be.problem
-    return static_run(pb, be.name, n_steps, target, lambda u, f: scene.evaluate_monitors(pb, u, f),
+    return static_run(pb, be, n_steps, target, lambda u, f: scene.evaluate_monitors(pb, u, f),
                       needs_force=any(m["quantity"] in ("reaction_force", "nominal_stress", "moment")
                                       for m in scene.monitors), progress=progress)
 
@@ -142,18 +142,8 @@ def _newton_static(be, n_steps, target, monitors, progress, linear_solver, to_di
     opts = NewtonOptions(n_increments=n_steps, max_increment=1.0 / n_steps, linear_solver=linear_solver,
                          min_increment=1.0 / n_steps if to_divergence else 1.0 / 4096)
     res = newton_solve(be, target, opts, progress=progress)
-    states, rows, k = [np.zeros(be.ndof)], [], 0
-    for inc in res.increments:
-        row = {"step": len(rows) + 1, "load_factor": inc.load_factor, "newton_iterations": inc.iterations,
-               "converged": inc.converged, "wall_s": inc.wall_s, "assembly_s": inc.assembly_s,
-               "solve_s": inc.solve_s, "final_residual": inc.residual_norms[-1] if inc.residual_norms else np.nan,
-               "message": inc.message}
-        if inc.converged:
-            u = res.states[k]
-            k += 1
-            states.append(u)
-            row.update(monitors(u))
-        rows.append(row)
+    stored, rows = res.increment_rows(lambda u: (u, monitors(u)))
+    states = [np.zeros(be.ndof)] + stored
     status, message = res.status, res.message
     if to_divergence and status == "stalled":
         status, message = _divergence_verdict(res, message)
