@@ -115,3 +115,61 @@ def test_left_ventricle_mixed_apex_inside_the_published_spread_at_ci():
     assert (t["verdict"] == "in").all(), t[["quantity", "ours", "low", "high", "how"]]
     endo = t[t["quantity"].str.startswith("endocardial")].iloc[0]
     assert endo["ours"] == pytest.approx(-26.51, abs=0.02)
+
+
+def test_verify_compares_both_backends_on_every_scene_of_a_sweep(tmp_path, monkeypatch):
+    """``tissuebench verify RESULTS`` solves every FE scene of the sweep with scikit-fem and
+    NGSolve: the cube and the cornea agree to 1e-10 (measured: 1e-16 .. 1e-14), the 1D frame is
+    a row that says it has one implementation; the report shows the table. A perturbed NGSolve
+    field is caught (verdict disagree, exit 1)."""
+    import copy
+
+    import pandas as pd
+
+    from tissuebench.cli import main
+    from tissuebench.reports import backends as bk
+    from tissuebench.studies.reference import cached_solve
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('''[sweep]
+name = "agree"
+[protocol]
+latency_steps = 5
+warmup = 1
+reference_samples = 1
+[[case]]
+id = "cube"
+name = "cube_tension_twist"
+variant = "tension"
+[[case]]
+id = "cornea"
+name = "cornea_pinch"
+[[case]]
+id = "frame"
+name = "frame_2dof"
+training = { kind = "trajectory" }
+[[method]]
+name = "nearest"
+''')
+    out = tmp_path / "out"
+    assert main(["sweep", str(spec), "--out", str(out), "--quiet"]) == 0
+    assert main(["verify", str(out), "--cases", "clamped_beam"]) == 0
+    table = pd.read_parquet(out / "_backends.parquet").set_index("case")
+    assert table.loc["frame", "verdict"] == "n/a" and "one implementation" in table.loc["frame", "how"]
+    for case in ("cube", "cornea"):
+        assert table.loc[case, "verdict"] == "agree"
+        assert table.loc[case, "field_rel_diff"] < 1e-10 and table.loc[case, "monitor_rel_diff"] < 1e-10
+    assert main(["report", str(out), "--out", str(out / "_report" / "r.html")]) == 0
+    page = (out / "_report" / "r.html").read_text()
+    assert "Backend agreement" in page and "table-backends" in page
+
+    def perturbed(scene, backend, *a, **k):
+        ref, hit = cached_solve(scene, backend, *a, **k)
+        if backend == "ngsolve":  # a copy: the cached run stays as it is
+            ref = copy.copy(ref)
+            ref.displacement = ref.displacement * (1 + 1e-4)
+        return ref, hit
+
+    monkeypatch.setattr("tissuebench.studies.reference.cached_solve", perturbed)
+    rows = bk.backend_agreement(bk.scenes_of_results(out)).set_index("case")
+    assert rows.loc["cube", "verdict"] == "disagree" and rows.loc["cube", "field_rel_diff"] == pytest.approx(1e-4)

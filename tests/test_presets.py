@@ -5,6 +5,7 @@ The figures asserted are those measured on this project's meshes (the liver of
 """
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from tissuebench.cli import main
@@ -177,7 +178,8 @@ def test_extremes_preset(tmp_path_factory):
     out = tmp_path_factory.mktemp("extremes") / "out"
     assert main(["sweep", "--preset", "extremes", "--out", str(out), "--quiet"]) == 0
     units, points, outputs = read_units(out), read_points(out), read_outputs(out)
-    assert len(units) == 55 and (units["unit_status"] == "ok").all()
+    assert len(units) == 72 and (units["unit_status"] == "ok").all()
+    _extremes_dynamic_rows(units, points)
     beyond = points[~points["has_reference"]]
     assert len(beyond) > 100 and not (beyond["status"] == "ok").any()
     tips = []
@@ -190,6 +192,38 @@ def test_extremes_preset(tmp_path_factory):
     dup = units[(units["case"] == "cornea-duplicated") & units["label"].str.contains("n_modes=15")]
     info = json.loads(dup["model_info"].iloc[0])
     assert info["n_modes"] == 4 and "rank 4 < requested 15" in info["pod_message"]
+
+
+def _extremes_dynamic_rows(units, points):
+    """Explicit steps past the critical one on the frame blow up and are flagged within 3 steps
+    (failed within 25), below it they hold; over 10x the horizon central difference conserves
+    energy (frame: the direct integrator equals its reference to 1e-9; wave block: |drift| <
+    1e-3 against HHT's -1.7 %), HHT and Bathe dissipate (wave block ~ -1 %; liver_dynamic's free
+    vibration: HHT reference -20 %), and no model creates energy."""
+    from tissuebench.reports.extremes import extremes_table
+
+    by = units.set_index("case")
+    ext = extremes_table(units, points).set_index("case")
+    for k in ("0.5", "1"):
+        case = f"frame-dt{k}x-critical"
+        assert by.loc[case, "n_failed"] == 0 and ext.loc[case, "verdict"] == "pass"
+    for k, dt in (("2", 2 * 0.18728527698485425), ("10", 10 * 0.18728527698485425)):
+        row = ext.loc[f"frame-dt{k}x-critical"]
+        assert row["verdict"] == "fail" and by.loc[f"frame-dt{k}x-critical", "n_failed"] == 1
+        assert row["first_flagged_x"] <= 3 * dt + 1e-9 and row["first_failed_x"] <= 25 * dt + 1e-9
+    frame = units[units["case"] == "frame-10x-horizon"].set_index("label")
+    cd = frame.loc[[lbl for lbl in frame.index if "central_difference" in lbl][0]]
+    assert cd["rmse_rel"] < 1e-9 and abs(cd["energy_drift"]) < 1e-5
+    assert cd["energy_drift"] == pytest.approx(cd["reference_energy_drift"], abs=1e-6)
+    wave = units[units["case"] == "wave-10x-horizon"].set_index("label")
+    assert wave["reference_energy_drift"].iloc[0] == pytest.approx(-0.017, abs=0.002)
+    for lbl, drift in wave["energy_drift"].items():
+        assert (abs(drift) < 1e-3) if "central_difference" in lbl else (-0.02 < drift < -0.005), (lbl, drift)
+    liver = units[units["case"] == "liver-dynamic-10x-horizon"]
+    assert (abs(liver["reference_energy_drift"] + 0.198) < 0.01).all() and (liver["energy_drift"] < 0).all()
+    assert (units["energy_drift"].dropna().replace(np.inf, np.nan).dropna() < 0.01).all()
+    beam = units[units["case"] == "beam-10x-horizon"]
+    assert beam["energy_message"].iloc[0] == "no constant-load window" and beam["rmse_rel"].iloc[0] < 0.01
 
 
 def test_wsc_lv_preset(tmp_path_factory):

@@ -15,7 +15,9 @@
                                             regression gate on error and latency ratios
 ``tissuebench verify [RESULTS] [--resolution ci|paper] [--backend B] [--cases C,D]``
                                             external anchors (Cook, Land et al.); written to
-                                            RESULTS/_anchors.parquet for the report
+                                            RESULTS/_anchors.parquet for the report; with
+                                            RESULTS also every FE scene of the sweep on both
+                                            backends (RESULTS/_backends.parquet)
 
 Exit codes: 0 success, 1 the run finished with a numerical failure (stored) or its results
 could not be written (a full disk: nothing stored), 2 bad input (including an output location
@@ -73,6 +75,9 @@ def _parser():
     ver.add_argument("--resolution", default="ci", choices=["ci", "paper"])
     ver.add_argument("--backend", default="ngsolve", choices=["ngsolve", "skfem"])
     ver.add_argument("--cases", default=None, help="only these anchor cases (comma-separated)")
+    ver.add_argument("--no-backends", action="store_true",
+                     help="skip the backend agreement (with RESULTS: every FE scene of the sweep on both backends, "
+                          "written to RESULTS/_backends.parquet)")
     desc = sub.add_parser("describe", help="what a run of CASE models, and why")
     desc.add_argument("case")
     desc.add_argument("--variant", default=None)
@@ -247,7 +252,31 @@ def _verify(args) -> int:
     for _, r in bad.iterrows():
         print(f"verify: {r['case']} {r['quantity']}: {r['ours']:.6g} outside [{r['low']:.6g}, {r['high']:.6g}] "
               f"({r['how']})", file=sys.stderr)
-    return 1 if len(bad) else 0
+    disagree = 0
+    if args.results is not None and not args.no_backends:
+        if (args.results / "_sweep.json").is_file():
+            disagree = _verify_backends(args.results)
+        else:
+            print(f"verify: {args.results} holds no sweep (_sweep.json): no scenes for the backend agreement")
+    return 1 if len(bad) or disagree else 0
+
+
+def _verify_backends(results) -> int:
+    """Backend agreement of every scene of the sweep in ``results``; the number that disagree."""
+    from .reports.backends import backend_agreement, scenes_of_results
+    from .studies.results import write_table
+
+    table = backend_agreement(scenes_of_results(results), progress=lambda c: print(f"verify: {c} on both backends",
+                                                                                    flush=True))
+    with _pd_display():
+        print(table[["case", "ndof", "field_rel_diff", "worst_monitor", "monitor_rel_diff", "verdict"]]
+              .to_string(index=False))
+    write_table(table, results / "_backends.parquet")
+    print(f"verify: backend agreement of {len(table)} cases written to {results / '_backends.parquet'}")
+    bad = table[table["verdict"].isin(["disagree", "failed"])]
+    for _, r in bad.iterrows():
+        print(f"verify: {r['case']}: the backends {r['verdict']}: {r['how']}", file=sys.stderr)
+    return len(bad)
 
 
 def _pd_display():

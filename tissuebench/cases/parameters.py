@@ -17,8 +17,10 @@ The moved load becomes one point force at that point, spread by the shape functi
 its cell (``distribute = "interpolate"``), so the load and the response move continuously
 with the position (a nearest-node load would jump from node to node).
 
-Analysis overrides (``mu`` keys ``max_load_factor``, ``load_steps``, ``t_end``, ``dt``) let a
-study shorten a training path, lengthen a time horizon or change the time step;
+Analysis overrides (``mu`` keys ``max_load_factor``, ``load_steps``, ``t_end``, ``dt``,
+``integrator``) let a study shorten a training path, lengthen a time horizon, change the time
+step or the reference's integrator (the scene's ``integrator_options`` belong to its own
+integrator and are dropped with another one);
 ``load_scale`` multiplies every load's value (training runs at other amplitudes, loads past
 the training envelope); a key of the scene's material (``nu``, ``E``, ``mu1`` ...) replaces
 that parameter (validated as in the scene file: nu -> 0.5 studies). All are part of the hash.
@@ -28,7 +30,7 @@ from __future__ import annotations
 import copy
 
 from .schema import AXES, c_enum, c_int_range, c_num, c_pos, c_str, c_vec3, check_table, fail
-from .sections import MAX_LOAD_STEPS, MAX_TIME_STEPS, check_material
+from .sections import INTEGRATOR_NAMES, MAX_LOAD_STEPS, MAX_TIME_STEPS, check_material
 
 __all__ = ["PARAMETER_KINDS", "ANALYSIS_OVERRIDES", "check_parameters_table", "apply_mu"]
 
@@ -37,7 +39,7 @@ _POSITION = {"load": lambda p, v: _c_index(p, v), "axis": c_enum(*AXES), "point"
              "unit": c_str}
 PARAMETER_KINDS = {"position": _POSITION}
 ANALYSIS_OVERRIDES = {"max_load_factor": c_pos, "load_steps": c_int_range(1, MAX_LOAD_STEPS), "t_end": c_pos,
-                      "dt": c_pos}
+                      "dt": c_pos, "integrator": c_enum(*INTEGRATOR_NAMES)}
 
 
 def _c_index(path, v):
@@ -89,6 +91,10 @@ def apply_mu(scene_fields: dict, parameters: dict, mu: dict, who: str) -> dict:
             continue
         if key in ANALYSIS_OVERRIDES:
             analysis[key] = ANALYSIS_OVERRIDES[key](f"mu.{key}", value)
+            if key == "integrator" and value != scene_fields["analysis"].get("integrator"):
+                analysis.pop("integrator_options", None)
+            if key == "integrator" and analysis.get("type") != "dynamic":
+                fail(f"{who}: mu.integrator", value, "the scene is not dynamic (no time integrator to change)")
             if key in ("t_end", "dt") and "dt" in analysis and "t_end" in analysis \
                     and not analysis["t_end"] / analysis["dt"] <= MAX_TIME_STEPS:
                 n = analysis["t_end"] / analysis["dt"]

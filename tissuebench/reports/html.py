@@ -37,7 +37,7 @@ from .paper import paper_rows
 from .plotly_figures import error_figure, pareto_figure
 from .recommend import LATENCY_STATISTIC, parse_requirement
 from .report_data import load_results
-from .sections import (Table, anchors_table, calibration, extremes_table_view, offline_table, paper_table,
+from .sections import (Table, anchors_table, backends_table, calibration, extremes_table_view, offline_table, paper_table,
                        provenance_rows, radius_table, ranking_table, recommendation, scene_info, scene_of)
 
 __all__ = ["write_report", "TEMPLATES", "DEFAULT_NAME"]
@@ -209,11 +209,14 @@ def write_report(results_dir, out_html, require: str | None = None, case: str | 
     anchors = anchors_table("anchors", data.anchors) if data.anchors is not None else None
     if anchors is not None:
         tables.append(anchors)
+    backends = backends_table("backends", data.backends) if data.backends is not None else None
+    if backends is not None:
+        tables.append(backends)
     tables.append(Table("units", [], [], data.units))
     context = {"title": f"tissuebench report: {data.manifest.get('spec_name', data.root.name)}",
                "data_folder": f"{out_html.stem}_data", "requirement": requirement, "require_text": requirement.text,
                "error_metric": data.error_metric, "latency_statistic": LATENCY_STATISTIC, "sections": sections,
-               "papers": papers, "anchors": anchors, "calibration": calibration(data.units),
+               "papers": papers, "anchors": anchors, "backends": backends, "calibration": calibration(data.units),
                "provenance": provenance_rows(data.manifest, data.units),
                "spec_text": data.manifest.get("spec_text", ""),
                "description": _description(data.manifest), "notes": data.notes, "results_dir": str(data.root),

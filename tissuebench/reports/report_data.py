@@ -36,6 +36,7 @@ class ReportData:
     error_metric: str
     anchors: pd.DataFrame | None
     notes: list = field(default_factory=list)
+    backends: pd.DataFrame | None = None  # _backends.parquet of `tissuebench verify RESULTS`
 
     @property
     def cases(self) -> list:
@@ -112,8 +113,11 @@ def load_results(results_dir, case: str | None = None) -> ReportData:
     if anchors is not None and case is not None:
         names = set(units["case"]) | set(units["case_name"])
         anchors = anchors[anchors["case"].astype(str).isin(names)].reset_index(drop=True)
+    backends = pd.read_parquet(root / "_backends.parquet") if (root / "_backends.parquet").is_file() else None
+    if backends is not None and case is not None:
+        backends = backends[backends["case"].astype(str).isin(set(units["case"]))].reset_index(drop=True)
     return ReportData(root, units, _select(read_points(root), keys), _select(read_outputs(root), keys),
-                      _select(pareto, keys), _select(radius, keys), manifest, metric, anchors, notes)
+                      _select(pareto, keys), _select(radius, keys), manifest, metric, anchors, notes, backends)
 
 
 def _derived(root: Path, name: str, notes: list) -> pd.DataFrame | None:

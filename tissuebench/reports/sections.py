@@ -14,7 +14,7 @@ from .format import hz, nbytes, number, percent, seconds
 from .recommend import rank_units
 
 __all__ = ["Table", "scene_of", "scene_info", "recommendation", "ranking_table", "extremes_table_view",
-           "offline_table", "radius_table", "paper_table", "anchors_table", "provenance_rows", "calibration"]
+           "offline_table", "radius_table", "paper_table", "anchors_table", "backends_table", "provenance_rows", "calibration"]
 
 
 def Table(name: str, columns: list, rows: list, data: pd.DataFrame) -> dict:
@@ -75,12 +75,19 @@ def extremes_table_view(name: str, ext: pd.DataFrame) -> dict:
                                                     r.n_not_reached)),
                      f"{r.n_without_reference}: {r.statuses_without_reference}" if r.n_without_reference else "0",
                      f"{number(r.x_max_reference)} / {number(r.x_max_evaluated)}", str(r.failed_with_reference),
-                     number(r.energy_drift, 3), number(getattr(r, "nu", np.nan)), r.reasons])
+                     _drift(r), number(getattr(r, "nu", np.nan)), r.reasons])
     cols = ["unit", "verdict", "unit status", "steps ok / extrapolation / beyond validity / failed / not reached",
             "points without reference: statuses", "largest x with reference / evaluated",
-            "failed steps where a reference exists", f"energy drift (pass within +-{ENERGY_DRIFT_TOL:g})",
+            "failed steps where a reference exists",
+            f"long-run energy drift: model / reference (fail above +{ENERGY_DRIFT_TOL:g})",
             "scene nu", "why it fails"]
     return Table(name, cols, rows, ext)
+
+
+def _drift(r) -> str:
+    if np.isnan(r.energy_drift) and np.isnan(r.reference_energy_drift):
+        return r.energy_message or "-"
+    return f"{number(r.energy_drift, 3)} / {number(r.reference_energy_drift, 3)}"
 
 
 def _count(v) -> str:
@@ -116,6 +123,21 @@ def anchors_table(name: str, anchors: pd.DataFrame) -> dict:
              str(r.source), {"text": str(r.verdict), "cls": "pass" if str(r.verdict).lower() in ("pass", "ok")
                              else "fail"}] for r in anchors.itertuples()]
     return Table(name, ["case", "quantity", "ours", "anchor", "spread [low, high]", "source", "verdict"], rows, anchors)
+
+
+def backends_table(name: str, agreement: pd.DataFrame) -> dict:
+    from .backends import RTOL
+
+    rows = [[str(r.case), f"{r.scene} {r.variant}".strip(), _count(r.ndof) if np.isfinite(r.ndof) else "-",
+             f"{r.skfem_status} / {r.ngsolve_status}" if isinstance(r.skfem_status, str) else "-",
+             number(r.field_rel_diff, 2),
+             f"{r.worst_monitor}: {number(r.monitor_skfem)} / {number(r.monitor_ngsolve)} ({number(r.monitor_rel_diff, 2)})"
+             if isinstance(r.worst_monitor, str) and r.worst_monitor else "-",
+             {"text": str(r.verdict), "cls": {"agree": "pass", "n/a": ""}.get(str(r.verdict), "fail")}, str(r.how)]
+            for r in agreement.itertuples()]
+    cols = ["case", "scene", "dofs", "status skfem / ngsolve", "final field: relative L2 difference",
+            "monitor: skfem / ngsolve (largest relative difference)", f"verdict (agree within {RTOL:g})", "how"]
+    return Table(name, cols, rows, agreement)
 
 
 def provenance_rows(manifest: dict, units: pd.DataFrame) -> list:

@@ -12,7 +12,8 @@ The case entry's ``evaluation`` table has a ``kind`` (default: the training's):
 ``trajectory``  the scene's reference time integration, the model stepped from rest (or
                 the reference's initial state) with the load of each step; errors at the
                 stored reference steps; ``t_end`` (e.g. 10x the paper's horizon) runs a
-                longer reference.
+                longer reference. Where the load ends constant, the long-run energy drift
+                of the reference and of the model (:mod:`.energy`).
 ``map``         the reference at each parameter of ``mus = [{...}, ...]`` (any scene
                 parameters: ``position``, ``load_scale`` ...), one point per entry, each
                 reference run at the full path's last load factor.
@@ -35,6 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .energy import conservative_window, reference_drift
 from .reference import cached_solve
 from .training import lattice_positions, positional_scene, reference_states
 
@@ -137,9 +139,14 @@ def _trajectory(scene, case, spec):
     points = [EvaluationPoint({"time": float(t), "load_factor": float(hist(t))}, U[k], _monitors(ref, "time", t),
                               float(t)) for k, t in enumerate(ref.steps)]
     state0 = {"u": U[0], "v": ref.velocity.reshape(n, -1)[0]}
-    return Evaluation("trajectory", "time", points, dt=float(run.analysis["dt"]), state0=state0,
-                      reference_steps={"ref": ref, "scene": run},
-                      info={"reference_status": ref.status, "t_end": float(run.analysis["t_end"])})
+    dt, t_end = float(run.analysis["dt"]), float(run.analysis["t_end"])
+    info = {"reference_status": ref.status, "t_end": t_end}
+    t_c = conservative_window(hist, dt, t_end, float(ref.steps[0]))
+    if t_c is not None:  # long-run energy drift, the reference's here, the model's after driving it
+        drift = reference_drift(ref.table, t_c, t_end)
+        info.update(energy_window=t_c, energy_scale=drift.scale, **drift.row("reference_"))
+    return Evaluation("trajectory", "time", points, dt=dt, state0=state0, reference_steps={"ref": ref, "scene": run},
+                      info=info)
 
 
 def _map(scene, case, spec):

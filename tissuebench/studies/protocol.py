@@ -46,6 +46,8 @@ class Driven:
     results: list
     fields: list  # reconstructed full field or None (failed step / no reconstruction)
     outputs: list
+    neighbours: dict = None  # trajectory: step index -> full field, around the stored steps of the
+    #                          energy window (the central-difference velocity of :mod:`.energy`)
 
 
 def _trajectory_mus(evaluation, history):
@@ -68,20 +70,28 @@ def drive(model, evaluation, history=None) -> Driven:
         p0 = evaluation.points[0]
         model.start(p0.mu, evaluation.state0, evaluation.dt)
         wanted = {round(p.mu["time"] / evaluation.dt) for p in evaluation.points[1:]}
+        t_c = evaluation.info.get("energy_window")
+        around = set() if t_c is None else {k + d for k in wanted if k * evaluation.dt >= t_c - 1e-9 for d in (-1, 1)}
+        neighbours = {}
         results.append(None), fields.append(evaluation.state0["u"]), outputs.append({})  # the initial state
         for mu in _trajectory_mus(evaluation, history):
             res = model.step(mu)
             if res.mu is None:
                 res.mu = mu
-            if round(mu["time"] / evaluation.dt) in wanted:
+            k = round(mu["time"] / evaluation.dt)
+            if k in wanted:
                 record(res)
+                if t_c is not None and res.q is not None:
+                    neighbours[k] = fields[-1]
+            if k in around and res.q is not None:
+                neighbours[k] = model.reconstruct(res)
             if res.status == "failed":
                 break
         missing = len(evaluation.points) - len(results)
         results += [None] * missing
         fields += [None] * missing
         outputs += [{}] * missing
-        return Driven(results, fields, outputs)
+        return Driven(results, fields, outputs, neighbours)
     model.start(evaluation.points[0].mu if evaluation.points else None)
     for p in evaluation.points:
         res = model.step(p.mu)

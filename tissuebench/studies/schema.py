@@ -25,6 +25,9 @@ UNIT_COLUMNS = {
     # outcome, and what the reference did at the evaluation (status, message, energy growth ratio)
     "unit_status": _S, "message": _S, "reference_status": _S, "reference_message": _S,
     "reference_energy_growth": _F,
+    # long-run energy drift over the constant-load window of a trajectory (studies/energy.py)
+    "energy_drift": _F, "energy_spread": _F, "energy_window_start": _F, "energy_message": _S,
+    "reference_energy_drift": _F, "reference_energy_spread": _F,
     # sizes
     "n_dof": _I, "n_reduced": _I, "n_training_snapshots": _I, "n_points": _I, "n_reference_points": _I,
     # step statuses

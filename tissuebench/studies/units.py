@@ -24,9 +24,11 @@ import pandas as pd
 from threadpoolctl import threadpool_limits
 
 from ..rom import make_method, method_class
+from .energy import EnergyDrift, model_drift
 from .evaluation import NEEDS_MODEL, build_evaluation
 from .metrics import output_rows, point_rows, summarise_points
 from .protocol import blas_info, calibration_seconds, drive, reference_step_seconds, time_latency
+from .reference import dynamics_system
 from .store import code_hash, git_commit, package_versions
 from .training import build_training, case_scene
 
@@ -148,6 +150,7 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
     points = pd.DataFrame(point_rows(evaluation, driven))
     outputs = pd.DataFrame(output_rows(evaluation, driven), columns=["point", "x", "monitor", "reference", "rom",
                                                                        "rel_error"])
+    energy = _energy_drift(evaluation, driven, unit.case["backend"])
     lat = time_latency(model, evaluation, history, int(p["latency_steps"]), int(p["warmup"]), int(p["seed"]))
     ref_step = reference_step_seconds(evaluation, unit.case["backend"], int(p["reference_samples"]))
     calib = calibration_seconds()
@@ -164,9 +167,22 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
             "offline_s": offline, "build_peak_bytes": int(peak), "model_bytes": _nbytes(model),
             "scene_hash": scene.content_hash(),
             **{k: evaluation.info.get(k) for k in ("reference_status", "reference_message",
-                                                     "reference_energy_growth")},
+                                                     "reference_energy_growth")}, **energy,
             "model_info": json.dumps(_jsonable(getattr(model, "info", {}))),
             "_points": points.to_dict("records"), "_outputs": outputs.to_dict("records")}
+
+
+def _energy_drift(evaluation, driven, backend) -> dict:
+    """The long-run energy drift columns of a trajectory unit (:mod:`.energy`), NaN elsewhere."""
+    info = evaluation.info
+    ref_cols = {k: info.get(k, np.nan) for k in ("reference_energy_drift", "reference_energy_spread")}
+    if info.get("energy_window") is None:
+        why = "no constant-load window" if evaluation.kind == "trajectory" else ""
+        return {**EnergyDrift(message=why).row(), **ref_cols}
+    system = dynamics_system(evaluation.reference_steps["scene"], backend)
+    drift = model_drift(system, evaluation.dt, info["energy_window"], info["t_end"], driven.neighbours or {},
+                        info.get("energy_scale", np.nan))
+    return {**drift.row(), **ref_cols}
 
 
 _PARENTS: OrderedDict = OrderedDict()  # per process: nested parents (model, build seconds, peak bytes)

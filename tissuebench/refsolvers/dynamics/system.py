@@ -117,6 +117,8 @@ class SecondOrderSystem:
                      alpha_m=0.0, beta_k=0.0, linear=False):
         """A system from a finite-element backend (any object with the Backend interface).
 
+        With ``linear=True`` the internal force is ``K u`` with ``K`` the backend's tangent at
+        ``u = 0`` assembled once (a linear material's force is exactly that).
         The force at time t is ``backend.external_force(u, load_history(t))`` (follower
         loads allowed); ``problem.fixed_dofs`` follow ``problem.prescribed_values(
         load_history(t))`` (prescribed translations and rotations of the Dirichlet sets),
@@ -133,10 +135,15 @@ class SecondOrderSystem:
         def ext_tangent(t, u):
             return backend.external_tangent(u, float(load_history(t)))
 
-        return cls(M=backend.mass(lumped=lumped), internal_force=backend.internal_force,
-                   tangent=backend.tangent, load=lambda t, u: backend.external_force(u, float(load_history(t))),
+        internal_force, tangent, energy = backend.internal_force, backend.tangent, backend.strain_energy
+        if linear:  # f_int = K u with K assembled once: a product per call instead of an element loop
+            K = sp.csr_matrix(backend.tangent(np.zeros(problem.ndof)), dtype=float)
+            internal_force, tangent = (lambda u: K @ u), (lambda u: K)
+            energy = lambda u: 0.5 * float(u @ (K @ u))  # noqa: E731
+        return cls(M=backend.mass(lumped=lumped), internal_force=internal_force,
+                   tangent=tangent, load=lambda t, u: backend.external_force(u, float(load_history(t))),
                    free=problem.free_dofs, alpha_m=alpha_m, beta_k=beta_k, linear=linear,
-                   strain_energy=backend.strain_energy, load_depends_on_u=True,
+                   strain_energy=energy, load_depends_on_u=True,
                    load_tangent=ext_tangent, prescribed=prescribed)
 
     # ---------------------------------------------------------------- free-dof operators
