@@ -14,7 +14,8 @@ from .format import hz, nbytes, number, percent, seconds
 from .recommend import rank_units
 
 __all__ = ["Table", "scene_of", "scene_info", "recommendation", "ranking_table", "extremes_table_view",
-           "offline_table", "radius_table", "paper_table", "anchors_table", "backends_table", "provenance_rows", "calibration"]
+           "offline_table", "radius_table", "paper_table", "anchors_table", "backends_table",
+           "provenance_rows", "calibration"]
 
 
 def Table(name: str, columns: list, rows: list, data: pd.DataFrame) -> dict:
@@ -125,14 +126,17 @@ def anchors_table(name: str, anchors: pd.DataFrame) -> dict:
     return Table(name, ["case", "quantity", "ours", "anchor", "spread [low, high]", "source", "verdict"], rows, anchors)
 
 
+def _monitor_diff(r) -> str:
+    return f"{r.worst_monitor}: {number(r.monitor_skfem)} / {number(r.monitor_ngsolve)} ({number(r.monitor_rel_diff, 2)})"
+
+
 def backends_table(name: str, agreement: pd.DataFrame) -> dict:
     from .backends import RTOL
 
     rows = [[str(r.case), f"{r.scene} {r.variant}".strip(), _count(r.ndof) if np.isfinite(r.ndof) else "-",
              f"{r.skfem_status} / {r.ngsolve_status}" if isinstance(r.skfem_status, str) else "-",
              number(r.field_rel_diff, 2),
-             f"{r.worst_monitor}: {number(r.monitor_skfem)} / {number(r.monitor_ngsolve)} ({number(r.monitor_rel_diff, 2)})"
-             if isinstance(r.worst_monitor, str) and r.worst_monitor else "-",
+             _monitor_diff(r) if isinstance(r.worst_monitor, str) and r.worst_monitor else "-",
              {"text": str(r.verdict), "cls": {"agree": "pass", "n/a": ""}.get(str(r.verdict), "fail")}, str(r.how)]
             for r in agreement.itertuples()]
     cols = ["case", "scene", "dofs", "status skfem / ngsolve", "final field: relative L2 difference",
