@@ -127,7 +127,8 @@ def anchors_table(name: str, anchors: pd.DataFrame) -> dict:
 
 
 def _monitor_diff(r) -> str:
-    return f"{r.worst_monitor}: {number(r.monitor_skfem)} / {number(r.monitor_ngsolve)} ({number(r.monitor_rel_diff, 2)})"
+    values = f"{number(r.monitor_skfem)} / {number(r.monitor_ngsolve)}"
+    return f"{r.worst_monitor}: {values} ({number(r.monitor_rel_diff, 2)})"
 
 
 def backends_table(name: str, agreement: pd.DataFrame) -> dict:
