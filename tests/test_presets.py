@@ -178,7 +178,7 @@ def test_extremes_preset(tmp_path_factory):
     out = tmp_path_factory.mktemp("extremes") / "out"
     assert main(["sweep", "--preset", "extremes", "--out", str(out), "--quiet"]) == 0
     units, points, outputs = read_units(out), read_points(out), read_outputs(out)
-    assert len(units) == 72 and (units["unit_status"] == "ok").all()
+    assert len(units) == 68 and (units["unit_status"] == "ok").all()
     _extremes_dynamic_rows(units, points)
     beyond = points[~points["has_reference"]]
     assert len(beyond) > 100 and not (beyond["status"] == "ok").any()
