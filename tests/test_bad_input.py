@@ -265,3 +265,19 @@ def test_inverted_elements_are_reported_not_nan(backend):
     assert any("invert" in inc.message for inc in res.increments), [i.message for i in res.increments]
     for inc in res.increments:
         assert all(np.isfinite(r) for r in inc.residual_norms), inc
+
+
+def test_mu_integrator_is_checked_by_name():
+    """``mu.integrator`` (the reference's integrator of a dynamic scene) names the key and the
+    valid integrators; a static scene has none to change; the scene's own options are dropped
+    with another integrator (HHT's alpha would not configure Bathe)."""
+    from tissuebench.cases import load
+
+    with pytest.raises(ValueError, match=r"mu\.integrator = 'rk4': expected one of \['hht'"):
+        load("frame_2dof").at({"integrator": "rk4"})
+    with pytest.raises(ValueError, match="mu.integrator.*not dynamic"):
+        load("cube_tension_twist").at({"integrator": "hht"})
+    wave = load("wave_block", variant="linear")
+    assert wave.analysis["integrator_options"] == {"alpha": -0.05}
+    assert "integrator_options" not in wave.at({"integrator": "bathe"}).analysis
+    assert wave.at({"integrator": "hht"}).analysis["integrator_options"] == {"alpha": -0.05}
