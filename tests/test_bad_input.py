@@ -281,3 +281,12 @@ def test_mu_integrator_is_checked_by_name():
     assert wave.analysis["integrator_options"] == {"alpha": -0.05}
     assert "integrator_options" not in wave.at({"integrator": "bathe"}).analysis
     assert wave.at({"integrator": "hht"}).analysis["integrator_options"] == {"alpha": -0.05}
+
+
+def test_an_unknown_parameter_with_a_non_bare_name_is_quoted(tmp_path):
+    """Fuzzing finding (profile fuzz): an extra ``[parameters]`` entry whose name has a space
+    was reported unquoted, so the message did not show where the key ends."""
+    from tissuebench.cases.parameters import check_parameters_table
+
+    with pytest.raises(ValueError, match=r"^parameters\.'paper §4\.2' = \[\]: unknown parameter"):
+        check_parameters_table("parameters", {"paper §4.2": []}, [])

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import copy
 
-from .schema import AXES, c_enum, c_int_range, c_num, c_pos, c_str, c_vec3, check_table, fail
+from .schema import AXES, c_enum, c_int_range, c_num, c_pos, c_str, c_vec3, check_table, fail, key_text
 from .sections import INTEGRATOR_NAMES, MAX_LOAD_STEPS, MAX_TIME_STEPS, check_material
 
 __all__ = ["PARAMETER_KINDS", "ANALYSIS_OVERRIDES", "check_parameters_table", "apply_mu"]
@@ -64,7 +64,7 @@ def check_parameters_table(path, raw, loads) -> dict:
     out = {}
     for name, spec in raw.items():
         if name not in PARAMETER_KINDS:
-            fail(f"{path}.{name}", spec, f"unknown parameter; valid: {sorted(PARAMETER_KINDS)}")
+            fail(f"{path}.{key_text(name)}", spec, f"unknown parameter; valid: {sorted(PARAMETER_KINDS)}")
         spec = check_table(f"{path}.{name}", spec, PARAMETER_KINDS[name],
                            required=("load", "axis", "point", "range"))
         if spec["load"] >= len(loads):
@@ -118,7 +118,7 @@ def apply_mu(scene_fields: dict, parameters: dict, mu: dict, who: str) -> dict:
                 region["frame"] = "bbox"
             load.update(region=region, distribute="interpolate")
         else:
-            fail(f"{who}: mu.{key}", value, f"not a parameter of this scene; valid keys: {valid}")
+            fail(f"{who}: mu.{key_text(key)}", value, f"not a parameter of this scene; valid keys: {valid}")
     out = {"loads": loads, "analysis": analysis}
     if material is not None and any(k in material_keys for k in mu):
         out["material"] = check_material("mu (material)", material)
