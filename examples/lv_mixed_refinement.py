@@ -42,8 +42,8 @@ def solve_at(maxh: float, penalty_weight: float = 0.1) -> dict:
 
 
 def _markdown(table: pd.DataFrame) -> str:
-    lines = ["| maxh [mm] | tets | dofs (u + p) | endocardial apex z [mm] | epicardial apex z [mm] | inside | wall [s] |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| maxh [mm] | tets | dofs (u + p) | endocardial apex z [mm] | epicardial apex z [mm] | inside "
+             "| wall [s] |", "|---|---|---|---|---|---|---|"]
     for r in table.itertuples():
         inside = (SPREAD["endo"][0] <= r.endo_apex_z_mm <= SPREAD["endo"][1]
                   and SPREAD["epi"][0] <= r.epi_apex_z_mm <= SPREAD["epi"][1])
