@@ -124,8 +124,10 @@ def test_rate_applies_to_the_p99_not_the_median(store):
 def test_extremes_pass_fail(tmp_path):
     root = build_store(tmp_path / "r", unflagged=True)
     units, points = read_units(root), read_points(root)
-    units.loc[units["label"] == "slow", "model_info"] = json.dumps({"energy_drift": 3 * ENERGY_DRIFT_TOL})
+    units.loc[units["label"] == "slow", "energy_drift"] = 3 * ENERGY_DRIFT_TOL
+    units.loc[units["label"] == "fast_rough n_modes=2", "energy_drift"] = -3 * ENERGY_DRIFT_TOL  # dissipation
     ext = extremes_table(units, points).set_index("label")
+    assert ext.loc["fast_rough n_modes=2", "verdict"] == "pass"
     assert ext.loc["accurate n_modes=9", "verdict"] == "pass"
     assert ext.loc["accurate n_modes=9", "energy_drift"] == pytest.approx(0.002)
     assert ext.loc["fast_rough n_modes=4", "verdict"] == "fail"

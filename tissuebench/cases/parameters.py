@@ -90,11 +90,12 @@ def apply_mu(scene_fields: dict, parameters: dict, mu: dict, who: str) -> dict:
             material[key] = value  # validated with the whole material below
             continue
         if key in ANALYSIS_OVERRIDES:
+            if key == "integrator":
+                if analysis.get("type") != "dynamic":
+                    fail(f"{who}: mu.integrator", value, "the scene is not dynamic (no time integrator to change)")
+                if value != analysis.get("integrator"):  # the options configure the scene's own integrator
+                    analysis.pop("integrator_options", None)
             analysis[key] = ANALYSIS_OVERRIDES[key](f"mu.{key}", value)
-            if key == "integrator" and value != scene_fields["analysis"].get("integrator"):
-                analysis.pop("integrator_options", None)
-            if key == "integrator" and analysis.get("type") != "dynamic":
-                fail(f"{who}: mu.integrator", value, "the scene is not dynamic (no time integrator to change)")
             if key in ("t_end", "dt") and "dt" in analysis and "t_end" in analysis \
                     and not analysis["t_end"] / analysis["dt"] <= MAX_TIME_STEPS:
                 n = analysis["t_end"] / analysis["dt"]

@@ -23,34 +23,17 @@ BACKENDS = ("skfem", "ngsolve")
 
 
 def scenes_of_results(results) -> list:
-    """``[(case id, scene)]`` of a sweep's results folder (its spec as stored in ``_sweep.json``)."""
+    """``[(case id, scene)]`` of the case entries a sweep ran (``cases`` of its ``_sweep.json``)."""
     import json
-    import tempfile
     from pathlib import Path
 
-    from ..studies.spec import load_spec
     from ..studies.training import case_scene
 
     meta = json.loads((Path(results) / "_sweep.json").read_text())
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "spec.toml"
-        path.write_text(meta["spec_text"])
-        spec = load_spec(path, resolution=meta.get("resolution"))
-    return [(c["id"], case_scene(c)) for c in spec.cases]
-
-
-def _final(ref):
-    U = np.asarray(ref.displacement, float).reshape(len(ref.steps), -1)
-    mon = ref.table
-    if "converged" in mon:
-        mon = mon[mon["converged"].astype(bool)]
-    skip = {"case", "backend", "step", "load_factor", "time", "newton_iterations", "converged", "wall_s",
-            "assembly_s", "solve_s", "final_residual", "message", "kinetic_energy", "strain_energy",
-            "external_work", "energy_error"}
-    last = mon.iloc[-1] if len(mon) else pd.Series(dtype=float)
-    monitors = {k: float(last[k]) for k in mon.columns if k not in skip and np.isscalar(last[k])
-                and isinstance(last[k], (int, float, np.floating, np.integer))}
-    return U[-1], monitors
+    if "cases" not in meta:
+        raise ValueError(f"{results}/_sweep.json has no 'cases' (written by an older tissuebench): rerun the sweep "
+                         "with --resume to record them")
+    return [(c["id"], case_scene(c)) for c in meta["cases"]]
 
 
 def _compare(case_id, scene) -> dict:
@@ -60,14 +43,13 @@ def _compare(case_id, scene) -> dict:
     if not scene.is_fe:
         return {**row, "verdict": "n/a", "how": f"1D model {scene.model}: one implementation"}
     t0 = time.perf_counter()
-    refs = {b: cached_solve(scene, b)[0] for b in BACKENDS}
-    a, b = (refs[k] for k in BACKENDS)
-    row.update(skfem_status=a.status, ngsolve_status=b.status, ndof=int(np.asarray(a.displacement).reshape(
-        len(a.steps), -1).shape[1]), seconds=time.perf_counter() - t0)
+    a, b = (cached_solve(scene, name)[0] for name in BACKENDS)
+    ua, ub = a.final_displacement.ravel(), b.final_displacement.ravel()
+    row.update(skfem_status=a.status, ngsolve_status=b.status, ndof=ua.size, seconds=time.perf_counter() - t0)
     if a.status != b.status or len(a.steps) != len(b.steps):
         return {**row, "verdict": "disagree", "how": f"skfem {a.status} ({len(a.steps)} steps): {a.message[:120]}; "
                 f"ngsolve {b.status} ({len(b.steps)} steps): {b.message[:120]}"}
-    (ua, ma), (ub, mb) = _final(a), _final(b)
+    ma, mb = a.monitors_at(), b.monitors_at()
     scale = max(float(np.linalg.norm(ua)), 1e-300)
     row["field_rel_diff"] = float(np.linalg.norm(ub - ua) / scale)
     diffs = {k: abs(mb[k] - ma[k]) / max(abs(ma[k]), 1e-12 * scale, 1e-300) for k in ma if k in mb}

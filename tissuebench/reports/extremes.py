@@ -9,8 +9,8 @@ Per unit (one row), from its row and its evaluation points (``_points``):
   claims an answer nobody checked;
 * no step failed (or was not reached) where a reference exists, else **fail**;
 * the long-run energy drift of a trajectory (the unit's ``energy_drift`` column, measured
-  by the harness over the final constant-load window, :mod:`tissuebench.studies.energy`;
-  else ``energy_drift`` of its ``model_info``): energy **created** beyond
+  by the harness over the final constant-load window, :mod:`tissuebench.studies.energy`):
+  energy **created** beyond
   :data:`ENERGY_DRIFT_TOL` (relative) is a **fail** (an unstable long run); a loss is
   numerical dissipation, reported beside the reference's own drift, not failed.
 
@@ -20,30 +20,17 @@ load factor evaluated, the reference's largest) are columns beside it.
 """
 from __future__ import annotations
 
-import json
 
 import numpy as np
 import pandas as pd
 
 from .format import number
 
-__all__ = ["ENERGY_DRIFT_TOL", "extremes_table", "energy_drift"]
+__all__ = ["ENERGY_DRIFT_TOL", "extremes_table"]
 
 ENERGY_DRIFT_TOL = 0.01
 _COUNTS = ["n_points", "n_reference_points", "n_ok", "n_extrapolation", "n_beyond_validity", "n_failed",
            "n_not_reached"]
-
-
-def energy_drift(model_info: str, measured=None) -> float:
-    """The unit's measured drift when finite (or +inf: a blow-up), else ``energy_drift`` of its
-    ``model_info`` JSON (NaN when absent or unreadable)."""
-    if measured is not None and not (isinstance(measured, float) and np.isnan(measured)):
-        return float(measured)
-    try:
-        value = json.loads(model_info or "{}").get("energy_drift")
-        return float(value) if value is not None else float("nan")
-    except (ValueError, TypeError, AttributeError):
-        return float("nan")
 
 
 def _point_checks(pts: pd.DataFrame) -> dict:
@@ -104,7 +91,7 @@ def extremes_table(units: pd.DataFrame, points: pd.DataFrame, scene_info: dict |
         row = {"case": u["case"], "label": u["label"], "unit_key": u["unit_key"], "unit_status": u["unit_status"],
                "message": u.get("message", ""), "x_name": u.get("x_name", ""),
                **{c: int(u[c]) for c in _COUNTS}, **checks,
-               "energy_drift": energy_drift(u.get("model_info", ""), u.get("energy_drift")),
+               "energy_drift": float(u.get("energy_drift", np.nan)),
                "reference_energy_drift": float(u.get("reference_energy_drift", np.nan)),
                "energy_message": u.get("energy_message", "") or "",
                **scene_info.get(u["case"], {})}

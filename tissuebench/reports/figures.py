@@ -3,12 +3,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["pyplot", "plot_monitors", "plot_line_state", "TABLE_COLUMNS"]
+from ..studies.reference.result import TABLE_COLUMNS
 
-# result-table columns that are bookkeeping, not monitored quantities
-TABLE_COLUMNS = {"case", "backend", "step", "load_factor", "time", "newton_iterations", "converged", "wall_s",
-                 "assembly_s", "solve_s", "final_residual", "message", "kinetic_energy", "strain_energy",
-                 "external_work", "energy_error"}
+__all__ = ["pyplot", "plot_monitors", "plot_line_state", "TABLE_COLUMNS"]
 
 
 def pyplot():

@@ -42,10 +42,10 @@ class EnergyDrift:
     scale: float = float("nan")
     message: str = ""
 
-    def row(self, prefix: str = "") -> dict:
-        return {f"{prefix}energy_drift": self.drift, f"{prefix}energy_spread": self.spread,
-                f"{prefix}energy_window_start": self.window_start,
-                **({"energy_message": self.message} if not prefix else {})}
+    def row(self) -> dict:
+        """The unit columns of a model's drift (``energy_*``)."""
+        return {"energy_drift": self.drift, "energy_spread": self.spread, "energy_window_start": self.window_start,
+                "energy_message": self.message}
 
 
 def conservative_window(history, dt: float, t_end: float, t0: float = 0.0) -> float | None:
@@ -71,7 +71,8 @@ def reference_drift(table, t_c: float, t_end: float) -> EnergyDrift:
     ``strain_energy``, ``external_work``)."""
     rows = table[table["time"].to_numpy(float) >= t_c - 1e-12]
     if len(rows) < 3:
-        return EnergyDrift(message=f"the reference has {len(rows)} steps in the window t >= {t_c:g} s")
+        return EnergyDrift(window_start=t_c, message=f"the reference has {len(rows)} steps in the window "
+                           f"t >= {t_c:g} s")
     ke, ie, w = (rows[c].to_numpy(float) for c in ("kinetic_energy", "strain_energy", "external_work"))
     scale = float(np.max(ke + ie))
     if not scale > 0:

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .energy import conservative_window, reference_drift
+from .energy import EnergyDrift, conservative_window, reference_drift
 from .reference import cached_solve
 from .training import lattice_positions, positional_scene, reference_states
 
@@ -68,30 +68,9 @@ class Evaluation:
     info: dict = field(default_factory=dict)
     timing_mus: list | None = None  # the haptic sequence to time, when the evaluation defines one
     reference_step_s: float | None = None  # the full step, when the evaluation timed it itself
-
-
-def _monitors(ref, key, value) -> dict:
-    """The reference's monitored scalars in the (converged) table row where ``key == value``."""
-    t = ref.table
-    if "converged" in t:
-        t = t[t["converged"].astype(bool)]
-    hit = t[np.isclose(t[key].to_numpy(float), value, rtol=1e-12, atol=1e-12)] if key in t else t.iloc[:0]
-    if hit.empty:
-        return {}
-    row = hit.iloc[0]
-    return {n: float(row[n]) for n in t.columns if n not in _TABLE_COLUMNS and _is_number(row[n])}
-
-
-_TABLE_COLUMNS = {"case", "backend", "step", "load_factor", "time", "newton_iterations", "converged", "wall_s",
-                  "assembly_s", "solve_s", "final_residual", "message", "kinetic_energy", "strain_energy",
-                  "external_work", "energy_error"}
-
-
-def _is_number(v) -> bool:
-    try:
-        return bool(np.isfinite(float(v)))
-    except (TypeError, ValueError):
-        return False
+    # trajectory: the reference's long-run energy drift over the constant-load window (its
+    # window_start and scale are the model's too, :mod:`.energy`); None without such a window
+    reference_energy: EnergyDrift | None = None
 
 
 def _path(scene, case, spec):
@@ -99,7 +78,7 @@ def _path(scene, case, spec):
     U, lams = reference_states(ref)
     every = int(spec.get("every", 1))
     idx = np.arange(len(lams))[::-1][::every][::-1]
-    points = [EvaluationPoint({"load_factor": float(lams[k])}, U[:, k], _monitors(ref, "load_factor", lams[k]),
+    points = [EvaluationPoint({"load_factor": float(lams[k])}, U[:, k], ref.monitors_at("load_factor", lams[k]),
                               float(lams[k])) for k in idx]
     top = float(lams[-1]) if len(lams) else float(scene.analysis.get("max_load_factor", 1.0))
     points += [EvaluationPoint({"load_factor": f * top}, None, {}, f * top) for f in spec.get("beyond", [])]
@@ -125,7 +104,8 @@ def _positions(scene, case, spec, training_spec):
         d = float(np.min(np.abs(lattice - s)))
         first = first or {"ref": ref, "scene": positional_scene(scene, s, training_spec)}
         points += [EvaluationPoint({"load_factor": float(lam), "position": float(s)}, U[:, k],
-                                   _monitors(ref, "load_factor", lam), d, group=float(s)) for k, lam in enumerate(lams)]
+                                   ref.monitors_at("load_factor", lam), d, group=float(s))
+                   for k, lam in enumerate(lams)]
     return Evaluation("positions", "distance", points, reference_steps=first,
                       info={"lattice": lattice.tolist(), "spacing": float(np.diff(lattice).min())})
 
@@ -136,17 +116,14 @@ def _trajectory(scene, case, spec):
     n = len(ref.steps)
     U = ref.displacement.reshape(n, -1)
     hist = run.history
-    points = [EvaluationPoint({"time": float(t), "load_factor": float(hist(t))}, U[k], _monitors(ref, "time", t),
+    points = [EvaluationPoint({"time": float(t), "load_factor": float(hist(t))}, U[k], ref.monitors_at("time", t),
                               float(t)) for k, t in enumerate(ref.steps)]
     state0 = {"u": U[0], "v": ref.velocity.reshape(n, -1)[0]}
     dt, t_end = float(run.analysis["dt"]), float(run.analysis["t_end"])
-    info = {"reference_status": ref.status, "t_end": t_end}
     t_c = conservative_window(hist, dt, t_end, float(ref.steps[0]))
-    if t_c is not None:  # long-run energy drift, the reference's here, the model's after driving it
-        drift = reference_drift(ref.table, t_c, t_end)
-        info.update(energy_window=t_c, energy_scale=drift.scale, **drift.row("reference_"))
     return Evaluation("trajectory", "time", points, dt=dt, state0=state0, reference_steps={"ref": ref, "scene": run},
-                      info=info)
+                      info={"reference_status": ref.status, "t_end": t_end},
+                      reference_energy=None if t_c is None else reference_drift(ref.table, t_c, t_end))
 
 
 def _map(scene, case, spec):
@@ -157,7 +134,7 @@ def _map(scene, case, spec):
         U, lams = reference_states(ref)
         first = first or {"ref": ref, "scene": s}
         points.append(EvaluationPoint({**mu, "load_factor": float(lams[-1])}, U[:, -1],
-                                      _monitors(ref, "load_factor", lams[-1]), float(len(points))))
+                                      ref.monitors_at("load_factor", lams[-1]), float(len(points))))
     return Evaluation("map", "index", points, reference_steps=first or {})
 
 

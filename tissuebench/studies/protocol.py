@@ -23,7 +23,8 @@ For every unit, in one process, one unit at a time, with the BLAS thread count l
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from collections import OrderedDict
+from dataclasses import dataclass, field
 
 import numpy as np
 from threadpoolctl import threadpool_info
@@ -36,7 +37,8 @@ from ..refsolvers.newton import newton_solve
 from .reference import dynamics_system
 from .timing import latency_stats
 
-__all__ = ["Driven", "drive", "time_latency", "calibration_seconds", "reference_step_seconds", "blas_info"]
+__all__ = ["Driven", "drive", "time_latency", "calibration_seconds", "reference_step_seconds", "blas_info",
+           "cached_dynamics_system"]
 
 
 @dataclass
@@ -46,8 +48,9 @@ class Driven:
     results: list
     fields: list  # reconstructed full field or None (failed step / no reconstruction)
     outputs: list
-    neighbours: dict = None  # trajectory: step index -> full field, around the stored steps of the
-    #                          energy window (the central-difference velocity of :mod:`.energy`)
+    # trajectory: step index -> full field of the stored steps in the energy window and their
+    # neighbours (the central-difference velocity of :mod:`.energy`)
+    neighbours: dict = field(default_factory=dict)
 
 
 def _trajectory_mus(evaluation, history):
@@ -70,8 +73,9 @@ def drive(model, evaluation, history=None) -> Driven:
         p0 = evaluation.points[0]
         model.start(p0.mu, evaluation.state0, evaluation.dt)
         wanted = {round(p.mu["time"] / evaluation.dt) for p in evaluation.points[1:]}
-        t_c = evaluation.info.get("energy_window")
-        around = set() if t_c is None else {k + d for k in wanted if k * evaluation.dt >= t_c - 1e-9 for d in (-1, 1)}
+        energy = evaluation.reference_energy
+        in_window = set() if energy is None else {k for k in wanted if k * evaluation.dt >= energy.window_start - 1e-9}
+        around = {k + d for k in in_window for d in (-1, 0, 1)}
         neighbours = {}
         results.append(None), fields.append(evaluation.state0["u"]), outputs.append({})  # the initial state
         for mu in _trajectory_mus(evaluation, history):
@@ -81,10 +85,8 @@ def drive(model, evaluation, history=None) -> Driven:
             k = round(mu["time"] / evaluation.dt)
             if k in wanted:
                 record(res)
-                if t_c is not None and res.q is not None:
-                    neighbours[k] = fields[-1]
             if k in around and res.q is not None:
-                neighbours[k] = model.reconstruct(res)
+                neighbours[k] = fields[-1] if k in wanted else model.reconstruct(res)
             if res.status == "failed":
                 break
         missing = len(evaluation.points) - len(results)
@@ -226,8 +228,22 @@ def _reference_step(ref, scene, backend, samples) -> float:
     return float(np.median(times)) if times else float("nan")
 
 
+_SYSTEMS: OrderedDict = OrderedDict()  # (scene hash, backend) -> SecondOrderSystem, the last two
+
+
+def cached_dynamics_system(scene, backend: str = "skfem"):
+    """:func:`~.reference.dynamics_system` of ``scene``, built once per process for the units of
+    a scene (the reference-step timing and the energy drift share it)."""
+    key = (scene.content_hash(), backend)
+    if key not in _SYSTEMS:
+        _SYSTEMS[key] = dynamics_system(scene, backend)
+        while len(_SYSTEMS) > 2:
+            _SYSTEMS.popitem(last=False)
+    return _SYSTEMS[key]
+
+
 def _dynamic_step(ref, scene, backend, samples):
-    system = dynamics_system(scene, backend)
+    system = cached_dynamics_system(scene, backend)
     n = len(ref.steps)
     k = n // 2
     U, V = ref.displacement.reshape(n, -1), ref.velocity.reshape(n, -1)

@@ -27,8 +27,8 @@ from ..rom import make_method, method_class
 from .energy import EnergyDrift, model_drift
 from .evaluation import NEEDS_MODEL, build_evaluation
 from .metrics import output_rows, point_rows, summarise_points
-from .protocol import blas_info, calibration_seconds, drive, reference_step_seconds, time_latency
-from .reference import dynamics_system
+from .protocol import (blas_info, cached_dynamics_system, calibration_seconds, drive, reference_step_seconds,
+                       time_latency)
 from .store import code_hash, git_commit, package_versions
 from .training import build_training, case_scene
 
@@ -173,16 +173,15 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
 
 
 def _energy_drift(evaluation, driven, backend) -> dict:
-    """The long-run energy drift columns of a trajectory unit (:mod:`.energy`), NaN elsewhere."""
-    info = evaluation.info
-    ref_cols = {k: info.get(k, np.nan) for k in ("reference_energy_drift", "reference_energy_spread")}
-    if info.get("energy_window") is None:
+    """The long-run energy drift columns of a trajectory unit, the model's and the reference's
+    (:mod:`.energy`); NaN elsewhere."""
+    ref = evaluation.reference_energy
+    if ref is None:
         why = "no constant-load window" if evaluation.kind == "trajectory" else ""
-        return {**EnergyDrift(message=why).row(), **ref_cols}
-    system = dynamics_system(evaluation.reference_steps["scene"], backend)
-    drift = model_drift(system, evaluation.dt, info["energy_window"], info["t_end"], driven.neighbours or {},
-                        info.get("energy_scale", np.nan))
-    return {**drift.row(), **ref_cols}
+        return {**EnergyDrift(message=why).row(), "reference_energy_drift": np.nan, "reference_energy_spread": np.nan}
+    system = cached_dynamics_system(evaluation.reference_steps["scene"], backend)
+    drift = model_drift(system, evaluation.dt, ref.window_start, evaluation.info["t_end"], driven.neighbours, ref.scale)
+    return {**drift.row(), "reference_energy_drift": ref.drift, "reference_energy_spread": ref.spread}
 
 
 _PARENTS: OrderedDict = OrderedDict()  # per process: nested parents (model, build seconds, peak bytes)

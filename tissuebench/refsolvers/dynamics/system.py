@@ -102,15 +102,16 @@ class SecondOrderSystem:
 
     # ---------------------------------------------------------------- constructors
     @classmethod
-    def linear_system(cls, M, K, load, free=None, alpha_m=0.0, beta_k=0.0):
-        """``M a + C v + K u = load(t)``; ``load`` is a callable of t or a constant (n,) vector."""
+    def linear_system(cls, M, K, load, free=None, alpha_m=0.0, beta_k=0.0, **fields):
+        """``M a + C v + K u = load(t)``; ``load`` is a callable of t or a constant (n,) vector;
+        ``fields``: the other fields of the system (``load_depends_on_u``, ``prescribed`` ...)."""
         K = sp.csr_matrix(K, dtype=float)
         n = sp.csr_matrix(M).shape[0]
         if K.shape != (n, n):
             raise ValueError(f"K must have shape ({n}, {n}) like M, got {K.shape}")
         return cls(M=M, internal_force=lambda u: K @ u, tangent=lambda u: K, load=load, free=free,
                    alpha_m=alpha_m, beta_k=beta_k, linear=True,
-                   strain_energy=lambda u: 0.5 * float(u @ (K @ u)))
+                   strain_energy=lambda u: 0.5 * float(u @ (K @ u)), **fields)
 
     @classmethod
     def from_backend(cls, backend, load_history: Callable[[float], float], lumped=False,
@@ -135,16 +136,17 @@ class SecondOrderSystem:
         def ext_tangent(t, u):
             return backend.external_tangent(u, float(load_history(t)))
 
-        internal_force, tangent, energy = backend.internal_force, backend.tangent, backend.strain_energy
+        M = backend.mass(lumped=lumped)
+
+        def load(t, u):
+            return backend.external_force(u, float(load_history(t)))
+        coupling = dict(load_depends_on_u=True, load_tangent=ext_tangent, prescribed=prescribed)
         if linear:  # f_int = K u with K assembled once: a product per call instead of an element loop
-            K = sp.csr_matrix(backend.tangent(np.zeros(problem.ndof)), dtype=float)
-            internal_force, tangent = (lambda u: K @ u), (lambda u: K)
-            energy = lambda u: 0.5 * float(u @ (K @ u))  # noqa: E731
-        return cls(M=backend.mass(lumped=lumped), internal_force=internal_force,
-                   tangent=tangent, load=lambda t, u: backend.external_force(u, float(load_history(t))),
-                   free=problem.free_dofs, alpha_m=alpha_m, beta_k=beta_k, linear=linear,
-                   strain_energy=energy, load_depends_on_u=True,
-                   load_tangent=ext_tangent, prescribed=prescribed)
+            K = backend.tangent(np.zeros(problem.ndof))
+            return cls.linear_system(M, K, load, free=problem.free_dofs, alpha_m=alpha_m, beta_k=beta_k, **coupling)
+        return cls(M=M, internal_force=backend.internal_force, tangent=backend.tangent, load=load,
+                   free=problem.free_dofs, alpha_m=alpha_m, beta_k=beta_k, strain_energy=backend.strain_energy,
+                   **coupling)
 
     # ---------------------------------------------------------------- free-dof operators
     @property

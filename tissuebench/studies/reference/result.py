@@ -8,7 +8,12 @@ import pandas as pd
 
 from .plan import ModelPlan
 
-__all__ = ["ReferenceResult", "dynamics_output"]
+__all__ = ["ReferenceResult", "dynamics_output", "TABLE_COLUMNS"]
+
+# result-table columns that are bookkeeping, not monitored quantities
+TABLE_COLUMNS = {"case", "backend", "step", "load_factor", "time", "newton_iterations", "converged", "wall_s",
+                 "assembly_s", "solve_s", "final_residual", "message", "kinetic_energy", "strain_energy",
+                 "external_work", "energy_error"}
 
 # statuses where the run did what the scene asked (a stall is the measurement for
 # scenes run "until Newton stops converging")
@@ -73,6 +78,26 @@ class ReferenceResult:
     @property
     def final_displacement(self) -> np.ndarray:
         return self.displacement[-1]
+
+    def monitors_at(self, key: str | None = None, value: float | None = None) -> dict:
+        """The monitored scalars of the converged table row where ``key == value`` (the last
+        converged row without ``key``); ``{}`` when there is none."""
+        t = self.table
+        if "converged" in t:
+            t = t[t["converged"].astype(bool)]
+        if key is not None:
+            t = t[np.isclose(t[key].to_numpy(float), value, rtol=1e-12, atol=1e-12)] if key in t else t.iloc[:0]
+        if t.empty:
+            return {}
+        row = t.iloc[0] if key is not None else t.iloc[-1]
+        return {n: float(row[n]) for n in t.columns if n not in TABLE_COLUMNS and _is_number(row[n])}
+
+
+def _is_number(v) -> bool:
+    try:
+        return bool(np.isfinite(float(v)))
+    except (TypeError, ValueError):
+        return False
 
 
 def dynamics_output(res, monitors_per_step, fields, n_comp):
