@@ -42,8 +42,11 @@ def kill_report():
 def _start(args, quiet=True):
     env = {**os.environ, "PYTHONPATH": str(ROOT), "PYVISTA_OFF_SCREEN": "true"}
     cmd = [sys.executable, "-m", "tissuebench.cli", *args] + (["--quiet"] if quiet else [])
-    # a session of its own: the signal goes to the process group, as a terminal's Ctrl-C does
-    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    # a session of its own: the signal goes to the process group, as a terminal's Ctrl-C does; SIGINT
+    # back to its default in the child, since a suite started as a background job of a script inherits
+    # it ignored (and Python then installs no KeyboardInterrupt handler): a foreground run's Ctrl-C
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def _wait_for(predicate, proc, timeout=600):
