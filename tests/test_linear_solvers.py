@@ -49,6 +49,20 @@ def _relres(K, x, b):
 
 
 # ---------------------------------------------------------------- patterns and forcing term
+def test_sparsity_pattern_embeds_a_matrix_with_fewer_entries(tangents):
+    """A tangent that lost entries (SciPy drops exact zeros) is written on the stored
+    pattern with zeros there, value for value; an entry outside the pattern -> None."""
+    K1, _, K3 = tangents
+    pat = SparsityPattern()
+    assert pat.embed(K1) is None  # nothing stored
+    pat.store(K3)
+    E = pat.embed(K1)
+    assert pat.matches(E) and E.nnz == K3.nnz
+    assert abs(E - K1).max() == 0.0
+    pat.store(K1)
+    assert pat.embed(K3) is None
+
+
 def test_sparsity_pattern_matches_exactly_and_tests_symmetry(tangents):
     K1, K2, K3 = tangents
     pat = SparsityPattern()
@@ -96,7 +110,12 @@ def test_ngsolve_cholesky_refactorises_in_place_only_for_the_same_pattern(tangen
     K1, K2, K3 = tangents
     b = _rhs(K1.shape[0], 1)
     solver = make_linear_solver("cholesky", taskmanager=False)
-    for K, expected in [(K1, "computed"), (K2, "reused"), (K3, "computed"), (K3, "reused"), (K2, "computed")]:
+    n = K1.shape[0]
+    other = sp.coo_matrix(([1e-3 * abs(K1).max()] * 2, ([1, n - 2], [n - 2, 1])), shape=K1.shape)
+    K4 = (K1 + other).tocsr()  # an entry outside K3's pattern
+    # K2 and K1 after K3: their pattern is K3's less two entries, written on it (reused)
+    for K, expected in [(K1, "computed"), (K2, "reused"), (K3, "computed"), (K3, "reused"), (K2, "reused"),
+                        (K1, "reused"), (K4, "computed")]:
         x, info = solver.solve(K, b)
         assert info["symbolic"] == expected and info["inverse"] == "sparsecholesky"
         assert _relres(K, x, b) <= 1e-12

@@ -206,9 +206,19 @@ def test_saddle_point_solver(asymmetry, use_ngsolve):
     B = sp.random(n_p, n_u, density=0.3, random_state=6) + sp.eye(n_p, n_u)
     K = sp.bmat([[A, B.T], [B, None]], format="csr")
     b = rng.standard_normal(n_u + n_p)
-    x, info = SaddlePointSolver(n_p, use_ngsolve=use_ngsolve).solve(K, b)
+    solver = SaddlePointSolver(n_p, use_ngsolve=use_ngsolve)
+    x, info = solver.solve(K, b)
     assert np.linalg.norm(K @ x - b) <= 1e-10 * np.linalg.norm(b), info
     assert info["solver"] == ("ldlt-gmres" if use_ngsolve else "scipy-splu-colamd")
+    if use_ngsolve:
+        # GMRES only polishes the regularised LDL^T solution (measured 4 and 8 iterations;
+        # the ventricle's 17k-dof tangents take 3); the next tangent of the same pattern is
+        # refactorised in place
+        assert info["iterations"] <= (6 if asymmetry == 0 else 12), info
+        K2 = K.copy()
+        K2.data[:n_u] *= 1.01
+        x2, info2 = solver.solve(K2, b)
+        assert info2["symbolic"] == "reused" and np.linalg.norm(K2 @ x2 - b) <= 1e-10 * np.linalg.norm(b)
 
 
 def test_catalogue_scene_with_mixed_formulation_runs_mixed_on_both_backends():

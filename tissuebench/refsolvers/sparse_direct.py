@@ -146,6 +146,10 @@ class NgsolveSparseSolver(LinearSolver):
             use_tm = self.taskmanager
         tm = ngs.TaskManager() if use_tm else _Null()
         same = self.reuse and self._inv is not None and self._pattern.matches(K)
+        if self.reuse and self._inv is not None and not same:
+            embedded = self._pattern.embed(K)  # a few entries pruned to zero: still this pattern
+            if embedded is not None:
+                K, same = embedded, True
         kind = self._inverse_type(K, same)
         if same and kind == self._requested:
             self._A.AsVector().FV().NumPy()[:] = K.data
@@ -171,6 +175,23 @@ class NgsolveSparseSolver(LinearSolver):
             if np.array_equal(np.asarray(rowptr), K.indptr) and np.array_equal(np.asarray(cols), K.indices):
                 self._pattern.store(K)
         return "computed"
+
+    def factorize(self, K):
+        """Factorise ``K`` (in place when the pattern is the last one's) and return
+        ``(apply, "reused" | "computed")`` with ``apply(b) -> K^-1 b`` for b of shape (n,)."""
+        K = canonical_csr(K)
+        try:
+            symbolic = self._factorise(K)
+        except Exception as exc:  # noqa: BLE001 -- NGSolve raises its own type on a zero pivot
+            self.reset()
+            raise LinearSolverError(f"{self.name} solver: {exc}") from None
+        inv, bv, xv = self._inv, self._A.CreateColVector(), self._A.CreateColVector()
+
+        def apply(b):
+            bv.FV().NumPy()[:] = b
+            xv.data = inv * bv
+            return xv.FV().NumPy().copy()
+        return apply, symbolic
 
     def solve(self, K, b, rtol=None):
         """Return ``(x, info)`` for square CSR ``K`` and ``b`` of shape (n,) or (n, k)."""

@@ -95,13 +95,16 @@ class NgsolveMixedForms:
 
     def force_and_tangent(self, z):
         """Force and its Jacobian (symmetric, indefinite), CSR (n_u + n_p)^2."""
-        f = self.force(z)
+        return self.force(z), self.tangent(z)
+
+    def tangent(self, z):
+        """The Jacobian alone (Newton has the force of this state already)."""
         vec = self._set(z)
         with self._tm():
             self.form.AssembleLinearization(vec)
         vals, cols, ptr = (np.asarray(a) for a in self.form.mat.CSR())
         K = sp.csr_matrix((vals.copy(), cols.copy(), ptr.copy()), shape=(self.form.mat.height, self.form.mat.width))
-        return f, (self.T.T @ K @ self.T).tocsr()
+        return (self.T.T @ K @ self.T).tocsr()
 
     def lagrangian(self, z):
         """Integral of L over the reference volume."""
