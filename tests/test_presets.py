@@ -19,7 +19,9 @@ def _run(preset, tmp_path_factory):
     assert main(["sweep", "--preset", preset, "--out", str(out), "--quiet"]) == 0
     units = read_units(out)
     assert (units["unit_status"] == "ok").all(), units.loc[units["unit_status"] != "ok", "message"].tolist()
-    return units.set_index(["case", "label"])
+    frame = units.set_index(["case", "label"])
+    frame.attrs["out"] = out
+    return frame
 
 
 @pytest.fixture(scope="module")
@@ -154,6 +156,11 @@ reference's scheme inside the step (forward Euler on (u, v) is 20 % off); clampe
         for scheme in ("forward_euler", "central_difference"):
             row = beam.loc[(f"beam-dt{dt}", opts.format(scheme, "end"))]
             assert row["n_failed"] >= 1 and row["rmse_rel"] == float("inf")
+    # paper Fig. 5 (error versus dt) and the histories, drawn by the sweep itself
+    derived = beam.attrs["out"] / "_derived"
+    assert (derived / "trend_clamped_beam_dt.png").is_file()
+    histories = {p.name for p in derived.glob("history_*.png")}
+    assert histories == {f"history_beam-dt{dt}.png" for dt in ("0.05", "0.01", "0.005")}
     wave = _run("direct_wave_block", tmp_path_factory)
     lin = wave.loc["wave-linear", "rmse_rel"]
     wopts = "pgd_direct integrator={} margin=0.25 n_nodes=100 pod_modes={}"

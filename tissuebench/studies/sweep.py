@@ -10,6 +10,7 @@ sweep goes on. Ctrl-C stops after releasing the lock, saying how to resume.
 """
 from __future__ import annotations
 
+import json
 import shutil
 import tempfile
 import time
@@ -18,7 +19,7 @@ from pathlib import Path
 
 from .executors import check_executor, execute
 from .metrics import TOLERANCES, pareto_front
-from .results import ResultsStore, read_units
+from .results import ResultsStore, read_outputs, read_points, read_units
 from .spec import SweepSpec, expand_units
 from .store import check_output_location, provenance
 
@@ -131,6 +132,16 @@ def _line(done, total, unit, row) -> str:
             f"{row['n_failed']} failed")
 
 
+def plot_trends(out: Path, units, error_metric: str, folder: Path) -> list[Path]:
+    """The grid-following figures of :mod:`~tissuebench.reports.trend_plots` into ``folder``."""
+    from ..reports.trend_plots import plot_case_trends, plot_histories, plot_option_trends
+
+    manifest = out / "_sweep.json"
+    cases = json.loads(manifest.read_text()).get("cases", []) if manifest.is_file() else []
+    return (plot_histories(units, read_points(out), read_outputs(out), folder, error_metric)
+            + plot_option_trends(units, folder, error_metric) + plot_case_trends(units, cases, folder, error_metric))
+
+
 def write_derived(out: Path, error_metric: str = "max_rel_l2") -> Path | None:
     """``_derived/pareto.parquet``, ``radius.parquet`` and the plots, replaced atomically."""
     units = read_units(out)
@@ -151,6 +162,7 @@ def write_derived(out: Path, error_metric: str = "max_rel_l2") -> Path | None:
         radius.to_parquet(tmp / "radius.parquet", index=False)
         plot_pareto(pareto, tmp)
         plot_radius(radius, tmp)
+        plot_trends(out, units, error_metric, tmp)
         if final.exists():
             old = out / "._derived.old"
             shutil.rmtree(old, ignore_errors=True)

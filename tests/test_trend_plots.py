@@ -1,0 +1,77 @@
+"""The grid-following figures of a sweep (tissuebench/reports/trend_plots.py): which lines
+they draw from which units, and that a real sweep writes them into ``_derived/``."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+
+from tissuebench.cli import main
+from tissuebench.reports.trend_plots import case_trends, option_trends, plot_histories
+
+
+def _units():
+    rows = []
+    for modes in (1, 3, 7):
+        for scheme in ("hht", "bathe"):
+            rows.append({"case": "wave", "method": "pgd_direct", "kind": "trajectory",
+                         "options": json.dumps({"integrator": scheme, "pod_modes": modes}),
+                         "label": f"pgd_direct integrator={scheme} pod_modes={modes}",
+                         "rmse_rel": 0.1 / modes if scheme == "hht" else 0.2 / modes})
+    # two values of an option only: no trend (a line needs >= 3 abscissae over the case)
+    rows += [{"case": "cube", "method": "wsc", "kind": "trajectory", "options": json.dumps({"handles": h}),
+              "label": f"wsc handles={h}", "rmse_rel": 0.01 * h} for h in (10, 20)]
+    return pd.DataFrame(rows)
+
+
+def test_option_trends_draw_one_line_per_setting_of_the_other_options():
+    trends = option_trends(_units(), "rmse_rel")
+    assert set(trends) == {("wave", "pod_modes")}
+    lines = trends[("wave", "pod_modes")]
+    assert set(lines) == {"pgd_direct integrator=hht", "pgd_direct integrator=bathe"}
+    x, y = lines["pgd_direct integrator=hht"]
+    assert x == [1, 3, 7] and np.allclose(y, [0.1, 0.1 / 3, 0.1 / 7])
+
+
+def test_case_trends_follow_the_one_scene_parameter_that_differs():
+    units = pd.DataFrame([{"case": f"beam-dt{dt}", "method": "pgd_direct", "label": "pgd_direct bathe",
+                           "rmse_rel": dt} for dt in (0.05, 0.01, 0.005)])
+    cases = [{"id": f"beam-dt{dt}", "name": "clamped_beam", "variant": None, "resolution": "ci", "mu": {"dt": dt}}
+             for dt in (0.05, 0.01, 0.005)]
+    trends = case_trends(units, cases, "rmse_rel")
+    assert list(trends) == [("clamped_beam", "dt")]
+    assert trends[("clamped_beam", "dt")]["pgd_direct bathe"] == ([0.05, 0.01, 0.005], [0.05, 0.01, 0.005])
+    # a second parameter varying as well: no single abscissa, no figure
+    cases[0]["mu"] = {"dt": 0.05, "t_end": 2.0}
+    assert case_trends(units, cases, "rmse_rel") == {}
+
+
+def test_histories_need_trajectory_units_with_points(tmp_path):
+    units = _units()
+    assert plot_histories(units, pd.DataFrame(), pd.DataFrame(), tmp_path) == []
+    units["unit_key"] = [f"k{i}" for i in range(len(units))]
+    units["x_name"] = "time"
+    points = pd.DataFrame([{"unit_key": k, "x": 0.1 * s, "rel_l2": 0.01 * (s + 1)}
+                           for k in units["unit_key"] for s in range(5)])
+    outputs = pd.DataFrame([{"unit_key": k, "point": s, "x": 0.1 * s, "monitor": "tip", "reference": np.sin(s),
+                             "rom": np.sin(s) + 0.01} for k in units["unit_key"] for s in range(5)])
+    paths = plot_histories(units, points, outputs, tmp_path, "rmse_rel")
+    assert sorted(p.name for p in paths) == ["history_cube.png", "history_wave.png"]
+    assert all(p.stat().st_size > 10_000 for p in paths)
+
+
+def test_a_sweep_writes_its_histories_and_trends(tmp_path):
+    """A direct-integrator sweep over three POD-mode counts: the history of its trajectory
+    case and the error-versus-modes trend land in ``_derived/``."""
+    spec = tmp_path / "s.toml"
+    spec.write_text('[sweep]\nname = "t"\nerror_metric = "rmse_rel"\n[protocol]\nlatency_steps = 20\nwarmup = 2\n'
+                    '[[case]]\nname = "frame_2dof"\ntraining = { kind = "trajectory" }\n'
+                    'evaluation = { kind = "trajectory" }\n[[method]]\nname = "pgd_direct"\n'
+                    'options = { integrator = "central_difference", n_nodes = 20 }\n'
+                    'grid = { pgd_modes = [1, 2, 8] }\n')
+    out = tmp_path / "out"
+    assert main(["sweep", str(spec), "--out", str(out), "--quiet"]) == 0
+    derived = out / "_derived"
+    assert (derived / "history_frame_2dof.png").is_file()
+    assert (derived / "trend_frame_2dof_pgd_modes.png").is_file()

@@ -1,0 +1,171 @@
+"""Figures of a sweep that follow its grid: histories of trajectory units and error trends.
+
+Written by :func:`~tissuebench.studies.sweep.write_derived` into ``_derived/`` beside the
+Pareto front, for every sweep and any method (no per-method plotting code):
+
+* ``history_<case>.png`` (trajectory units): the first monitored output against time, the
+  reference beside the best units, and each unit's relative l2 error history (the papers'
+  displacement-history and error-history figures, e.g. pgd-pod-direct Figs. 2, 15-16, 20);
+* ``trend_<case>_<option>.png``: the error against a numeric option that varies in the grid
+  (POD modes, handles, parameter-mesh nodes ...), one line per setting of the other options;
+* ``trend_<case name>_<mu key>.png``: the error against a scene parameter that varies between
+  the cases of one scene (the time step of ``direct_clamped_beam``: paper Fig. 5).
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .figures import pyplot
+
+__all__ = ["plot_histories", "plot_option_trends", "plot_case_trends", "option_trends", "case_trends"]
+
+MAX_HISTORY_UNITS = 8
+
+
+def _file_part(name) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", str(name))
+
+
+def _numeric(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _best_units(group: pd.DataFrame, error_metric: str, n: int) -> pd.DataFrame:
+    """The best unit of every method first, then the best of the rest, ``n`` in all."""
+    ranked = group.assign(_e=group[error_metric].fillna(np.inf)).sort_values("_e")
+    first = ranked.drop_duplicates("method")
+    rest = ranked.drop(first.index)
+    return pd.concat([first, rest]).head(n)
+
+
+def plot_histories(units, points, outputs, folder: Path, error_metric: str = "rmse_rel") -> list[Path]:
+    """``history_<case>.png`` for every case with trajectory units (see the module docstring)."""
+    if units.empty or points.empty or "kind" not in units:
+        return []
+    plt = pyplot()
+    paths = []
+    for case, group in units[units["kind"] == "trajectory"].groupby("case"):
+        chosen = _best_units(group, error_metric if error_metric in group else "max_rel_l2", MAX_HISTORY_UNITS)
+        outs = outputs[outputs["unit_key"].isin(chosen["unit_key"])] if not outputs.empty else outputs
+        monitor = str(outs["monitor"].iloc[0]) if len(outs) else None
+        fig, axes = plt.subplots(2 if monitor else 1, 1, figsize=(8, 7 if monitor else 3.8), sharex=True,
+                                 squeeze=False)
+        ax_err = axes[-1, 0]
+        if monitor:
+            ax = axes[0, 0]
+            mon = outs[outs["monitor"] == monitor]
+            ref = mon.drop_duplicates("point").sort_values("x")
+            ax.plot(ref["x"], ref["reference"], "k-", lw=2.2, label="reference", zorder=1)
+        for row in chosen.itertuples():
+            label = f"{row.label} ({getattr(row, error_metric, np.nan):.3g})"
+            if monitor:
+                m = mon[mon["unit_key"] == row.unit_key].sort_values("x")
+                ax.plot(m["x"], m["rom"], lw=1, label=label)
+            p = points[(points["unit_key"] == row.unit_key) & np.isfinite(points["rel_l2"])].sort_values("x")
+            ax_err.plot(p["x"], np.maximum(p["rel_l2"], 1e-16), lw=1, label=None if monitor else label)
+        if monitor:
+            ax.set_ylabel(monitor)
+            ax.set_title(f"{case}: {monitor}, reference and the best {len(chosen)} units ({error_metric})",
+                         fontsize=9)
+            ax.legend(fontsize=6)
+            ax.grid(alpha=0.3)
+        ax_err.axhline(0.01, color="tab:red", ls=":", lw=0.8)
+        ax_err.set_yscale("log")
+        ax_err.set_xlabel(str(group["x_name"].iloc[0]) if "x_name" in group else "time")
+        ax_err.set_ylabel("relative l2 error of the field")
+        ax_err.grid(alpha=0.3, which="both")
+        if not monitor:
+            ax_err.legend(fontsize=6)
+        fig.tight_layout()
+        path = Path(folder) / f"history_{_file_part(case)}.png"
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
+def _trend_figure(lines: dict, x_name: str, error_metric: str, title: str, path: Path) -> Path:
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7.5, 4.8))
+    dropped = 0
+    for label, (x, y) in sorted(lines.items()):
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        ok = np.isfinite(y) & (y > 0)
+        dropped += int((~ok).sum())
+        order = np.argsort(x[ok])
+        ax.plot(x[ok][order], y[ok][order], "o-", ms=4, lw=1, label=label)
+    ax.axhline(0.01, color="tab:red", ls=":", lw=0.8)
+    ax.set_yscale("log")
+    ax.set_xlabel(x_name)
+    ax.set_ylabel(error_metric)
+    ax.set_title(title + (f" ({dropped} failed or infinite, not drawn)" if dropped else ""), fontsize=9)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=6, ncol=2 if len(lines) > 8 else 1)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def option_trends(units, error_metric: str = "max_rel_l2") -> dict:
+    """``{(case, option): {line label: (x values, errors)}}`` for every numeric option with at
+    least 3 values in a case; a line is one setting of the other options (>= 2 points)."""
+    trends = {}
+    for case, group in units.groupby("case") if not units.empty else ():
+        opts = [json.loads(o) if o else {} for o in group["options"]]
+        for key in sorted({k for o in opts for k, v in o.items() if _numeric(v)}):
+            lines: dict = {}
+            for o, row in zip(opts, group.itertuples()):
+                if _numeric(o.get(key)):
+                    rest = " ".join(f"{k}={v}" for k, v in sorted(o.items()) if k != key)
+                    x, y = lines.setdefault(f"{row.method} {rest}".strip(), ([], []))
+                    x.append(o[key])
+                    y.append(getattr(row, error_metric))
+            lines = {k: v for k, v in lines.items() if len(set(v[0])) >= 2}
+            if len({x for v in lines.values() for x in v[0]}) >= 3:
+                trends[(case, key)] = lines
+    return trends
+
+
+def case_trends(units, cases: list[dict], error_metric: str = "max_rel_l2") -> dict:
+    """``{(scene name, key): {unit label: (mu[key] values, errors)}}`` for a numeric scene
+    parameter ``mu[key]`` that is the only difference between >= 2 cases of one scene (same
+    name, variant and resolution)."""
+    trends = {}
+    by_scene: dict = {}
+    for c in cases or ():
+        by_scene.setdefault((c.get("name"), c.get("variant"), c.get("resolution")), []).append(c)
+    for (name, _, _), group in by_scene.items():
+        mus = [c.get("mu") or {} for c in group]
+        varying = [k for k in set().union(*mus) if len({json.dumps(m.get(k), sort_keys=True) for m in mus}) > 1]
+        if len(group) < 2 or len(varying) != 1 or not all(_numeric(m.get(varying[0])) for m in mus):
+            continue
+        key = varying[0]
+        value = {c["id"]: m[key] for c, m in zip(group, mus)}
+        lines: dict = {}
+        for row in units[units["case"].isin(list(value))].itertuples() if not units.empty else ():
+            x, y = lines.setdefault(row.label, ([], []))
+            x.append(value[row.case])
+            y.append(getattr(row, error_metric))
+        if lines:
+            trends[(name, key)] = lines
+    return trends
+
+
+def plot_option_trends(units, folder: Path, error_metric: str = "max_rel_l2") -> list[Path]:
+    """``trend_<case>_<option>.png`` for every entry of :func:`option_trends`."""
+    return [_trend_figure(lines, key, error_metric, f"{case}: error versus {key}",
+                          Path(folder) / f"trend_{_file_part(case)}_{_file_part(key)}.png")
+            for (case, key), lines in option_trends(units, error_metric).items()]
+
+
+def plot_case_trends(units, cases: list[dict], folder: Path, error_metric: str = "max_rel_l2") -> list[Path]:
+    """``trend_<scene name>_<mu key>.png`` for every entry of :func:`case_trends`."""
+    return [_trend_figure(lines, key, error_metric, f"{name}: error versus the scene's {key}",
+                          Path(folder) / f"trend_{_file_part(name)}_{_file_part(key)}.png")
+            for (name, key), lines in case_trends(units, cases, error_metric).items()]
