@@ -256,3 +256,19 @@ def test_load_at_start_reproduces_forward_euler_with_a_time_varying_load():
     x = VectorAlgebra(model.ops).initial_state(SCHEMES["forward_euler"], np.zeros(2), np.zeros(2), 0.01, 0.2)
     ref = VectorAlgebra(model.ops).step(SCHEMES["forward_euler"], x, 0.01, 0.4)
     np.testing.assert_allclose(model.field(r, "v")[tr.free_dofs], ref["v"], rtol=0, atol=1e-10 * np.abs(ref["v"]).max())
+
+
+def test_basis_floor_bounds_the_error_of_a_replayed_training(beam):
+    """``basis_floor_rmse`` (info) is the error of the training displacements' best
+    approximation in the POD span: it falls with the POD modes, and a run that replays the
+    training trajectory (as the presets do) cannot go below it, whatever the inner scheme."""
+    floors = []
+    for k in (1, 2, 4):
+        model = make_method("pgd_direct", pod_modes=k, integrator="bathe", n_nodes=20).build(beam)
+        floors.append(model.info["basis_floor_rmse"])
+        res = _run(model, beam)
+        U = np.array([model.reconstruct(r)[beam.free_dofs] for r in res]).T
+        ref = beam.snapshots[beam.free_dofs][:, 1:1 + U.shape[1]]
+        rmse = np.linalg.norm(U - ref) / np.linalg.norm(ref)
+        assert rmse >= 0.9 * floors[-1], (k, rmse, floors[-1])
+    assert floors[0] > floors[1] > floors[2] and 0 < floors[2] < 0.2, floors

@@ -31,6 +31,17 @@ def _positive_int(name, value, minimum=1):
     return int(value)
 
 
+def basis_floor_rmse(training, basis) -> float:
+    """Relative RMSE of the training displacements' best (Euclidean) approximation in the span
+    of the displacement ``basis`` (n_free, k): a floor for any trajectory in that span. When the
+    evaluation replays the training trajectory (the presets), no vademecum, parameter mesh or
+    inner scheme can do better than this with these POD modes."""
+    U = np.asarray(training.snapshots)[np.asarray(training.free_dofs)]
+    Q, _ = np.linalg.qr(basis)
+    den = float(np.sum(U ** 2))
+    return float(np.sqrt(np.sum((U - Q @ (Q.T @ U)) ** 2) / den)) if den > 0 else float("nan")
+
+
 @register
 class DirectIntegrator(RomMethod):
     """PGD-POD direct time integrator.
@@ -183,7 +194,8 @@ class DirectIntegrator(RomMethod):
                                max_fixed_point=self.max_fixed_point, fixed_point_tol=self.fixed_point_tol,
                                seed=self.seed)
         vad = build_vademecum(ops, scheme, bases, meshes, dt, settings, fint, alpha=self.alpha)
-        vad.stats.update({"pod_energy": sb.energy, "svk_force_evaluations": n_evals, "balance": self.balance,
+        vad.stats.update({"pod_energy": sb.energy, "basis_floor_rmse": basis_floor_rmse(training, bases["u"]),
+                          "svk_force_evaluations": n_evals, "balance": self.balance,
                           "build_s": time.perf_counter() - t0, "pod_modes": {k: b.shape[1] for k, b in bases.items()},
                           "balance_singular_values": {k: v.tolist() for k, v in balance.items()}})
         model = DirectModel(vad, ops, bases, np.asarray(training.free_dofs), training.snapshots.shape[0],
