@@ -138,6 +138,35 @@ def test_mixed_tangent_matches_finite_differences(bulk_modulus, penalty_weight, 
     assert abs(Kint - Kint.T).max() <= 1e-12 * abs(Kint).max()  # a Lagrangian's Hessian
 
 
+@pytest.mark.ngsolve
+def test_ngsolve_mixed_tangent_keeps_one_pattern_and_the_newton_factorisation_is_reused(monkeypatch):
+    """At u = 0 many tangent entries are exactly zero (SciPy's product would drop them): the
+    NGSolve tangent comes on one structural pattern at every state, with the same values,
+    and a load-stepped solve refactorises the LDL^T in place after its first tangents (the
+    paper-mesh ventricle factorised anew at every iteration before)."""
+    from tissuebench.refsolvers import saddle_solver
+
+    mb = MixedBackend(_beam(), "ngsolve", None, 0.3)
+    rng = np.random.default_rng(2)
+    z = np.concatenate([0.02 * rng.standard_normal(mb.n_u), 0.1 * rng.standard_normal(mb.n_p)])
+    K0, K1 = mb.tangent(np.zeros(mb.ndof)), mb.tangent(z)
+    assert np.array_equal(K0.indptr, K1.indptr) and np.array_equal(K0.indices, K1.indices)
+    assert (K0.data == 0).sum() > 0  # structural zeros kept at the reference state
+    f, K = mb.internal_force_and_tangent(z)
+    assert abs(K - K1).max() == 0 and np.array_equal(f, mb.internal_force(z))
+    symbolic = []
+    solve = saddle_solver.SaddlePointSolver.solve
+
+    def recording(self, K, b):
+        x, info = solve(self, K, b)
+        symbolic.append(info.get("symbolic"))
+        return x, info
+    monkeypatch.setattr(saddle_solver.SaddlePointSolver, "solve", recording)
+    res = solve_mixed(_beam(), "ngsolve", n_increments=3, penalty_weight=0.3)
+    assert res.success and len(symbolic) >= 6
+    assert symbolic.count("computed") <= 2 and symbolic[-3:] == ["reused"] * 3, symbolic
+
+
 # =========================================================================== 3. backends
 @pytest.mark.ngsolve
 @pytest.mark.parametrize("penalty_weight", [0.0, 0.3])

@@ -24,6 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..materials import Guccione, MooneyRivlin, NeoHookean, NeoHookeanDecoupled
+from ..solver_base import SparsityPattern, canonical_csr
 from .ngsolve_backend import energy_cf
 
 
@@ -66,6 +67,7 @@ class NgsolveMixedForms:
         Tp = sp.csr_matrix((np.ones(mesh.nv), (pdof, np.arange(mesh.nv))), shape=(fes_p.ndof, mesh.nv))
         self.T = sp.block_diag((Tu, Tp), format="csr")
         self.gf = ngs.GridFunction(self.space)
+        self._structure = None  # SparsityPattern of the tangent, from the first one
         u, p = self.space.TrialFunction()
         F = ngs.Id(3) + ngs.Grad(u)
         J = ngs.Det(F)
@@ -98,13 +100,22 @@ class NgsolveMixedForms:
         return self.force(z), self.tangent(z)
 
     def tangent(self, z):
-        """The Jacobian alone (Newton has the force of this state already)."""
+        """The Jacobian alone (Newton has the force of this state already), CSR on a fixed
+        pattern: the structural one of ``T^T K_ng T`` (SciPy's product drops the entries that
+        come out exactly zero, which differ from one state to the next; a direct solver that
+        keeps its factorisation needs the same pattern every time)."""
         vec = self._set(z)
         with self._tm():
             self.form.AssembleLinearization(vec)
         vals, cols, ptr = (np.asarray(a) for a in self.form.mat.CSR())
-        K = sp.csr_matrix((vals.copy(), cols.copy(), ptr.copy()), shape=(self.form.mat.height, self.form.mat.width))
-        return (self.T.T @ K @ self.T).tocsr()
+        shape = (self.form.mat.height, self.form.mat.width)
+        K = canonical_csr(self.T.T @ sp.csr_matrix((vals.copy(), cols.copy(), ptr.copy()), shape=shape) @ self.T)
+        if self._structure is None:
+            ones, absT = sp.csr_matrix((np.ones(len(cols)), cols.copy(), ptr.copy()), shape=shape), abs(self.T)
+            self._structure = SparsityPattern()
+            self._structure.store(canonical_csr(absT.T @ ones @ absT))
+        embedded = self._structure.embed(K)
+        return K if embedded is None else embedded
 
     def lagrangian(self, z):
         """Integral of L over the reference volume."""
