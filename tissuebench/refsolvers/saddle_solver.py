@@ -107,7 +107,7 @@ class SaddlePointSolver:
                 apply, symbolic = self._ldlt(K)
                 t1 = time.perf_counter()
                 count = [0]
-                pre = spla.LinearOperator(K.shape, matvec=apply)
+                pre = spla.LinearOperator(K.shape, matvec=apply, dtype=float)  # no probing matvec
                 x, _ = spla.gmres(K, b, M=pre, rtol=self.rtol, atol=0.0, restart=40, maxiter=3,
                                   callback=lambda _r: count.__setitem__(0, count[0] + 1), callback_type="pr_norm")
                 res = np.linalg.norm(K @ x - b)

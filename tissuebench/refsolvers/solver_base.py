@@ -58,10 +58,11 @@ class SparsityPattern:
 
     def clear(self):
         self.shape, self.indptr, self.indices, self._tperm, self._keys = None, None, None, None, None
+        self._last_embedded = None
 
     def store(self, K):
         self.shape, self.indptr, self.indices = K.shape, K.indptr.copy(), K.indices.copy()
-        self._tperm = self._keys = None
+        self._tperm = self._keys = self._last_embedded = None
 
     def _transpose_permutation(self):
         """``perm`` with ``K.T.data == K.data[perm]`` for this pattern, or -1 if not symmetric."""
@@ -102,15 +103,20 @@ class SparsityPattern:
         """
         if self.indptr is None or self.shape != K.shape or K.nnz > len(self.indices):
             return None
-        n = np.int64(self.shape[1])
-        if self._keys is None:
-            rows = np.repeat(np.arange(self.shape[0], dtype=np.int64), np.diff(self.indptr))
-            self._keys = rows * n + self.indices
-        rows = np.repeat(np.arange(K.shape[0], dtype=np.int64), np.diff(K.indptr))
-        keys = rows * n + K.indices
-        pos = np.searchsorted(self._keys, keys)
-        if np.any(pos >= len(self._keys)) or not np.array_equal(self._keys[pos], keys):
-            return None
+        last = self._last_embedded  # (indptr, indices, positions): patterns repeat in Newton
+        if last is not None and np.array_equal(last[0], K.indptr) and np.array_equal(last[1], K.indices):
+            pos = last[2]
+        else:
+            n = np.int64(self.shape[1])
+            if self._keys is None:
+                rows = np.repeat(np.arange(self.shape[0], dtype=np.int64), np.diff(self.indptr))
+                self._keys = rows * n + self.indices
+            rows = np.repeat(np.arange(K.shape[0], dtype=np.int64), np.diff(K.indptr))
+            keys = rows * n + K.indices
+            pos = np.searchsorted(self._keys, keys)
+            if np.any(pos >= len(self._keys)) or not np.array_equal(self._keys[pos], keys):
+                return None
+            self._last_embedded = (K.indptr.copy(), K.indices.copy(), pos)
         data = np.zeros(len(self.indices), dtype=K.dtype)
         data[pos] = K.data
         return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)

@@ -66,6 +66,7 @@ class NgsolveMixedForms:
         Tu = sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(n_ng_u, n_u))
         Tp = sp.csr_matrix((np.ones(mesh.nv), (pdof, np.arange(mesh.nv))), shape=(fes_p.ndof, mesh.nv))
         self.T = sp.block_diag((Tu, Tp), format="csr")
+        self.Tt = self.T.T.tocsr()
         self.gf = ngs.GridFunction(self.space)
         self._structure = None  # SparsityPattern of the tangent, from the first one
         u, p = self.space.TrialFunction()
@@ -93,7 +94,7 @@ class NgsolveMixedForms:
         r = vec.CreateVector()
         with self._tm():
             self.form.Apply(vec, r)
-        return self.T.T @ r.FV().NumPy()
+        return self.Tt @ r.FV().NumPy()
 
     def force_and_tangent(self, z):
         """Force and its Jacobian (symmetric, indefinite), CSR (n_u + n_p)^2."""
@@ -109,7 +110,7 @@ class NgsolveMixedForms:
             self.form.AssembleLinearization(vec)
         vals, cols, ptr = (np.asarray(a) for a in self.form.mat.CSR())
         shape = (self.form.mat.height, self.form.mat.width)
-        K = canonical_csr(self.T.T @ sp.csr_matrix((vals.copy(), cols.copy(), ptr.copy()), shape=shape) @ self.T)
+        K = canonical_csr(self.Tt @ sp.csr_matrix((vals.copy(), cols.copy(), ptr.copy()), shape=shape) @ self.T)
         if self._structure is None:
             ones, absT = sp.csr_matrix((np.ones(len(cols)), cols.copy(), ptr.copy()), shape=shape), abs(self.T)
             self._structure = SparsityPattern()
