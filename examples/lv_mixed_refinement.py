@@ -42,7 +42,11 @@ def solve_at(maxh: float, penalty_weight: float = 0.1) -> dict:
 
 
 def _markdown(table: pd.DataFrame) -> str:
-    lines = ["| maxh [mm] | tets | dofs (u + p) | endocardial apex z [mm] | epicardial apex z [mm] | inside "
+    lines = ["# Left ventricle (Land et al. 2015 problem 2), mixed P2-P1: refinement", "",
+             "`python examples/lv_mixed_refinement.py` (NGSolve, a tenth of the volumetric penalty kept, as "
+             "`tissuebench verify` runs it; 20 load increments; wall time on a 2-core machine, NGSolve's "
+             "TaskManager used while a core is idle).", "",
+             "| maxh [mm] | tets | dofs (u + p) | endocardial apex z [mm] | epicardial apex z [mm] | inside "
              "| wall [s] |", "|---|---|---|---|---|---|---|"]
     for r in table.itertuples():
         inside = (SPREAD["endo"][0] <= r.endo_apex_z_mm <= SPREAD["endo"][1]
