@@ -103,6 +103,15 @@ def test_presets_load_and_expand_at_both_resolutions():
     assert len(anm) == 150 and {u.case["resolution"] for u in anm} == {"paper"}
 
 
+def test_example_sweep_specs_load_and_expand():
+    """The sweep specs shipped in examples/sweeps (run by hand, quoted in the notes) stay valid."""
+    specs = sorted((Path(__file__).parents[1] / "examples" / "sweeps").glob("*.toml"))
+    assert specs
+    for path in specs:
+        units = expand_units(load_spec(str(path)))
+        assert units and len({u.key for u in units}) == len(units), path
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--executor", "threads"], "executor = 'threads'"),
     (["--executor", "dask", "--scheduler", "tcp://127.0.0.1:9"], "cannot be reached"),
