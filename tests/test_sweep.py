@@ -305,3 +305,17 @@ def test_cases_option_keeps_only_the_named_cases():
     assert len(units) == 150 + 2 + 2 + 1 + 2
     with pytest.raises(ValueError, match="--cases = 'nope': not a case id"):
         load_spec("anm_pod", only=["nope"])
+
+
+def test_progress_line_shows_the_spec_error_metric():
+    """The per-unit progress line names and prints the sweep's error metric (it printed
+    max_rel_l2 as "error" whatever the spec said: 0.38 where the RMSE was 3.6 %)."""
+    from types import SimpleNamespace
+
+    from tissuebench.studies.sweep import _line
+
+    unit = SimpleNamespace(case={"id": "wave"}, label="pgd_direct pod_modes=8")
+    row = {"unit_status": "ok", "max_rel_l2": 0.38, "rmse_rel": 0.036, "haptic_median_s": 2e-5, "haptic_p99_s": 3e-5,
+           "speedup": 16.0, "n_ok": 200, "n_extrapolation": 0, "n_beyond_validity": 0, "n_failed": 0}
+    assert ": rmse_rel 0.036," in _line(1, 2, unit, row, "rmse_rel")
+    assert ": max_rel_l2 0.38," in _line(1, 2, unit, row)

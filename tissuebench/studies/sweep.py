@@ -91,7 +91,8 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
                     summary.failed.append(unit.key)
                 if bar is not None:
                     bar.update(1)
-                    bar.write(_line(len(summary.computed) + len(skipped), len(units), unit, outcome.row))
+                    bar.write(_line(len(summary.computed) + len(skipped), len(units), unit, outcome.row,
+                                     spec.error_metric))
         finally:
             if bar is not None:
                 bar.close()
@@ -122,11 +123,12 @@ def _bar(total, initial, enabled):
     return tqdm(total=total, initial=initial, desc="sweep", unit="unit")
 
 
-def _line(done, total, unit, row) -> str:
+def _line(done, total, unit, row, error_metric="max_rel_l2") -> str:
     head = f"[{done}/{total}] {unit.case['id']} {unit.label}"
     if row.get("unit_status") != "ok":
         return f"{head}: FAILED: {row.get('message', '')}"
-    return (f"{head}: error {row['max_rel_l2']:.3g}, haptic {row['haptic_median_s'] * 1e6:.1f} us median / "
+    error = row.get(error_metric, float("nan"))
+    return (f"{head}: {error_metric} {error:.3g}, haptic {row['haptic_median_s'] * 1e6:.1f} us median / "
             f"{row['haptic_p99_s'] * 1e6:.1f} us p99, speed-up {row['speedup']:.3g}, steps "
             f"{row['n_ok']} ok {row['n_extrapolation']} extrapolated {row['n_beyond_validity']} beyond "
             f"{row['n_failed']} failed")
