@@ -61,6 +61,15 @@ def test_sparsity_pattern_embeds_a_matrix_with_fewer_entries(tangents):
     assert abs(E - K1).max() == 0.0
     pat.store(K1)
     assert pat.embed(K3) is None
+    # widened: K3 on the union of K1's pattern and its own (here K3's, a superset)
+    W = pat.widened(K3)
+    assert W.nnz == K3.nnz and abs(W - K3).max() == 0.0
+    n = K1.shape[0]
+    other = sp.coo_matrix(([1.0, 1.0], ([1, n - 2], [n - 2, 1])), shape=K1.shape)
+    pat.store(K3)
+    K4 = (K1 + other).tocsr()
+    W = pat.widened(K4)  # two entries of K3 not in K4, two of K4 not in K3
+    assert W.nnz == K3.nnz + 2 and abs(W - K4).max() == 0.0 and (W.data == 0).sum() == 2
 
 
 def test_sparsity_pattern_matches_exactly_and_tests_symmetry(tangents):

@@ -109,9 +109,7 @@ class MixedBackend(Backend):
         return self.forms.force(self._check_u(z))
 
     def tangent(self, z):
-        z = self._check_u(z)
-        tangent = getattr(self.forms, "tangent", None)  # NGSolve: without recomputing the force
-        return tangent(z) if tangent else self.forms.force_and_tangent(z)[1]
+        return self.forms.tangent(self._check_u(z))
 
     def internal_force_and_tangent(self, z):
         return self.forms.force_and_tangent(self._check_u(z))

@@ -38,7 +38,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .linear_solvers import DirectSolver
-from .solver_base import LinearSolverError, SparsityPattern, canonical_csr
+from .solver_base import LinearSolverError
 
 
 class SaddlePointSolver:
@@ -73,7 +73,7 @@ class SaddlePointSolver:
                 use_ngsolve = False
         self.use_ngsolve = use_ngsolve
         self.fallback = DirectSolver(permc_spec="COLAMD")
-        self._ldlt_solver = self._structure = None
+        self._ldlt_solver = None
 
     def _ldlt(self, K):
         """NGSolve LDL^T of sym K - delta I_p (kept, refactorised in place): (r -> P^-1 r, "reused" | "computed")."""
@@ -85,21 +85,9 @@ class SaddlePointSolver:
         n_u = n - self.n_p
         scale = float(np.abs(K.diagonal()[:n_u]).mean()) if n_u else 1.0
         reg = np.r_[np.zeros(n_u), np.full(self.n_p, -self.delta * scale)]
-        P = canonical_csr(0.5 * (K + K.T) + sp.diags(reg))
-        # on the union of the patterns of K + K^T + I seen so far, so that values that come
-        # out zero (and SciPy then drops: K - K_ext in Newton) do not make each tangent a new
-        # pattern with a fresh factorisation (the paper-mesh ventricle: every one of them)
-        embedded = self._structure.embed(P) if self._structure is not None else None
-        if embedded is None:
-            ones = sp.csr_matrix((np.ones(K.nnz), K.indices, K.indptr), shape=K.shape)
-            union = ones + ones.T + sp.eye(n, format="csr")
-            if self._structure is not None and self._structure.shape == K.shape:
-                old = self._structure
-                union = union + sp.csr_matrix((np.ones(len(old.indices)), old.indices, old.indptr), shape=K.shape)
-            self._structure = SparsityPattern()
-            self._structure.store(canonical_csr(union))
-            embedded = self._structure.embed(P)
-        return self._ldlt_solver.factorize(embedded)
+        # values that come out zero change P's pattern: the solver keeps its factorisation on
+        # the union of the patterns it has seen (:meth:`NgsolveSparseSolver._factorise`)
+        return self._ldlt_solver.factorize(0.5 * (K + K.T) + sp.diags(reg))
 
     def solve(self, K, b):
         K = sp.csr_matrix(K)

@@ -92,6 +92,16 @@ class SparsityPattern:
         return (self.shape == K.shape and len(self.indices) == len(K.indices)
                 and np.array_equal(self.indptr, K.indptr) and np.array_equal(self.indices, K.indices))
 
+    def widened(self, K):
+        """``K`` written on the union of this pattern and its own (zeros where only this one
+        has entries)."""
+        def ones(indices, indptr):
+            return sp.csr_matrix((np.ones(len(indices)), indices, indptr), shape=K.shape)
+        union = canonical_csr(ones(self.indices, self.indptr) + ones(K.indices, K.indptr))
+        pattern = SparsityPattern()
+        pattern.store(union)
+        return pattern.embed(K)
+
     def embed(self, K):
         """``K`` (canonical CSR) written on this pattern, zeros where it has no entry, or None
         when K has an entry outside it.

@@ -146,10 +146,16 @@ class NgsolveSparseSolver(LinearSolver):
             use_tm = self.taskmanager
         tm = ngs.TaskManager() if use_tm else _Null()
         same = self.reuse and self._inv is not None and self._pattern.matches(K)
-        if self.reuse and self._inv is not None and not same:
-            embedded = self._pattern.embed(K)  # a few entries pruned to zero: still this pattern
+        if self.reuse and self._inv is not None and not same and self._pattern.shape == K.shape:
+            # SciPy drops entries that come out exactly zero, so the tangents of one mesh
+            # differ by a few entries: written on the stored pattern when K fits in it, else
+            # factorised on the union of both, which the next ones then fit in (the paper-mesh
+            # ventricle factorised every one of its tangents anew before)
+            embedded = self._pattern.embed(K)
             if embedded is not None:
                 K, same = embedded, True
+            else:
+                K = self._pattern.widened(K)
         kind = self._inverse_type(K, same)
         if same and kind == self._requested:
             self._A.AsVector().FV().NumPy()[:] = K.data

@@ -14,21 +14,17 @@ Pareto front, for every sweep and any method (no per-method plotting code):
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from .figures import pyplot
+from .sweep_plots import _file_part
 
 __all__ = ["plot_histories", "plot_option_trends", "plot_case_trends", "option_trends", "case_trends"]
 
 MAX_HISTORY_UNITS = 8
-
-
-def _file_part(name) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]", "_", str(name))
 
 
 def _numeric(value) -> bool:

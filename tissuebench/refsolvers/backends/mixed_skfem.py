@@ -96,6 +96,10 @@ class SkfemMixedForms:
         Ke = np.block([[Kuu, Kup], [np.swapaxes(Kup, 1, 2), Kpp]])
         return self._scatter(self._vectors(P, J, ph)), self.pattern.assemble(Ke)
 
+    def tangent(self, z):
+        """The Jacobian alone (assembled with the force: they share every kernel here)."""
+        return self.force_and_tangent(z)[1]
+
     def lagrangian(self, z):
         """Integral of L over the reference volume."""
         F, J, _, ph = self._state(np.asarray(z, float))
