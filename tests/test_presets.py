@@ -169,6 +169,30 @@ reference's scheme inside the step (forward Euler on (u, v) is 20 % off); clampe
         assert lin[wopts.format("central_difference", m)] < 0.08
     assert lin.idxmin() == wopts.format("hht", 8)  # the reference's own scheme, the most modes
     assert (wave.loc["wave-svk", "rmse_rel"] < 0.08).all()
+    _direct_wave_long_run(wave)
+
+
+def _direct_wave_long_run(wave):
+    """Paper Fig. 17 from the preset: 10 s with 8 POD modes; Bathe inside the step stays
+    stable and dissipates like the HHT reference (~ -1.5 %), central difference conserves;
+    the history figure carries the energy panel of both."""
+    from matplotlib.image import imread
+
+    from tissuebench.studies.results import read_points
+
+    opts = "pgd_direct integrator={} margin=0.25 n_nodes=100 pod_modes=8"
+    long = wave.loc["wave-linear-10s"]
+    for scheme in ("bathe", "central_difference"):
+        row = long.loc[opts.format(scheme)]
+        assert row["n_failed"] == 0 and row["n_extrapolation"] == 0 and row["n_ok"] == 200
+        assert row["rmse_rel"] < 0.3
+    bathe, cd = long.loc[opts.format("bathe")], long.loc[opts.format("central_difference")]
+    assert -0.03 < bathe["energy_drift"] < -0.005 and -0.03 < bathe["reference_energy_drift"] < -0.005
+    assert abs(cd["energy_drift"]) < 1e-3
+    points = read_points(wave.attrs["out"])
+    mine = points[(points["case"] == "wave-linear-10s") & np.isfinite(points["energy_rel"])]
+    assert len(mine) >= 2 * 198 and mine["x"].max() >= 9.9  # the last step has no k + 1 neighbour
+    assert imread(wave.attrs["out"] / "_derived" / "history_wave-linear-10s.png").shape[0] == 3 * 360
 
 
 def test_extremes_preset(tmp_path_factory):

@@ -319,3 +319,17 @@ def test_progress_line_shows_the_spec_error_metric():
            "speedup": 16.0, "n_ok": 200, "n_extrapolation": 0, "n_beyond_validity": 0, "n_failed": 0}
     assert ": rmse_rel 0.036," in _line(1, 2, unit, row, "rmse_rel")
     assert ": max_rel_l2 0.38," in _line(1, 2, unit, row)
+
+
+def test_model_info_keeps_the_numbers_of_nested_lists():
+    """Per-mode counters sit four levels deep in a build's info (solves -> solve -> list):
+    they are stored as numbers, and only containers nested deeper are named."""
+    import numpy as np
+
+    from tissuebench.studies.units import _jsonable
+
+    info = {"solves": [{"fixed_point_iterations": [np.int64(21), 7], "converged": [True, np.bool_(False)]}]}
+    out = _jsonable(info)
+    assert out["solves"][0]["fixed_point_iterations"] == [21, 7]
+    assert out["solves"][0]["converged"] == [True, False]
+    assert _jsonable({"a": [[[[1, 2]]]]}) == {"a": [[["list"]]]}

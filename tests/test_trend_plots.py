@@ -75,3 +75,52 @@ def test_a_sweep_writes_its_histories_and_trends(tmp_path):
     derived = out / "_derived"
     assert (derived / "history_frame_2dof.png").is_file()
     assert (derived / "trend_frame_2dof_pgd_modes.png").is_file()
+
+
+def test_histories_draw_the_energy_panel_where_points_carry_energy(tmp_path):
+    """Units whose points carry the window's energy (``energy_rel``) get a third panel: the
+    energy change of the reference and of each unit (paper Fig. 17)."""
+    from matplotlib.image import imread
+
+    units = _units()
+    units["unit_key"] = [f"k{i}" for i in range(len(units))]
+    units["energy_drift"] = 0.01
+    points = pd.DataFrame([{"unit_key": k, "point": s, "x": 0.1 * s, "rel_l2": 0.01 * (s + 1),
+                            "energy_rel": np.nan if s < 2 else 0.001 * s,
+                            "reference_energy_rel": np.nan if s < 2 else 0.0}
+                           for k in units["unit_key"] for s in range(5)])
+    (tmp_path / "a").mkdir(), (tmp_path / "b").mkdir()
+    with_energy = plot_histories(units, points, pd.DataFrame(), tmp_path / "a", "rmse_rel")
+    without = plot_histories(units, points.drop(columns=["energy_rel", "reference_energy_rel"]), pd.DataFrame(),
+                             tmp_path / "b", "rmse_rel")
+    heights = [imread(p).shape[0] for p in with_energy], [imread(p).shape[0] for p in without]
+    assert heights[0] == [720, 720] and heights[1] == [360, 360]
+
+
+def test_a_sweep_stores_the_energy_history_of_its_trajectory_units(tmp_path):
+    """frame_2dof under a step load: every stored step is in the constant-load window; the
+    points carry the model's and the reference's E / scale, and the history figure has the
+    energy panel."""
+    from matplotlib.image import imread
+
+    from tissuebench.studies.results import read_outputs, read_points, read_units
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('[sweep]\nname = "t"\nerror_metric = "rmse_rel"\n[protocol]\nlatency_steps = 20\nwarmup = 2\n'
+                    '[[case]]\nname = "frame_2dof"\ntraining = { kind = "trajectory" }\n'
+                    'evaluation = { kind = "trajectory" }\n[[method]]\nname = "pgd_direct"\n'
+                    'options = { integrator = "central_difference", n_nodes = 20, pgd_modes = 8 }\n')
+    out = tmp_path / "out"
+    assert main(["sweep", str(spec), "--out", str(out), "--quiet"]) == 0
+    unit = read_units(out).iloc[0]
+    points = read_points(out)
+    inside = points[np.isfinite(points["reference_energy_rel"])]
+    assert len(inside) >= 0.5 * len(points)
+    assert np.isfinite(points["energy_rel"]).sum() >= len(inside) - 2  # the last step has no k + 1 neighbour
+    # the drift column is the fitted trend of the stored history
+    e = inside[np.isfinite(inside["energy_rel"])].sort_values("x")
+    slope = np.polyfit(e["x"] - e["x"].iloc[0], e["energy_rel"], 1)[0]
+    span = e["x"].iloc[-1] - unit["energy_window_start"]
+    assert abs(slope * span - unit["energy_drift"]) <= 0.05 * abs(unit["energy_drift"]) + 1e-9
+    panels = 2 + (not read_outputs(out).empty)  # (monitor), error, energy
+    assert imread(out / "_derived" / "history_frame_2dof.png").shape[0] == 360 * panels

@@ -4,8 +4,10 @@ Written by :func:`~tissuebench.studies.sweep.write_derived` into ``_derived/`` b
 Pareto front, for every sweep and any method (no per-method plotting code):
 
 * ``history_<case>.png`` (trajectory units): the first monitored output against time, the
-  reference beside the best units, and each unit's relative l2 error history (the papers'
-  displacement-history and error-history figures, e.g. pgd-pod-direct Figs. 2, 15-16, 20);
+  reference beside the best units, each unit's relative l2 error history (the papers'
+  displacement-history and error-history figures, e.g. pgd-pod-direct Figs. 2, 15-16, 20)
+  and, where the load ends constant, the energy history of the reference and of the units
+  over that window (pgd-pod-direct Fig. 17: Bathe inside the step over 10 s);
 * ``trend_<case>_<option>.png``: the error against a numeric option that varies in the grid
   (POD modes, handles, parameter-mesh nodes ...), one line per setting of the other options;
 * ``trend_<case name>_<mu key>.png``: the error against a scene parameter that varies between
@@ -39,6 +41,55 @@ def _best_units(group: pd.DataFrame, error_metric: str, n: int) -> pd.DataFrame:
     return pd.concat([first, rest]).head(n)
 
 
+def _energy_rows(points, keys) -> pd.DataFrame:
+    if "energy_rel" not in points:
+        return points.iloc[:0]
+    sel = points[points["unit_key"].isin(keys)]
+    return sel[np.isfinite(sel["energy_rel"]) | np.isfinite(sel["reference_energy_rel"])]
+
+
+def _draw_monitor(ax, mon, chosen, monitor, case, error_metric):
+    ref = mon.drop_duplicates("point").sort_values("x")
+    ax.plot(ref["x"], ref["reference"], "k-", lw=2.2, label="reference", zorder=1)
+    for row in chosen.itertuples():
+        m = mon[mon["unit_key"] == row.unit_key].sort_values("x")
+        ax.plot(m["x"], m["rom"], lw=1, label=f"{row.label} ({getattr(row, error_metric, np.nan):.3g})")
+    ax.set_ylabel(monitor)
+    ax.set_title(f"{case}: {monitor}, reference and the best {len(chosen)} units ({error_metric})", fontsize=9)
+    ax.legend(fontsize=6)
+    ax.grid(alpha=0.3)
+
+
+def _draw_errors(ax, points, chosen, error_metric, legend):
+    for row in chosen.itertuples():
+        p = points[(points["unit_key"] == row.unit_key) & np.isfinite(points["rel_l2"])].sort_values("x")
+        ax.plot(p["x"], np.maximum(p["rel_l2"], 1e-16), lw=1,
+                label=f"{row.label} ({getattr(row, error_metric, np.nan):.3g})" if legend else None)
+    ax.axhline(0.01, color="tab:red", ls=":", lw=0.8)
+    ax.set_yscale("log")
+    ax.set_ylabel("relative l2 error of the field")
+    ax.grid(alpha=0.3, which="both")
+    if legend:
+        ax.legend(fontsize=6)
+
+
+def _draw_energy(ax, energy, chosen):
+    """Energy change over the constant-load window, relative to the reference's largest
+    KE + W there; a flat line conserves, a slope is the drift (studies/energy.py)."""
+    ref = energy[np.isfinite(energy["reference_energy_rel"])].drop_duplicates("point").sort_values("x")
+    e0 = float(ref["reference_energy_rel"].iloc[0]) if len(ref) else 0.0
+    ax.plot(ref["x"], ref["reference_energy_rel"] - e0, "k-", lw=2.2, label="reference", zorder=1)
+    for row in chosen.itertuples():
+        m = energy[(energy["unit_key"] == row.unit_key) & np.isfinite(energy["energy_rel"])].sort_values("x")
+        drift = getattr(row, "energy_drift", np.nan)
+        ax.plot(m["x"], m["energy_rel"] - e0, lw=1, label=f"{row.label} (drift {drift:+.2g})")
+    ax.set_yscale("symlog", linthresh=1e-4)
+    ax.set_ylabel("(E - E_ref(t_c)) / max(KE + W)_ref")
+    ax.set_title("energy E = KE + W - f.u over the constant-load window (paper Fig. 17)", fontsize=9)
+    ax.legend(fontsize=6)
+    ax.grid(alpha=0.3, which="both")
+
+
 def plot_histories(units, points, outputs, folder: Path, error_metric: str = "rmse_rel") -> list[Path]:
     """``history_<case>.png`` for every case with trajectory units (see the module docstring)."""
     if units.empty or points.empty or "kind" not in units:
@@ -46,37 +97,20 @@ def plot_histories(units, points, outputs, folder: Path, error_metric: str = "rm
     plt = pyplot()
     paths = []
     for case, group in units[units["kind"] == "trajectory"].groupby("case"):
-        chosen = _best_units(group, error_metric if error_metric in group else "max_rel_l2", MAX_HISTORY_UNITS)
+        metric = error_metric if error_metric in group else "max_rel_l2"
+        chosen = _best_units(group, metric, MAX_HISTORY_UNITS)
         outs = outputs[outputs["unit_key"].isin(chosen["unit_key"])] if not outputs.empty else outputs
         monitor = str(outs["monitor"].iloc[0]) if len(outs) else None
-        fig, axes = plt.subplots(2 if monitor else 1, 1, figsize=(8, 7 if monitor else 3.8), sharex=True,
-                                 squeeze=False)
-        ax_err = axes[-1, 0]
+        energy = _energy_rows(points, chosen["unit_key"])
+        panels = ["monitor"] * bool(monitor) + ["errors"] + ["energy"] * (not energy.empty)
+        fig, axes = plt.subplots(len(panels), 1, figsize=(8, 3.6 * len(panels)), sharex=True, squeeze=False)
+        ax = dict(zip(panels, axes[:, 0]))
         if monitor:
-            ax = axes[0, 0]
-            mon = outs[outs["monitor"] == monitor]
-            ref = mon.drop_duplicates("point").sort_values("x")
-            ax.plot(ref["x"], ref["reference"], "k-", lw=2.2, label="reference", zorder=1)
-        for row in chosen.itertuples():
-            label = f"{row.label} ({getattr(row, error_metric, np.nan):.3g})"
-            if monitor:
-                m = mon[mon["unit_key"] == row.unit_key].sort_values("x")
-                ax.plot(m["x"], m["rom"], lw=1, label=label)
-            p = points[(points["unit_key"] == row.unit_key) & np.isfinite(points["rel_l2"])].sort_values("x")
-            ax_err.plot(p["x"], np.maximum(p["rel_l2"], 1e-16), lw=1, label=None if monitor else label)
-        if monitor:
-            ax.set_ylabel(monitor)
-            ax.set_title(f"{case}: {monitor}, reference and the best {len(chosen)} units ({error_metric})",
-                         fontsize=9)
-            ax.legend(fontsize=6)
-            ax.grid(alpha=0.3)
-        ax_err.axhline(0.01, color="tab:red", ls=":", lw=0.8)
-        ax_err.set_yscale("log")
-        ax_err.set_xlabel(str(group["x_name"].iloc[0]) if "x_name" in group else "time")
-        ax_err.set_ylabel("relative l2 error of the field")
-        ax_err.grid(alpha=0.3, which="both")
-        if not monitor:
-            ax_err.legend(fontsize=6)
+            _draw_monitor(ax["monitor"], outs[outs["monitor"] == monitor], chosen, monitor, case, metric)
+        _draw_errors(ax["errors"], points, chosen, metric, legend=not monitor)
+        if "energy" in ax:
+            _draw_energy(ax["energy"], energy, chosen)
+        axes[-1, 0].set_xlabel(str(group["x_name"].iloc[0]) if "x_name" in group else "time")
         fig.tight_layout()
         path = Path(folder) / f"history_{_file_part(case)}.png"
         fig.savefig(path, dpi=100)

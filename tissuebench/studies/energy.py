@@ -17,13 +17,17 @@ model's from its reconstructed displacements, the velocity by central difference
 ``(u_{k+1} - u_{k-1}) / 2 dt`` of its own steps (the harness reconstructs the neighbours
 of the stored steps in the window, :func:`~.protocol.drive`).
 
+Both also keep the history they were fitted on (``times`` [s], ``history``: ``E(t) / scale``),
+which the harness stores per evaluation point and draws beside the displacement history
+(paper pgd-pod-direct Fig. 17: the 10 s run of Bathe inside the step).
+
 No drift is computed (NaN, with the reason) for a damped system, a follower load, a
 prescribed motion that moves in the window, a stored energy the system cannot evaluate,
 or a load never constant long enough.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,6 +45,12 @@ class EnergyDrift:
     window_start: float = float("nan")
     scale: float = float("nan")
     message: str = ""
+    times: np.ndarray = field(default_factory=lambda: np.empty(0))  # [s], the steps fitted
+    history: np.ndarray = field(default_factory=lambda: np.empty(0))  # E(t) / scale at ``times``
+
+    def at_steps(self, dt: float) -> dict:
+        """``{step index k (t = k dt): E / scale}`` of the fitted history."""
+        return {int(round(t / dt)): float(e) for t, e in zip(self.times, self.history)}
 
     def row(self) -> dict:
         """The unit columns of a model's drift (``energy_*``)."""
@@ -77,8 +87,9 @@ def reference_drift(table, t_c: float, t_end: float) -> EnergyDrift:
     scale = float(np.max(ke + ie))
     if not scale > 0:
         return EnergyDrift(window_start=t_c, message="no energy in the window (the system is at rest)")
-    drift, spread = _fit(rows["time"].to_numpy(float), ke + ie - w, t_end - t_c, scale)
-    return EnergyDrift(drift, spread, t_c, scale)
+    times = rows["time"].to_numpy(float)
+    drift, spread = _fit(times, ke + ie - w, t_end - t_c, scale)
+    return EnergyDrift(drift, spread, t_c, scale, times=times, history=(ke + ie - w) / scale)
 
 
 def _undefined(system, t_c, t_end) -> str:
@@ -112,5 +123,6 @@ def model_drift(system, dt: float, t_c: float, t_end: float, fields: dict, scale
         v = (fields[k + 1] - fields[k - 1]) / (2.0 * dt)
         with np.errstate(over="ignore", invalid="ignore"):
             E.append(0.5 * float(v @ (system.M @ v)) + float(system.strain_energy(u)) - float(f0 @ u))
-    drift, spread = _fit(np.array(ks, float) * dt, np.array(E), t_end - t_c, scale)
-    return EnergyDrift(drift, spread, t_c, scale)
+    times, E = np.array(ks, float) * dt, np.array(E)
+    drift, spread = _fit(times, E, t_end - t_c, scale)
+    return EnergyDrift(drift, spread, t_c, scale, times=times, history=E / scale)

@@ -88,6 +88,8 @@ def drive(model, evaluation, history=None) -> Driven:
             if k in around and res.q is not None:
                 neighbours[k] = fields[-1] if k in wanted else model.reconstruct(res)
             if res.status == "failed":
+                if k not in wanted:  # between stored steps: the next stored point carries it
+                    record(res)
                 break
         missing = len(evaluation.points) - len(results)
         results += [None] * missing

@@ -46,7 +46,10 @@ UNIT_COLUMNS = {
     "date": _S,
 }
 POINT_COLUMNS = {"unit_key": _S, "point": _I, "x": _F, "group": _F, "mu": _S, "status": _S, "message": _S,
-                 "rel_l2": _F, "rel_max_displacement": _F, "has_reference": _B}
+                 "rel_l2": _F, "rel_max_displacement": _F, "has_reference": _B,
+                 # trajectory points in the constant-load window: E / scale of the model and the
+                 # reference (studies/energy.py), NaN elsewhere
+                 "energy_rel": _F, "reference_energy_rel": _F}
 OUTPUT_COLUMNS = {"unit_key": _S, "point": _I, "x": _F, "monitor": _S, "reference": _F, "rom": _F, "rel_error": _F}
 
 

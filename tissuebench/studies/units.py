@@ -147,10 +147,10 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
         model.attach_outputs(training.outputs)
     history = training.history or (scene.history if evaluation.kind == "trajectory" else None)
     driven = drive(model, evaluation, history)
-    points = pd.DataFrame(point_rows(evaluation, driven))
+    energy, histories = _energy_drift(evaluation, driven, unit.case["backend"])
+    points = pd.DataFrame(point_rows(evaluation, driven)).assign(**histories)
     outputs = pd.DataFrame(output_rows(evaluation, driven), columns=["point", "x", "monitor", "reference", "rom",
                                                                        "rel_error"])
-    energy = _energy_drift(evaluation, driven, unit.case["backend"])
     lat = time_latency(model, evaluation, history, int(p["latency_steps"]), int(p["warmup"]), int(p["seed"]))
     ref_step = reference_step_seconds(evaluation, unit.case["backend"], int(p["reference_samples"]))
     calib = calibration_seconds()
@@ -172,16 +172,22 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
             "_points": points.to_dict("records"), "_outputs": outputs.to_dict("records")}
 
 
-def _energy_drift(evaluation, driven, backend) -> dict:
+def _energy_drift(evaluation, driven, backend) -> tuple[dict, dict]:
     """The long-run energy drift columns of a trajectory unit, the model's and the reference's
-    (:mod:`.energy`); NaN elsewhere."""
+    (:mod:`.energy`), NaN elsewhere; and the point columns of their histories (``energy_rel``,
+    ``reference_energy_rel``: ``E / scale`` at the evaluation points in the window, else NaN)."""
     ref = evaluation.reference_energy
     if ref is None:
         why = "no constant-load window" if evaluation.kind == "trajectory" else ""
-        return {**EnergyDrift(message=why).row(), "reference_energy_drift": np.nan, "reference_energy_spread": np.nan}
+        return {**EnergyDrift(message=why).row(), "reference_energy_drift": np.nan,
+                "reference_energy_spread": np.nan}, {}
     system = cached_dynamics_system(evaluation.reference_steps["scene"], backend)
     drift = model_drift(system, evaluation.dt, ref.window_start, evaluation.info["t_end"], driven.neighbours, ref.scale)
-    return {**drift.row(), "reference_energy_drift": ref.drift, "reference_energy_spread": ref.spread}
+    steps = [round(p.mu["time"] / evaluation.dt) for p in evaluation.points]
+    model_at, ref_at = drift.at_steps(evaluation.dt), ref.at_steps(evaluation.dt)
+    histories = {"energy_rel": [model_at.get(k, np.nan) for k in steps],
+                 "reference_energy_rel": [ref_at.get(k, np.nan) for k in steps]}
+    return {**drift.row(), "reference_energy_drift": ref.drift, "reference_energy_spread": ref.spread}, histories
 
 
 _PARENTS: OrderedDict = OrderedDict()  # per process: nested parents (model, build seconds, peak bytes)
@@ -221,7 +227,11 @@ def _build(unit: WorkUnit, training):
 
 def _jsonable(obj, depth=0):
     """Scalars, strings and small lists of a model's info dict (arrays and objects summarised)."""
-    if depth > 3:
+    if isinstance(obj, (np.floating, np.integer, np.bool_)):
+        return obj.item()
+    if isinstance(obj, (str, int, float, bool)) or obj is None:
+        return obj
+    if depth > 3:  # a container nested deeper is named, not stored
         return str(type(obj).__name__)
     if isinstance(obj, dict):
         return {str(k): _jsonable(v, depth + 1) for k, v in obj.items()}
@@ -229,8 +239,4 @@ def _jsonable(obj, depth=0):
         return [_jsonable(v, depth + 1) for v in obj[:50]]
     if isinstance(obj, np.ndarray):
         return obj.tolist() if obj.size <= 50 else f"array{obj.shape}"
-    if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
-    if isinstance(obj, (str, int, float, bool)) or obj is None:
-        return obj
     return type(obj).__name__
