@@ -70,3 +70,20 @@ def test_bad_positions_and_options(training, model):
         make_method("pgd_svk", rtol=0.0)
     with pytest.raises(ValueError, match="finite-element"):
         make_method("pgd_svk").build(pgd_training(load("heat1d_source")))
+
+
+def test_contact_scene_moves_the_point_load_onto_the_node_of_the_intact_cornea():
+    """The reference of the ``contact_nodes`` evaluation: the scene without its cut, the one
+    point load on exactly the asked node; anything else is refused by name."""
+    from tissuebench.studies.evaluation import contact_scene
+
+    scene = load("cornea_cut")
+    node = 160
+    s = contact_scene(scene, node)
+    assert s.cut is None and s.mu["contact_node"] == node
+    problem = s.to_problem()
+    assert [int(n) for n in problem.loads[0].nodes] == [node]
+    assert s.content_hash() != contact_scene(scene, 146).content_hash()
+    for bad in (-1, s.mesh.n_vertices, 3.0, True):
+        with pytest.raises(ValueError, match="contact node"):
+            contact_scene(scene, bad)

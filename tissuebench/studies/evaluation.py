@@ -17,6 +17,11 @@ The case entry's ``evaluation`` table has a ``kind`` (default: the training's):
 ``map``         the reference at each parameter of ``mus = [{...}, ...]`` (any scene
                 parameters: ``position``, ``load_scale`` ...), one point per entry, each
                 reference run at the full path's last load factor.
+``contact_nodes`` (the surface vademecums, ``pgd`` and ``pgd_svk``, whose model knows its
+                contact nodes) ``count`` contact nodes of the model, evenly spaced through
+                its list; per node the intact scene (no ``[cut]``) with its point load moved
+                onto that node, the full reference path (SVK Newton where the scene is SVK):
+                one point per (node, load factor), ``mu = {node, load_factor}``.
 ``cut_lengths`` a scalpel advancing node by node along an incision of the scene's ``[cut]``
                 (the cutting methods, whose model knows the incision strip): per cut length
                 ``c``, the model at ``{node: the scalpel tip, cut_length: c}`` against the
@@ -31,6 +36,8 @@ factor, distance to the nearest stored position, or time).
 """
 from __future__ import annotations
 
+import copy
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -42,8 +49,8 @@ from .training import lattice_positions, positional_scene, reference_states
 
 __all__ = ["EVALUATION_KINDS", "EvaluationPoint", "Evaluation", "build_evaluation"]
 
-EVALUATION_KINDS = ("path", "positions", "trajectory", "map", "cut_lengths")
-NEEDS_MODEL = ("cut_lengths",)  # built after the model: the incision strip is the model's
+EVALUATION_KINDS = ("path", "positions", "trajectory", "map", "cut_lengths", "contact_nodes")
+NEEDS_MODEL = ("cut_lengths", "contact_nodes")  # built after the model: the incision strip is the model's
 
 
 @dataclass
@@ -160,6 +167,44 @@ def _cut_lengths(scene, case, spec, model):
                       reference_step_s=float(np.median(full_steps)))
 
 
+def contact_scene(scene, node: int):
+    """The intact ``scene`` (``[cut]`` dropped) with its one point load moved onto mesh ``node``
+    (``mu["contact_node"]`` records it, so the reference is cached per node)."""
+    intact = dataclasses.replace(scene, cut=None)
+    points = intact.mesh.points
+    if isinstance(node, bool) or not isinstance(node, (int, np.integer)) or not 0 <= node < len(points):
+        raise ValueError(f"contact node = {node!r}: not a node of the intact mesh (0 .. {len(points) - 1})")
+    which = [i for i, ld in enumerate(intact.loads) if ld["type"] == "point"]
+    if len(which) != 1:
+        raise ValueError(f"a contact needs exactly one point load in {scene.name!r}, found {len(which)}")
+    loads = copy.deepcopy(intact.loads)
+    loads[which[0]]["region"] = {"nearest": [float(x) for x in points[node]], "count": 1}
+    return dataclasses.replace(intact, loads=loads, mu={**intact.mu, "contact_node": int(node)})
+
+
+def _contact_nodes(scene, case, spec, model):
+    """Per contact node of the model: the reference path of the intact scene loaded there."""
+    family = getattr(getattr(model, "vademecum", None), "family", None)
+    nodes = None if family is None else family.nodes
+    if nodes is None:
+        raise ValueError(f"evaluation.kind = 'contact_nodes' needs a surface vademecum (pgd, pgd_svk on a 3D "
+                         f"scene); {model.name!r} has no contact nodes")
+    count = spec.get("count", 5)
+    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+        raise ValueError(f"evaluation.count = {count!r}: expected a positive integer (contact nodes)")
+    pick = np.asarray(nodes)[np.unique(np.linspace(0, len(nodes) - 1, min(count, len(nodes))).round().astype(int))]
+    points, first = [], None
+    for node in pick.tolist():
+        s = contact_scene(scene, node)
+        ref, _ = cached_solve(s, case["backend"])
+        U, lams = reference_states(ref)
+        first = first or {"ref": ref, "scene": s}
+        points += [EvaluationPoint({"node": node, "load_factor": float(lam)}, U[:, k],
+                                   ref.monitors_at("load_factor", lam), float(lam), group=float(node))
+                   for k, lam in enumerate(lams)]
+    return Evaluation("contact_nodes", "load_factor", points, reference_steps=first, info={"nodes": pick.tolist()})
+
+
 def build_evaluation(case: dict, scene, model=None) -> Evaluation:
     """The :class:`Evaluation` of a case entry (module docstring); ``model`` for the kinds
     in :data:`NEEDS_MODEL`."""
@@ -167,7 +212,9 @@ def build_evaluation(case: dict, scene, model=None) -> Evaluation:
     kind = spec.pop("kind", case["training"]["kind"])
     if kind == "cut_lengths":
         return _cut_lengths(scene, case, spec, model)
-    if kind == "path":
+    if kind == "contact_nodes":
+        ev = _contact_nodes(scene, case, spec, model)
+    elif kind == "path":
         ev = _path(scene, case, spec)
     elif kind == "positions":
         ev = _positions(scene, case, spec, case["training"])

@@ -62,7 +62,7 @@ _METHOD = {"name", "cases", "options", "grid", "list", "paper", "protocol"}
 _TRAINING_KEYS = {"path": {"every", "repeat"}, "positions": {"positions", "max_load_factor", "load_steps"},
                   "trajectory": {"runs"}, "operators": set()}
 _EVALUATION_KEYS = {"path": {"every", "beyond"}, "positions": {"held_out"}, "trajectory": {"t_end", "load_scale"},
-                    "map": {"mus"}, "cut_lengths": {"steps_per_length"}}
+                    "map": {"mus"}, "cut_lengths": {"steps_per_length"}, "contact_nodes": {"count"}}
 BACKENDS = ("skfem", "ngsolve")
 
 
