@@ -3,6 +3,8 @@ Newton solves the Galerkin projection of the backend's SVK equilibrium, and its 
 against the full SVK Newton solve at the same contact load decreases with the modes."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -84,6 +86,9 @@ def test_contact_scene_moves_the_point_load_onto_the_node_of_the_intact_cornea()
     problem = s.to_problem()
     assert [int(n) for n in problem.loads[0].nodes] == [node]
     assert s.content_hash() != contact_scene(scene, 146).content_hash()
+    # an intact scene already meshed lends its mesh to every contact scene (not rebuilt per node)
+    intact = dataclasses.replace(scene, cut=None)
+    assert contact_scene(intact, 146).mesh is intact.mesh
     for bad in (-1, s.mesh.n_vertices, 3.0, True):
         with pytest.raises(ValueError, match="contact node"):
             contact_scene(scene, bad)

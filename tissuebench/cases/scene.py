@@ -119,8 +119,13 @@ class Scene:
             return self
         fields = apply_mu({"loads": self.loads, "analysis": self.analysis, "material": self.material},
                           self.parameters, dict(mu), self.name)
-        fields["loads"] = [check_load(f"load[{i}]", ld, self.model) for i, ld in enumerate(fields["loads"])]
-        new = dataclasses.replace(self, mu={**self.mu, **dict(mu)}, **fields)
+        return self.with_loads(fields.pop("loads"), mu, **fields)
+
+    def with_loads(self, loads: list, mu: dict, **fields) -> "Scene":
+        """This scene with ``loads`` (validated as in a scene file) and other non-mesh ``fields``
+        replaced, ``mu`` recorded (it enters :meth:`content_hash`). The mesh is shared, not rebuilt."""
+        loads = [check_load(f"load[{i}]", ld, self.model) for i, ld in enumerate(loads)]
+        new = dataclasses.replace(self, mu={**self.mu, **dict(mu)}, loads=loads, **fields)
         if "built" in self.__dict__:  # cached_property: reuse the mesh already built
             new.__dict__["built"] = self.__dict__["built"]
         return new

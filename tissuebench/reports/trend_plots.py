@@ -48,12 +48,16 @@ def _energy_rows(points, keys) -> pd.DataFrame:
     return sel[np.isfinite(sel["energy_rel"]) | np.isfinite(sel["reference_energy_rel"])]
 
 
+def _label(row, error_metric) -> str:
+    return f"{row.label} ({getattr(row, error_metric, np.nan):.3g})"
+
+
 def _draw_monitor(ax, mon, chosen, monitor, case, error_metric):
     ref = mon.drop_duplicates("point").sort_values("x")
     ax.plot(ref["x"], ref["reference"], "k-", lw=2.2, label="reference", zorder=1)
     for row in chosen.itertuples():
         m = mon[mon["unit_key"] == row.unit_key].sort_values("x")
-        ax.plot(m["x"], m["rom"], lw=1, label=f"{row.label} ({getattr(row, error_metric, np.nan):.3g})")
+        ax.plot(m["x"], m["rom"], lw=1, label=_label(row, error_metric))
     ax.set_ylabel(monitor)
     ax.set_title(f"{case}: {monitor}, reference and the best {len(chosen)} units ({error_metric})", fontsize=9)
     ax.legend(fontsize=6)
@@ -63,8 +67,7 @@ def _draw_monitor(ax, mon, chosen, monitor, case, error_metric):
 def _draw_errors(ax, points, chosen, error_metric, legend):
     for row in chosen.itertuples():
         p = points[(points["unit_key"] == row.unit_key) & np.isfinite(points["rel_l2"])].sort_values("x")
-        ax.plot(p["x"], np.maximum(p["rel_l2"], 1e-16), lw=1,
-                label=f"{row.label} ({getattr(row, error_metric, np.nan):.3g})" if legend else None)
+        ax.plot(p["x"], np.maximum(p["rel_l2"], 1e-16), lw=1, label=_label(row, error_metric) if legend else None)
     ax.axhline(0.01, color="tab:red", ls=":", lw=0.8)
     ax.set_yscale("log")
     ax.set_ylabel("relative l2 error of the field")

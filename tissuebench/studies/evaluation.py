@@ -50,7 +50,7 @@ from .training import lattice_positions, positional_scene, reference_states
 __all__ = ["EVALUATION_KINDS", "EvaluationPoint", "Evaluation", "build_evaluation"]
 
 EVALUATION_KINDS = ("path", "positions", "trajectory", "map", "cut_lengths", "contact_nodes")
-NEEDS_MODEL = ("cut_lengths", "contact_nodes")  # built after the model: the incision strip is the model's
+NEEDS_MODEL = ("cut_lengths", "contact_nodes")  # built after the model: the incision strip, the contact nodes
 
 
 @dataclass
@@ -170,16 +170,16 @@ def _cut_lengths(scene, case, spec, model):
 def contact_scene(scene, node: int):
     """The intact ``scene`` (``[cut]`` dropped) with its one point load moved onto mesh ``node``
     (``mu["contact_node"]`` records it, so the reference is cached per node)."""
-    intact = dataclasses.replace(scene, cut=None)
-    points = intact.mesh.points
-    if isinstance(node, bool) or not isinstance(node, (int, np.integer)) or not 0 <= node < len(points):
-        raise ValueError(f"contact node = {node!r}: not a node of the intact mesh (0 .. {len(points) - 1})")
+    intact = scene if scene.cut is None else dataclasses.replace(scene, cut=None)
+    n = intact.mesh.n_vertices
+    if isinstance(node, bool) or not isinstance(node, (int, np.integer)) or not 0 <= node < n:
+        raise ValueError(f"contact node = {node!r}: not a node of the intact mesh (0 .. {n - 1})")
     which = [i for i, ld in enumerate(intact.loads) if ld["type"] == "point"]
     if len(which) != 1:
         raise ValueError(f"a contact needs exactly one point load in {scene.name!r}, found {len(which)}")
     loads = copy.deepcopy(intact.loads)
-    loads[which[0]]["region"] = {"nearest": [float(x) for x in points[node]], "count": 1}
-    return dataclasses.replace(intact, loads=loads, mu={**intact.mu, "contact_node": int(node)})
+    loads[which[0]]["region"] = {"nearest": [float(x) for x in intact.mesh.points[node]], "count": 1}
+    return intact.with_loads(loads, {"contact_node": int(node)})
 
 
 def _contact_nodes(scene, case, spec, model):
@@ -193,9 +193,10 @@ def _contact_nodes(scene, case, spec, model):
     if isinstance(count, bool) or not isinstance(count, int) or count < 1:
         raise ValueError(f"evaluation.count = {count!r}: expected a positive integer (contact nodes)")
     pick = np.asarray(nodes)[np.unique(np.linspace(0, len(nodes) - 1, min(count, len(nodes))).round().astype(int))]
+    intact = dataclasses.replace(scene, cut=None)  # meshed once, shared by every node's scene
     points, first = [], None
     for node in pick.tolist():
-        s = contact_scene(scene, node)
+        s = contact_scene(intact, node)
         ref, _ = cached_solve(s, case["backend"])
         U, lams = reference_states(ref)
         first = first or {"ref": ref, "scene": s}
