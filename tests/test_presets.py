@@ -203,6 +203,7 @@ def _direct_wave_long_run(wave):
     mine = points[(points["case"] == "wave-linear-10s") & np.isfinite(points["energy_rel"])]
     assert len(mine) >= 2 * 198 and mine["x"].max() >= 9.9  # the last step has no k + 1 neighbour
     assert imread(wave.attrs["out"] / "_derived" / "history_wave-linear-10s.png").shape[0] == 3 * 360
+    assert (wave.attrs["out"] / "_derived" / "spectrum_wave-linear-10s.png").is_file()
 
 
 def test_extremes_preset(tmp_path_factory):

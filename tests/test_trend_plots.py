@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from tissuebench.cli import main
 from tissuebench.reports.trend_plots import case_trends, option_trends, plot_histories
@@ -124,3 +125,32 @@ def test_a_sweep_stores_the_energy_history_of_its_trajectory_units(tmp_path):
     assert abs(slope * span - unit["energy_drift"]) <= 0.05 * abs(unit["energy_drift"]) + 1e-9
     panels = 2 + (not read_outputs(out).empty)  # (monitor), error, energy
     assert imread(out / "_derived" / "history_frame_2dof.png").shape[0] == 360 * panels
+
+
+def test_output_spectra_show_the_frequency_a_unit_lost_over_the_window(tmp_path):
+    """paper Fig. 20 from any sweep: the reference rings at 5 and 20 Hz after t = 0.5 s, one unit
+    keeps both, one only 5 Hz; the spectra read the window only (before it the units are 0)
+    and give the sinusoids' amplitudes (Hann window, exact bins: 1 and 0.5)."""
+    from tissuebench.reports.trend_plots import output_spectra, plot_spectra
+
+    t = np.arange(0, 2.5 + 1e-9, 0.005)
+    ring = np.where(t >= 0.5, np.sin(2 * np.pi * 5 * t) + 0.5 * np.sin(2 * np.pi * 20 * t), 7.0)
+    low = np.where(t >= 0.5, np.sin(2 * np.pi * 5 * t), 0.0)
+    units = pd.DataFrame([{"case": "liver", "method": "m", "kind": "trajectory", "unit_key": k, "label": k,
+                           "rmse_rel": e, "energy_window_start": 0.5} for k, e in (("both", 0.01), ("low", 0.3))])
+    rows = []
+    for key, rom in (("both", np.where(t >= 0.5, ring, 0.0)), ("low", low)):
+        rows += [{"unit_key": key, "point": i, "x": x, "monitor": "tip", "reference": r, "rom": y}
+                 for i, (x, r, y) in enumerate(zip(t, ring, rom))]
+    spectra = output_spectra(units, pd.DataFrame(rows), "liver")
+    assert set(spectra) == {"reference", "both (0.01)", "low (0.3)"}
+
+    def at(label, hz):
+        f, amp = spectra[label]
+        return amp[np.argmin(np.abs(f - hz))]
+
+    for label in ("reference", "both (0.01)"):
+        assert at(label, 5) == pytest.approx(1.0, rel=0.02) and at(label, 20) == pytest.approx(0.5, rel=0.02)
+    assert at("low (0.3)", 5) == pytest.approx(1.0, rel=0.02) and at("low (0.3)", 20) < 1e-3
+    paths = plot_spectra(units, pd.DataFrame(rows), tmp_path)
+    assert [p.name for p in paths] == ["spectrum_liver.png"] and paths[0].stat().st_size > 10_000

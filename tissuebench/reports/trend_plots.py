@@ -8,6 +8,10 @@ Pareto front, for every sweep and any method (no per-method plotting code):
   displacement-history and error-history figures, e.g. pgd-pod-direct Figs. 2, 15-16, 20)
   and, where the load ends constant, the energy history of the reference and of the units
   over that window (pgd-pod-direct Fig. 17: Bathe inside the step over 10 s);
+* ``spectrum_<case>.png`` (trajectory units with a monitored output): the amplitude spectrum
+  of that output over the constant-load window (the free vibration after a release, or all
+  of a step response), the reference beside the best units: the frequency content a few
+  modes lose (pgd-pod-direct Fig. 20), up to the Nyquist frequency of the stored steps;
 * ``trend_<case>_<option>.png``: the error against a numeric option that varies in the grid
   (POD modes, handles, parameter-mesh nodes ...), one line per setting of the other options;
 * ``trend_<case name>_<mu key>.png``: the error against a scene parameter that varies between
@@ -20,11 +24,13 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.signal import periodogram
 
 from .figures import pyplot
 from .sweep_plots import _file_part
 
-__all__ = ["plot_histories", "plot_option_trends", "plot_case_trends", "option_trends", "case_trends"]
+__all__ = ["plot_histories", "plot_spectra", "output_spectra", "plot_option_trends", "plot_case_trends",
+           "option_trends", "case_trends"]
 
 MAX_HISTORY_UNITS = 8
 
@@ -116,6 +122,71 @@ def plot_histories(units, points, outputs, folder: Path, error_metric: str = "rm
         axes[-1, 0].set_xlabel(str(group["x_name"].iloc[0]) if "x_name" in group else "time")
         fig.tight_layout()
         path = Path(folder) / f"history_{_file_part(case)}.png"
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
+def _amplitude(x, y):
+    """(frequencies [1/unit of x], amplitude spectrum) of samples ``y`` at uniform ``x``
+    (Hann window, mean removed), or None when there are too few or uneven samples."""
+    dx = np.diff(x)
+    if len(y) < 8 or not np.all(np.isfinite(y)) or np.ptp(dx) > 1e-6 * dx.mean():
+        return None
+    f, power = periodogram(y, fs=1.0 / dx.mean(), window="hann", detrend="constant", scaling="spectrum")
+    return f, np.sqrt(2.0 * power)
+
+
+def output_spectra(units, outputs, case: str, error_metric: str = "rmse_rel") -> dict:
+    """``{"reference" | unit label: (frequencies, amplitudes)}`` of the first monitored output of
+    ``case`` over the constant-load window (``energy_window_start`` of its units; the whole
+    history when there is none), for the reference and the best :data:`MAX_HISTORY_UNITS`
+    units with a complete history there; ``{}`` without a monitored output."""
+    group = units[units["case"] == case]
+    metric = error_metric if error_metric in group else "max_rel_l2"
+    chosen = _best_units(group, metric, MAX_HISTORY_UNITS)
+    outs = outputs[outputs["unit_key"].isin(chosen["unit_key"])] if not outputs.empty else outputs
+    if outs.empty:
+        return {}
+    mon = outs[outs["monitor"] == outs["monitor"].iloc[0]]
+    starts = group["energy_window_start"].dropna() if "energy_window_start" in group else pd.Series(dtype=float)
+    mon = mon[mon["x"] >= (float(starts.iloc[0]) if len(starts) else -np.inf) - 1e-12]
+    ref = mon.drop_duplicates("point").sort_values("x")
+    spectra = {"reference": _amplitude(ref["x"].to_numpy(float), ref["reference"].to_numpy(float))}
+    for row in chosen.itertuples():
+        m = mon[mon["unit_key"] == row.unit_key].sort_values("x")
+        if len(m) == len(ref):
+            spectra[_label(row, metric)] = _amplitude(m["x"].to_numpy(float), m["rom"].to_numpy(float))
+    return {k: v for k, v in spectra.items() if v is not None}
+
+
+def plot_spectra(units, outputs, folder: Path, error_metric: str = "rmse_rel") -> list[Path]:
+    """``spectrum_<case>.png`` for every trajectory case of :func:`output_spectra`."""
+    if units.empty or outputs.empty or "kind" not in units:
+        return []
+    plt = pyplot()
+    paths = []
+    for case in sorted(units.loc[units["kind"] == "trajectory", "case"].unique()):
+        spectra = output_spectra(units, outputs, case, error_metric)
+        if "reference" not in spectra:
+            continue
+        fig, ax = plt.subplots(figsize=(8, 4.2))
+        for label, (f, amp) in spectra.items():
+            ref = label == "reference"
+            ax.plot(f, np.maximum(amp, 1e-300), "k-" if ref else "-", lw=2.2 if ref else 1, label=label,
+                    zorder=1 if ref else 2)
+        peak = float(np.max(spectra["reference"][1]))
+        ax.set_yscale("log")
+        ax.set_ylim(max(peak * 1e-6, 1e-300), peak * 3 if peak > 0 else 1.0)
+        ax.set_xlabel("frequency [1/s]")
+        ax.set_ylabel(f"amplitude of {outputs['monitor'].iloc[0]}")
+        ax.set_title(f"{case}: spectrum over the constant-load window (to the stored steps' Nyquist "
+                     f"{spectra['reference'][0][-1]:.3g} 1/s)", fontsize=9)
+        ax.legend(fontsize=6)
+        ax.grid(alpha=0.3, which="both")
+        fig.tight_layout()
+        path = Path(folder) / f"spectrum_{_file_part(case)}.png"
         fig.savefig(path, dpi=100)
         plt.close(fig)
         paths.append(path)

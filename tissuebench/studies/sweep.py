@@ -136,12 +136,14 @@ def _line(done, total, unit, row, error_metric="max_rel_l2") -> str:
 
 def plot_trends(out: Path, units, error_metric: str, folder: Path) -> list[Path]:
     """The grid-following figures of :mod:`~tissuebench.reports.trend_plots` into ``folder``."""
-    from ..reports.trend_plots import plot_case_trends, plot_histories, plot_option_trends
+    from ..reports.trend_plots import plot_case_trends, plot_histories, plot_option_trends, plot_spectra
 
     manifest = out / "_sweep.json"
     cases = json.loads(manifest.read_text()).get("cases", []) if manifest.is_file() else []
-    return (plot_histories(units, read_points(out), read_outputs(out), folder, error_metric)
-            + plot_option_trends(units, folder, error_metric) + plot_case_trends(units, cases, folder, error_metric))
+    outputs = read_outputs(out)
+    return (plot_histories(units, read_points(out), outputs, folder, error_metric)
+            + plot_spectra(units, outputs, folder, error_metric) + plot_option_trends(units, folder, error_metric)
+            + plot_case_trends(units, cases, folder, error_metric))
 
 
 def write_derived(out: Path, error_metric: str = "max_rel_l2") -> Path | None:
