@@ -20,7 +20,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from .system import SecondOrderSystem, check_vector
 
@@ -155,10 +154,12 @@ class Integrator(ABC):
         """Hook: factorisations and step-size checks once ``system`` and ``dt`` are known."""
 
     def solve_mass(self, rhs):
-        """M_ff^{-1} rhs with a factorisation computed once."""
+        """M_ff^{-1} rhs with a factorisation computed once per system."""
+        from .newton import StepSolver
+
         if getattr(self, "_mass_lu", None) is None or self._mass_lu[0] is not self.system:
-            self._mass_lu = (self.system, spla.splu(sp.csc_matrix(self.mass_ff), permc_spec="MMD_AT_PLUS_A"))
-        return self._mass_lu[1].solve(rhs)
+            self._mass_lu = (self.system, StepSolver("auto"))
+        return self._mass_lu[1].solve_cached("mass", lambda: self.mass_ff, rhs)
 
     def set_state(self, t, u, v, a=None, uc=None, vc=None, ac=None):
         """Set the free-dof state; ``a=None`` computes it from the equation of motion.

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from .base import Integrator, StepReport
-from .newton import CachedLU, newton, newton_options
+from .newton import StepSolver, newton, newton_options
 
 
 class NewmarkFamily(Integrator):
@@ -42,10 +42,10 @@ class NewmarkFamily(Integrator):
             raise ValueError(f"gamma must be > 0, got {gamma!r}")
         self.alpha, self.beta, self.gamma = float(alpha), float(beta), float(gamma)
         self.newton_opts = newton_options(type(self).__name__, newton_opts)
-        self._lu = CachedLU()
+        self._lu = StepSolver(self.newton_opts.linear_solver)
 
     def _setup(self):
-        self._lu = CachedLU()  # a new system or dt invalidates the factorisation
+        self._lu = StepSolver(self.newton_opts.linear_solver)  # a new system or dt invalidates the factorisation
 
     def _kin(self, u1, u0, v0, a0):
         """(v_{n+1}, a_{n+1}) from the candidate u_{n+1} and the state (u0, v0, a0) at t_n."""
@@ -138,10 +138,10 @@ class Bathe(Integrator):
     def __init__(self, **newton_opts):
         super().__init__()
         self.newton_opts = newton_options("Bathe", newton_opts)
-        self._lu1, self._lu2 = CachedLU(), CachedLU()
+        self._lu1, self._lu2 = (StepSolver(self.newton_opts.linear_solver) for _ in range(2))
 
     def _setup(self):
-        self._lu1, self._lu2 = CachedLU(), CachedLU()
+        self._lu1, self._lu2 = (StepSolver(self.newton_opts.linear_solver) for _ in range(2))
 
     def _solve(self, t1, u_pred, kin, c_m, c_c, lu, r_ref, uc1, kin_c):
         """One sub-step: Newton on M a(u) + C v(u) + f_int(u) - f_ext(t1, u) = 0, the fixed
