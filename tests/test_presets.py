@@ -131,7 +131,8 @@ def test_wsc_table1_preset(tmp_path_factory):
     relative RMSE of the displacement history against the FE run on the same mesh). Measured:
     with every element integrated the error falls with the handles (1.6 % -> 0.64 %); NNLS
     with 20-40 % of the cells reaches that floor within 25 %; the paper's BGBC budgets
-    (5-7.5 % of the cells: 32-49 elements here) do not: with 5 % handles they are 10x off."""
+    (5-7.5 % of the cells: 32-49 elements here) do not: with 5 % handles they are 10x off.
+    Table 3's levels run on their own meshes (208 -> 81 and 425 vertices at ci)."""
     wsc = _run("wsc_table1", tmp_path_factory)
     full = [wsc.loc[("cube-tension", f"wsc cubature=full handles={h} rtol=0.001"), "rmse_rel"]
             for h in (0.01, 0.03, 0.05)]
@@ -143,6 +144,15 @@ def test_wsc_table1_preset(tmp_path_factory):
     assert bgbc > 10 * full[2]
     # every unit steps faster than the FE step it replaces, measured in the same process
     assert (wsc["haptic_median_s"] < wsc["reference_step_s"]).all()
+    # Table 3: the same bar on a coarser and a finer mesh (the case's mesh override), and one
+    # absolute configuration (10 handles, 100 elements) on all three meshes: one reduced size
+    fixed = "wsc cubature=bgbc cubature_elements=100 handles=10 rtol=0.001"
+    levels = wsc.xs(fixed, level="label").loc[["cube-tension-low", "cube-tension", "cube-tension-high"]]
+    assert levels["n_dof"].tolist() == [3 * 81, 3 * 208, 3 * 425]
+    assert levels["n_reduced"].nunique() == 1
+    assert (levels["rmse_rel"] < 0.1).all()  # measured 4.0 / 6.6 / 2.7 %
+    for case in ("cube-tension-low", "cube-tension-high"):
+        assert len(wsc.loc[case]) == 3
 
 
 def test_direct_presets(tmp_path_factory):

@@ -84,6 +84,10 @@ def _stable(df):
     (lambda t: t + '[[method]]\nname = "nearest"\ncases = ["liver"]\n', r"method\[3\].cases = 'liver': not a case id"),
     (lambda t: t.replace("latency_steps = 30", "latency_steps = 0"), r"protocol.latency_steps = 0"),
     (lambda t: t + "[extra]\n", r"extra: unknown top-level key"),
+    (lambda t: t.replace('name = "cornea_pinch"', 'name = "cornea_pinch"\nmesh = { low = {} }'),
+     r"case\[0\].mesh.low: unknown key \(valid: \['ci', 'paper'\]\)"),
+    (lambda t: t.replace('name = "cornea_pinch"', 'name = "cornea_pinch"\nmesh = { ci = { rings = 3 } }'),
+     r"case\[0\]: mesh.ci.rings: not a parameter of builder 'cornea_dome'"),
 ])
 def test_bad_specs_are_refused_naming_the_key(tmp_path, edit, message):
     spec = tmp_path / "bad.toml"
@@ -101,6 +105,26 @@ def test_presets_load_and_expand_at_both_resolutions():
         assert len({u.key for u in ci}) == len(ci)  # every unit has its own key
     anm = [u for u in expand_units(load_spec("anm_pod", resolution="paper")) if u.case["id"] == "liver_palpation"]
     assert len(anm) == 150 and {u.case["resolution"] for u in anm} == {"paper"}
+
+
+def test_case_mesh_overrides_the_builder_parameters_at_its_resolution(tmp_path):
+    """``mesh.<resolution>`` of a case: another mesh of the scene's builder (Table 3's cube
+    levels); its scene hash differs, the other resolution keeps the catalogue mesh."""
+    from tissuebench.studies.training import case_scene
+
+    text = TINY.format(steps=30).replace('name = "cornea_pinch"', 'name = "cube_tension_twist"\n'
+                                         'mesh = { ci = { divisions = [8, 2, 2] } }')
+    text = text.replace('kind = "path", every = 2', 'kind = "path"')
+    spec = tmp_path / "mesh.toml"
+    spec.write_text(text)
+    case = load_spec(spec).cases[0]
+    assert case["mesh"] == {"ci": {"divisions": [8, 2, 2]}}
+    scene = case_scene(case)
+    assert (scene.mesh.n_vertices, scene.mesh.n_cells) == (9 * 3 * 3, 8 * 2 * 2 * 6)
+    plain = case_scene({k: v for k, v in case.items() if k != "mesh"})
+    assert plain.mesh.n_cells == 12 * 3 * 3 * 6 and plain.content_hash() != scene.content_hash()
+    paper = case_scene(dict(case, resolution="paper"))  # no paper entry: the catalogue's paper mesh
+    assert paper.mesh_spec["params"]["divisions"] == [63, 10, 10]
 
 
 def test_example_sweep_specs_load_and_expand():

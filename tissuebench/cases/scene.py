@@ -130,6 +130,19 @@ class Scene:
             new.__dict__["built"] = self.__dict__["built"]
         return new
 
+    def with_mesh(self, params: dict) -> "Scene":
+        """This scene on another mesh of its builder: ``params`` override the builder's
+        parameters at this resolution (checked as ``mesh.<resolution>`` of a scene file, e.g.
+        ``{"divisions": [40, 7, 7]}``). The mesh is rebuilt; :meth:`content_hash` changes."""
+        if not isinstance(params, dict):
+            raise TypeError(f"mesh parameters must be a table, got {type(params).__name__}")
+        if not params:
+            return self
+        merged = check_builder_params(self.mesh_spec["builder"], {"params": self.mesh_spec["params"],
+                                                                  self.resolution: dict(params)},
+                                      (self.resolution,), self.resolution)[self.resolution]
+        return dataclasses.replace(self, mesh_spec={**self.mesh_spec, "params": merged})
+
     def content(self) -> dict:
         """Everything that determines a reference run of this scene (JSON-able): the validated
         tables, resolution, variant, ``mu`` and the SHA-256 of the mesh files the builder reads."""

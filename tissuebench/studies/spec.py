@@ -20,6 +20,7 @@ a grid of options, the protocol and the error metric of the derived tables::
     [[case]]
     name = "liver_palpation"          # catalogue case or scene file; id defaults to the name
     backend = "skfem"                 # variant, resolution, mu = {nu = 0.499} (Scene.at) optional
+    mesh = { paper = { divisions = [40, 7, 7] } }   # optional: builder parameters per resolution
     training = { kind = "path" }      # path | positions | trajectory | operators (studies.training)
     evaluation = { kind = "path", beyond = [2.0] }   # default: the training's kind (studies.evaluation)
 
@@ -57,7 +58,7 @@ PRESETS_DIR = Path(__file__).resolve().parent / "presets"
 ERROR_METRICS = ("max_rel_l2", "mean_rel_l2", "rmse_rel", "max_rel_l2_in_envelope", "max_monitor_rel_error")
 _TOP = {"sweep", "protocol", "case", "method"}
 _SWEEP = {"name", "description", "resolution", "error_metric"}
-_CASE = {"name", "id", "variant", "backend", "resolution", "training", "evaluation", "mu"}
+_CASE = {"name", "id", "variant", "backend", "resolution", "training", "evaluation", "mu", "mesh"}
 _METHOD = {"name", "cases", "options", "grid", "list", "paper", "protocol"}
 _TRAINING_KEYS = {"path": {"every", "repeat"}, "positions": {"positions", "max_load_factor", "load_steps"},
                   "trajectory": {"runs"}, "operators": set()}
@@ -142,6 +143,10 @@ def _check_case(i, c, resolution):
              "resolution": res, "backend": backend, "training": training, "evaluation": evaluation}
     if "mu" in c:
         entry["mu"] = _table(f"{path}.mu", c["mu"], set(c["mu"]) if isinstance(c["mu"], dict) else set())
+    if "mesh" in c:  # builder parameters per resolution: {paper = {divisions = [40, 7, 7]}}
+        mesh = _table(f"{path}.mesh", c["mesh"], set(RESOLUTIONS))
+        entry["mesh"] = {r: dict(_table(f"{path}.mesh.{r}", t, set(t) if isinstance(t, dict) else set()))
+                         for r, t in mesh.items()}
     _named(path, case_scene, entry)  # the scene must load and take the mu (their errors name the key)
     return entry
 

@@ -40,9 +40,13 @@ TRAINING_KINDS = ("path", "positions", "trajectory", "operators")
 
 
 def case_scene(case: dict):
-    """The scene of a case entry (``name``, ``variant``, ``resolution``, evaluated at its ``mu``:
-    e.g. ``{nu = 0.499}`` trains and measures every method of that case at that parameter)."""
+    """The scene of a case entry (``name``, ``variant``, ``resolution``, on the mesh of its
+    ``mesh.<resolution>`` builder parameters if any, evaluated at its ``mu``: e.g.
+    ``{nu = 0.499}`` trains and measures every method of that case at that parameter)."""
     scene = load(case["name"], resolution=case["resolution"], variant=case.get("variant"))
+    mesh = case.get("mesh", {}).get(case["resolution"])
+    if mesh:
+        scene = scene.with_mesh(mesh)
     return scene.at(case["mu"]) if case.get("mu") else scene
 
 
