@@ -88,6 +88,11 @@ def _stable(df):
      r"case\[0\].mesh.low: unknown key \(valid: \['ci', 'paper'\]\)"),
     (lambda t: t.replace('name = "cornea_pinch"', 'name = "cornea_pinch"\nmesh = { ci = { rings = 3 } }'),
      r"case\[0\]: mesh.ci.rings: not a parameter of builder 'cornea_dome'"),
+    (lambda t: t.replace('name = "cornea_pinch"', 'name = "cornea_pinch"\n'
+                         'paper_points = [{ label = "a", step_ms = 1 }]'),
+     r"case\[0\].paper_points\[0\].*error"),
+    (lambda t: t.replace('name = "cornea_pinch"', 'name = "cornea_pinch"\npaper_points = [{ label = "a", step_ms = -1, '
+                         'error = 0.1 }]'), r"case\[0\].paper_points\[0\].step_ms"),
 ])
 def test_bad_specs_are_refused_naming_the_key(tmp_path, edit, message):
     spec = tmp_path / "bad.toml"

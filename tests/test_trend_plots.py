@@ -154,3 +154,33 @@ def test_output_spectra_show_the_frequency_a_unit_lost_over_the_window(tmp_path)
     assert at("low (0.3)", 5) == pytest.approx(1.0, rel=0.02) and at("low (0.3)", 20) < 1e-3
     paths = plot_spectra(units, pd.DataFrame(rows), tmp_path)
     assert [p.name for p in paths] == ["spectrum_liver.png"] and paths[0].stat().st_size > 10_000
+
+
+def test_pareto_plot_draws_the_papers_points_of_paper_resolution_cases(tmp_path, monkeypatch):
+    """``case.paper_points`` of a paper-resolution case are drawn beside the units (hollow
+    squares, counted in the legend); a ci case's points are not (other mesh)."""
+    import matplotlib.figure
+
+    from tissuebench.reports.sweep_plots import plot_pareto
+    from tissuebench.studies.sweep import paper_points
+
+    cases = [{"id": "cube", "resolution": "paper", "paper_points": [
+                 {"label": "74/1880", "step_ms": 10.7, "error": 0.2182},
+                 {"label": "364/2350", "step_ms": 18.41, "error": 0.0229}]},
+             {"id": "lv", "resolution": "ci", "paper_points": [{"label": "300/3600", "step_ms": 21.8, "error": 0.024}]}]
+    (tmp_path / "_sweep.json").write_text(json.dumps({"cases": cases}))
+    paper = paper_points(tmp_path)
+    assert paper["case"].tolist() == ["cube", "cube"] and paper["step_ms"].tolist() == [10.7, 18.41]
+    pareto = pd.DataFrame([{"case": "cube", "method": "wsc", "label": f"wsc h={h}", "error": e, "haptic_median_s": t,
+                            "pareto": True, "reference_step_s": 0.5, "error_metric": "rmse_rel"}
+                           for h, e, t in ((10, 0.02, 6e-4), (40, 0.01, 2e-3))])
+    figures = []
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", lambda fig, *a, **k: figures.append(fig))
+    plot_pareto(pareto, tmp_path, paper)
+    ax = figures[0].axes[0]
+    squares = [c for c in ax.collections if c.get_label().startswith("paper")]
+    assert len(squares) == 1 and squares[0].get_label() == "paper (2 points, its mesh and machine)"
+    np.testing.assert_allclose(squares[0].get_offsets(), [[10.7, 0.2182], [18.41, 0.0229]])
+    figures.clear()
+    plot_pareto(pareto, tmp_path, paper_points(tmp_path / "missing"))
+    assert not [c for c in figures[0].axes[0].collections if c.get_label().startswith("paper")]

@@ -16,9 +16,10 @@ def _file_part(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]", "_", str(name))
 
 
-def plot_pareto(pareto, folder: Path) -> list[Path]:
+def plot_pareto(pareto, folder: Path, paper=None) -> list[Path]:
     """``pareto_<case>.png``: error versus haptic median latency (log axes), one colour per
-    method, the front joined, the reference's step time as a vertical line."""
+    method, the front joined, the reference's step time as a vertical line; ``paper``
+    (columns case, label, step_ms, error) adds the published points of a case."""
     plt = pyplot()
     paths = []
     for case, grp in pareto.groupby("case"):
@@ -26,6 +27,10 @@ def plot_pareto(pareto, folder: Path) -> list[Path]:
         fig, ax = plt.subplots(figsize=(7.5, 5))
         for method, g in ok.groupby("method"):
             ax.scatter(g["haptic_median_s"] * 1e3, g["error"], s=22, label=method, alpha=0.8)
+        pub = paper[paper["case"] == case] if paper is not None and len(paper) else []
+        if len(pub):
+            ax.scatter(pub["step_ms"], pub["error"], s=30, marker="s", facecolors="none", edgecolors="k",
+                       label=f"paper ({len(pub)} points, its mesh and machine)")
         front = ok[ok["pareto"]].sort_values("haptic_median_s")
         if len(front):
             ax.step(front["haptic_median_s"] * 1e3, front["error"], "k-", where="post", lw=1, label="Pareto front")

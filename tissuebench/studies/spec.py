@@ -21,6 +21,7 @@ a grid of options, the protocol and the error metric of the derived tables::
     name = "liver_palpation"          # catalogue case or scene file; id defaults to the name
     backend = "skfem"                 # variant, resolution, mu = {nu = 0.499} (Scene.at) optional
     mesh = { paper = { divisions = [40, 7, 7] } }   # optional: builder parameters per resolution
+    paper_points = [{ label = "paper 74/1880", step_ms = 10.7, error = 0.218 }]  # optional, on the Pareto plot
     training = { kind = "path" }      # path | positions | trajectory | operators (studies.training)
     evaluation = { kind = "path", beyond = [2.0] }   # default: the training's kind (studies.evaluation)
 
@@ -46,7 +47,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..cases.scene import RESOLUTIONS, list_cases, resolve_toml
-from ..cases.schema import key_text, value_text
+from ..cases.schema import c_nonneg, c_pos, c_str, check_table, key_text, value_text
 from ..rom import METHODS, method_class
 from .evaluation import EVALUATION_KINDS
 from .training import TRAINING_KINDS, case_scene
@@ -58,7 +59,9 @@ PRESETS_DIR = Path(__file__).resolve().parent / "presets"
 ERROR_METRICS = ("max_rel_l2", "mean_rel_l2", "rmse_rel", "max_rel_l2_in_envelope", "max_monitor_rel_error")
 _TOP = {"sweep", "protocol", "case", "method"}
 _SWEEP = {"name", "description", "resolution", "error_metric"}
-_CASE = {"name", "id", "variant", "backend", "resolution", "training", "evaluation", "mu", "mesh"}
+_CASE = {"name", "id", "variant", "backend", "resolution", "training", "evaluation", "mu", "mesh", "paper_points"}
+# a published configuration drawn beside ours on the case's Pareto plot (paper resolution)
+_PAPER_POINT = {"label": c_str, "step_ms": c_pos, "error": c_nonneg}
 _METHOD = {"name", "cases", "options", "grid", "list", "paper", "protocol"}
 _TRAINING_KEYS = {"path": {"every", "repeat"}, "positions": {"positions", "max_load_factor", "load_steps"},
                   "trajectory": {"runs"}, "operators": set()}
@@ -147,6 +150,12 @@ def _check_case(i, c, resolution):
         mesh = _table(f"{path}.mesh", c["mesh"], set(RESOLUTIONS))
         entry["mesh"] = {r: dict(_table(f"{path}.mesh.{r}", t, set(t) if isinstance(t, dict) else set()))
                          for r, t in mesh.items()}
+    if "paper_points" in c:
+        points = c["paper_points"]
+        if not isinstance(points, list) or not points:
+            _fail(f"{path}.paper_points", points, "expected a non-empty array of tables {label, step_ms, error}")
+        entry["paper_points"] = [check_table(f"{path}.paper_points[{j}]", dict(p) if isinstance(p, dict) else p,
+                                             _PAPER_POINT, required=tuple(_PAPER_POINT)) for j, p in enumerate(points)]
     _named(path, case_scene, entry)  # the scene must load and take the mu (their errors name the key)
     return entry
 

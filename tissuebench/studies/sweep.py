@@ -17,6 +17,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import pandas as pd
+
 from .executors import check_executor, execute
 from .metrics import TOLERANCES, pareto_front
 from .results import ResultsStore, read_outputs, read_points, read_units
@@ -146,6 +148,16 @@ def plot_trends(out: Path, units, error_metric: str, folder: Path) -> list[Path]
             + plot_case_trends(units, cases, folder, error_metric))
 
 
+def paper_points(out: Path) -> pd.DataFrame:
+    """The published points of the sweep's paper-resolution cases (``case.paper_points``):
+    columns case, label, step_ms, error (empty when none)."""
+    manifest = out / "_sweep.json"
+    cases = json.loads(manifest.read_text()).get("cases", []) if manifest.is_file() else []
+    rows = [{"case": c["id"], **p} for c in cases if c.get("resolution") == "paper"
+            for p in c.get("paper_points", [])]
+    return pd.DataFrame(rows, columns=["case", "label", "step_ms", "error"])
+
+
 def write_derived(out: Path, error_metric: str = "max_rel_l2") -> Path | None:
     """``_derived/pareto.parquet``, ``radius.parquet`` and the plots, replaced atomically."""
     units = read_units(out)
@@ -164,7 +176,7 @@ def write_derived(out: Path, error_metric: str = "max_rel_l2") -> Path | None:
     try:
         pareto.to_parquet(tmp / "pareto.parquet", index=False)
         radius.to_parquet(tmp / "radius.parquet", index=False)
-        plot_pareto(pareto, tmp)
+        plot_pareto(pareto, tmp, paper_points(out))
         plot_radius(radius, tmp)
         plot_trends(out, units, error_metric, tmp)
         if final.exists():
