@@ -47,7 +47,8 @@ def plot_pareto(pareto, folder: Path, paper=None) -> list[Path]:
         ax.set_ylabel(f"error ({grp['error_metric'].iloc[0]})")
         ax.set_title(f"{case}: accuracy versus latency ({len(ok)} units, {int(ok['pareto'].sum())} on the front)")
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7)
+        if ax.get_legend_handles_labels()[0]:  # a case whose units all failed draws nothing
+            ax.legend(fontsize=7)
         fig.tight_layout()
         path = Path(folder) / f"pareto_{_file_part(case)}.png"
         fig.savefig(path, dpi=110)

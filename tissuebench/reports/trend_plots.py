@@ -91,7 +91,9 @@ def _draw_energy(ax, energy, chosen):
     for row in chosen.itertuples():
         m = energy[(energy["unit_key"] == row.unit_key) & np.isfinite(energy["energy_rel"])].sort_values("x")
         drift = getattr(row, "energy_drift", np.nan)
-        ax.plot(m["x"], m["energy_rel"] - e0, lw=1, label=f"{row.label} (drift {drift:+.2g})")
+        # no energy history for the model (a follower load has no potential): the label says so
+        text = f"drift {drift:+.2g}" if np.isfinite(drift) else "no energy history"
+        ax.plot(m["x"], m["energy_rel"] - e0, lw=1, label=f"{row.label} ({text})")
     ax.set_yscale("symlog", linthresh=1e-4)
     ax.set_ylabel("(E - E_ref(t_c)) / max(KE + W)_ref")
     ax.set_title("energy E = KE + W - f.u over the constant-load window (paper Fig. 17)", fontsize=9)
