@@ -39,6 +39,7 @@ error_rtol = 0.25
 error_atol = 1e-9
 latency_tolerance = 1.5   # the 2x slowdown below must trip it
 reference_latency_tolerance = 1.5
+latency_floor = 0.0   # the steps here are microseconds: no floor, or the slowdown would hide under it
 """
 
 
@@ -92,6 +93,38 @@ def test_an_injected_2x_slowdown_fails_the_gate(gated, tmp_path, monkeypatch, ca
     assert "pod_interp" not in [line.split()[1] for line in text.splitlines()[1:] if line.strip()]
     suite = ET.parse(junit).getroot()
     assert suite.get("failures") == "1" and suite.get("tests") == "2"
+
+
+def _scaled_baseline(baseline, tmp_path, factor, floor):
+    """The baseline with every latency ratio scaled by ``factor`` and ``latency_floor = floor``."""
+    import tomlkit
+    doc = tomlkit.parse(baseline.read_text())
+    doc["defaults"]["latency_floor"] = floor
+    for u in doc["unit"]:
+        u["latency_per_calibration"] = u["latency_per_calibration"] * factor
+        u["latency_per_reference"] = u["latency_per_reference"] * factor
+    edited = tmp_path / f"scaled-{factor}-{floor}.toml"
+    edited.write_text(tomlkit.dumps(doc))
+    return edited
+
+
+def test_the_latency_floor_spares_microsecond_noise_only(gated, tmp_path):
+    """A run 3x slower than its baseline (the baseline scaled down by 3) fails without a floor;
+    with a floor above the units' steps it holds; with a floor below them it fails again, and so
+    it does when the floor raises the baseline but not past the step over the tolerance (1.5)."""
+    _, out, baseline = gated
+    steps = [u["latency_per_calibration"] for u in load_baseline(baseline)[1]]
+    slower = lambda floor: check(out, _scaled_baseline(baseline, tmp_path, 1 / 3, floor))  # noqa: E731
+    assert {f.metric for f in slower(0.0).regressions} == {"latency_per_calibration", "latency_per_reference"}
+    assert slower(2 * max(steps)).ok
+    below = slower(min(steps) / 10)
+    assert {f.metric for f in below.regressions} == {"latency_per_calibration", "latency_per_reference"}
+    assert not any("floor" in f.tolerance for f in below.regressions)
+    # a floor that raises the baseline but stays under the step / tolerance still catches it
+    raised = slower(min(steps) / 2)
+    fastest = min(load_baseline(baseline)[1], key=lambda u: u["latency_per_calibration"])["method"]
+    assert {f.metric for f in raised.per_unit[next(k for k in raised.per_unit if k[1] == fastest)]
+            if "floor" in f.tolerance} == {"latency_per_calibration", "latency_per_reference"}
 
 
 def test_a_less_accurate_method_fails_the_gate(gated, tmp_path, monkeypatch):
