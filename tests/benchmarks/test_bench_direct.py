@@ -1,6 +1,6 @@
 """Haptic step of the PGD-POD direct integrator and our full HHT step on the same system.
 
-Timed with pytest-benchmark (``pytest tests/benchmarks/test_bench_direct.py --benchmark-enable``);
+Timed with pytest-benchmark (``pytest -n 0 tests/benchmarks/test_bench_direct.py --benchmark-enable``);
 the plain test run executes each once, untimed. Targets (issue 14): step + outputs median
 <= 0.1 ms and p99 <= 0.5 ms on every scene; the speed-up is the ratio to the HHT step
 (examples/direct_study.py reports both measured in one process, with p99).

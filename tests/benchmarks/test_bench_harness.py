@@ -1,6 +1,6 @@
 """What the sweep harness costs on top of calling a method directly, and the ANM-POD haptic step.
 
-``pytest tests/benchmarks/test_bench_harness.py --benchmark-enable`` times, on the same
+``pytest -n 0 tests/benchmarks/test_bench_harness.py --benchmark-enable`` times, on the same
 online model in the same process:
 
 * ``direct``: a bare loop ``step(mu); outputs(res)`` over the evaluation parameters, one

@@ -1,7 +1,7 @@
 """Haptic step of the PGD cutting model (cornea_cut, ci resolution; the paper-resolution
 figures come from examples/pgd_cutting_study.py, which also times the full FE step).
 
-Timed with pytest-benchmark (``pytest tests/benchmarks/test_bench_pgd.py --benchmark-enable``);
+Timed with pytest-benchmark (``pytest -n 0 tests/benchmarks/test_bench_pgd.py --benchmark-enable``);
 the plain test run executes each once, untimed. Target (issue 12, at paper resolution):
 step + outputs median <= 0.2 ms, p99 <= 1 ms, including the enrichment after a cut.
 """

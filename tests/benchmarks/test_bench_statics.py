@@ -1,6 +1,6 @@
 """Statics benchmarks on the cube bar at paper resolution (2x2x8 cm, 7744 vertices, 37800 P1 tets).
 
-Timed with pytest-benchmark (``pytest tests/benchmarks --benchmark-enable --benchmark-only``);
+Timed with pytest-benchmark (``pytest -n 0 tests/benchmarks --benchmark-enable --benchmark-only``);
 under the plain test run they execute once, untimed. Peak memory of each timed call is
 recorded in ``extra_info``: ``tracemalloc_peak_MiB`` (Python/NumPy allocations) and
 ``rss_peak_MiB`` (process high-water mark, includes NGSolve's C++ allocations).
