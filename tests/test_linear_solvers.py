@@ -222,3 +222,29 @@ def test_run_command_offers_every_linear_solver():
     action = next(a for a in _parser()._subparsers._group_actions[0].choices["run"]._actions
                   if a.dest == "linear_solver")
     assert sorted(action.choices) == sorted(LINEAR_SOLVERS)
+
+
+@pytest.mark.parametrize("n", [60, 1500])  # SuperLU below NGSOLVE_MIN_DOFS, NGSolve from it on
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_factorized_solves_one_and_many_right_hand_sides(n, symmetric):
+    from tissuebench.refsolvers.sparse_direct import NGSOLVE_MIN_DOFS, factorized
+
+    assert (n >= NGSOLVE_MIN_DOFS) == (n == 1500)
+    rng = np.random.default_rng(3)
+    lap = sp.diags([-np.ones(n - 1), 4 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1])
+    K = (lap + (0 if symmetric else sp.diags([0.5 * np.ones(n - 2)], [2]))).tocsr()
+    B = rng.standard_normal((n, 3))
+    solve = factorized(K)
+    X = solve(B)
+    assert X.shape == (n, 3)
+    assert np.linalg.norm(K @ X - B) <= 1e-12 * np.linalg.norm(B)
+    assert np.allclose(solve(B[:, 1]), X[:, 1], rtol=0, atol=1e-13 * np.abs(X).max())
+
+
+@pytest.mark.parametrize("n", [60, 1500])
+def test_factorized_refuses_a_singular_matrix(n):
+    from tissuebench.refsolvers.sparse_direct import factorized
+
+    K = sp.diags(np.r_[np.ones(n - 1), 0.0]).tocsr()
+    with pytest.raises(LinearSolverError, match="factorized|cholesky"):
+        factorized(K)(np.ones(n))

@@ -29,9 +29,12 @@ class _DimSolver:
 
     @staticmethod
     def _factorise(M):
-        """A ``solve(b)`` of the matrix M, factorised once (SuperLU or dense LU)."""
+        """A ``solve(b)`` of the matrix M, factorised once (sparse: NGSolve or SuperLU by
+        size, :func:`~tissuebench.refsolvers.sparse_direct.factorized`; dense: LU)."""
         if sp.issparse(M):
-            return spla.splu(sp.csc_matrix(M)).solve
+            from ..refsolvers.sparse_direct import factorized
+
+            return factorized(M)
         lu = sla.lu_factor(np.asarray(M, float))
         return lambda b: sla.lu_solve(lu, b)
 

@@ -18,12 +18,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..linear_solvers import DirectSolver, LinearSolverError, NgsolveSparseSolver
+from ..sparse_direct import NGSOLVE_MIN_DOFS
 from .base import StepReport
 
 #: the Jacobian solvers an integrator accepts as its ``linear_solver`` option
 STEP_SOLVERS = ("auto", "direct", "cholesky")
-#: from this many free dofs on, ``"auto"`` takes NGSolve's sparse factorisation
-NGSOLVE_MIN_DOFS = 1000
+# NGSOLVE_MIN_DOFS (sparse_direct): from this many free dofs on, "auto" takes NGSolve
 
 
 @dataclass

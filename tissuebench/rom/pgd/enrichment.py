@@ -111,10 +111,9 @@ def enrichment_operators(scene, backend, strip: IncisionStrip) -> Enrichment:
 def condense(enrichment: Enrichment, K) -> Enrichment:
     """The condensed variant (module docstring): ``G = K^{-1} K_ud`` with ``K`` the intact
     stiffness on the free dofs (sparse; factorised here, one solve per enriched dof)."""
-    import scipy.sparse.linalg as spla
+    from ...refsolvers.sparse_direct import factorized
 
-    lu = spla.splu(sp.csc_matrix(K))
-    G = lu.solve(np.asarray(enrichment.K_ud.toarray()))
+    G = factorized(sp.csr_matrix(K))(np.asarray(enrichment.K_ud.toarray()))
     return Enrichment(enrichment.K_ud, enrichment.K_dd, enrichment.K_uu_check, enrichment.strip, G)
 
 
