@@ -220,7 +220,8 @@ def main(argv=None):
 
 def summary(df):
     """The columns of the closing note: error, median, p99, speed-up, extrapolations, drift."""
-    cols = [c for c in ("scene", "variant", "curve", "integrator", "velocity_basis", "load_at", "dt", "pod_modes", "n_nodes", "separated_terms",
+    cols = [c for c in ("scene", "variant", "curve", "integrator", "velocity_basis", "load_at", "dt", "pod_modes",
+                        "n_nodes", "separated_terms",
                         "rmse_vs_reference", "rmse_full_same_integrator_vs_reference", "rmse_vs_full_same_integrator",
                         "projection_floor", "median_step_s",
                         "p99_step_s", "speedup_vs_hht", "extrapolated_steps", "failed_at", "energy_drift_final",

@@ -167,7 +167,7 @@ def svk_rows(scene, modes=(2, 4, 6, 8, 10), backend: str = "skfem", steps: int =
     big = make_method("pgd_svk", n_modes=max(modes)).build(tr)
     build_s = time.perf_counter() - t0
     rows = []
-    for n in [n for n in modes if n <= big.n_reduced]:  # the build may stop earlier (its record says why)  # nested: the leading modes, basis columns and reduced tensors of one build
+    for n in [n for n in modes if n <= big.n_reduced]:  # the build may stop earlier (its record says why)
         m = PgdSvkModel(big.name, big.vademecum.truncated(n), big.basis[:, :n], big.poly.leading(n), big.problem,
                         big.rtol, big.max_iterations, big.max_increments)
         r = m.step({"node": node})
@@ -183,7 +183,7 @@ def svk_rows(scene, modes=(2, 4, 6, 8, 10), backend: str = "skfem", steps: int =
             "residual_norms", [])) - 1, "step_median_s": st.median, "step_p99_s": st.p99, "build_s": build_s,
             "full_newton_s": full_s, "full_newton_success": ref.success, "full_newton_load_factor": ref.load_factor,
             "full_newton_message": ref.message,
-            "vademecum_stop": big.build_info["stop_reason"], "vademecum_modes": big.n_reduced})
+            "vademecum_stop": big.info["stop_reason"], "vademecum_modes": big.n_reduced})
     return pd.DataFrame(rows)
 
 
@@ -277,7 +277,7 @@ def main(argv=None):
     summary = {"resolution": args.resolution, "build_s": models["build_s"], "condense_s": models["condense_s"],
                "full_fe_step_median_s": full,
                "cut_lengths": len(refs) - 1, "n_dof_cut_max": refs[-1]["n_dof"],
-               "build_info": {k: v for k, v in models["base"].build_info.items() if k != "operators"},
+               "build_info": {k: v for k, v in models["base"].info.items() if k != "operators"},
                "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS"), "heat1d": heat.to_dict("records")}
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
     pd.set_option("display.width", 200)

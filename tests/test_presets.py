@@ -5,6 +5,8 @@ The figures asserted are those measured on this project's meshes (the liver of
 """
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -114,6 +116,13 @@ def test_pgd_cutting_preset(tmp_path_factory):
     condensed = "pgd_cutting accessible=strip enrichment=condensed n_modes=10 projection=srb strip_rings=1"
     assert cut.loc[condensed, "max_rel_l2"] < 1e-10
     assert (cut["n_points"] == 2).all()  # the intact cornea and one cut length
+    # the build record reaches the store: modes, fixed-point iterations, and the rank floor
+    # (ci strip: 10 positions; 6 modes leave a floor > 0)
+    info = json.loads(cut.loc[opts.format(6, "srb"), "model_info"])
+    assert info["n_modes"] == 6 and len(info["fixed_point_iterations"]) == 6 and info["stop_reason"]
+    floor = info["rank_floor"]
+    assert floor["n_parameters"] == 10 and 0 < floor["rms_rel_l2"] <= floor["max_rel_l2_svd"]
+    assert json.loads(heat.loc["pgd n_modes=49 projection=srb", "model_info"])["rank_floor"]["rms_rel_l2"] < 1e-12
     # pgd_svk (the modes as the Ritz basis of the SVK cornea) against the full SVK Newton solve
     # with the contact at the same node, 5 nodes x the 10 load factors of the path (measured at
     # ci: RMSE 0.75 / 0.47 / 0.38 with 2 / 6 / 10 modes; the response to a point load is local,

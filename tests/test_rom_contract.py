@@ -10,6 +10,7 @@ applied to its reconstruction, and refuse to reconstruct a failed step.
 from __future__ import annotations
 
 import inspect
+import json
 
 import numpy as np
 import pytest
@@ -20,6 +21,7 @@ from tissuebench.refsolvers import (Dirichlet, LinearElastic, PointLoad, Problem
 from tissuebench.refsolvers.dynamics import SecondOrderSystem, integrate
 from tissuebench.refsolvers.newton import newton_solve
 from tissuebench.rom import METHODS, MODEL_KINDS, OnlineModel, StepResult, Training, make_method
+from tissuebench.studies.units import _jsonable
 
 TIP = 4.0
 
@@ -125,6 +127,8 @@ def test_method_contract(name, trainings):
         training = trainings[kind]
         model = make_method(name).build(training)
     assert isinstance(model, OnlineModel) and model.kind == cls.kind and model.n_reduced >= 1
+    info = getattr(model, "info", {})  # the build record the sweep stores as model_info
+    assert isinstance(info, dict) and json.loads(json.dumps(_jsonable(info))) == _jsonable(info)
     model.attach_outputs(training.outputs)
     if cls.kind == "trajectory":
         results = model.solve([{"time": k * training.dt, "load_factor": training.history(k * training.dt)}

@@ -130,9 +130,9 @@ def test_bad_options(opts, match):
         make_method("pgd", **opts)
 
 
-def test_fixed_point_not_converging_is_reported_in_the_build_info(training):
+def test_fixed_point_not_converging_is_reported_in_the_model_info(training):
     model = make_method("pgd", n_modes=3, max_fixed_point=2, fixed_point_tol=1e-14).build(training)
-    info = model.build_info
+    info = model.info
     assert info["fixed_point_iterations"] == [2, 2, 2] and info["fixed_point_converged"] == [False] * 3
     assert "not converged in 3 mode(s)" in info["message"] and info["stop_reason"] == "max_modes"
     assert "stiffness K" in info["operators"]  # the vademecum uses operators, no snapshots

@@ -167,6 +167,8 @@ class OnlineModel(ABC):
     Subclasses implement :meth:`step`, :meth:`reconstruct` and :attr:`n_reduced`; a model
     whose full field is affine in ``q`` (``u[free] = B q``, ``u[fixed] = u_D(mu)``) also
     implements :meth:`output_map`, and then :meth:`outputs` costs ``n_out x n_reduced``.
+    ``info`` (a dict attribute or property, optional) is the JSON-able record of the offline
+    build (modes, iterations, stop reasons, floors); a sweep stores it as ``model_info``.
     """
 
     #: method name (the registry key)

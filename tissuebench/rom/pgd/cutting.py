@@ -89,7 +89,8 @@ class CuttingModel(OnlineModel):
         return {"position": (0, self.vademecum.family.n_parameters - 1), "cut_length": (0, self.strip.max_cut_length)}
 
     @property
-    def build_info(self) -> dict:
+    def info(self) -> dict:
+        """Record of the offline build (the sweep's ``model_info``)."""
         return {**self.vademecum.build_info(), "projection": self.projection, "enrichment": self.enrichment.kind,
                 "max_cut_length": self.strip.max_cut_length, "enriched_nodes": len(self.strip.enriched),
                 "enrichment_K_uu_check": self.enrichment.K_uu_check, "F_cut_N": self.F_cut}

@@ -100,7 +100,8 @@ class PgdModel(LinearReconstruction, OnlineModel):
         return {"position": (0, fam.n_parameters - 1)}
 
     @property
-    def build_info(self) -> dict:
+    def info(self) -> dict:
+        """Record of the offline build (the sweep's ``model_info``)."""
         return {**self.vademecum.build_info(), "projection": self.projection,
                 "dropped_directions": getattr(self.proj, "n_dropped", 0)}
 

@@ -88,7 +88,8 @@ class PgdSvkModel(LinearReconstruction, OnlineModel):
         return {"position": (0, self.vademecum.family.n_parameters - 1)}
 
     @property
-    def build_info(self) -> dict:
+    def info(self) -> dict:
+        """Record of the offline build (the sweep's ``model_info``)."""
         return {**self.vademecum.build_info(), "svk_force_evaluations": self.poly.n_evals}
 
     def prescribed(self, mu):  # homogeneous Dirichlet conditions only (checked offline)

@@ -10,6 +10,7 @@ those of a weighted SVD, found without forming U.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,6 +18,7 @@ import scipy.sparse as sp
 
 from ..separated import SeparatedOperator, SeparatedSolution, SeparatedVector, pgd_solve
 from .family import PointLoadFamily
+from .floor import rank_floor
 
 __all__ = ["Vademecum", "build_vademecum"]
 
@@ -85,14 +87,21 @@ class Vademecum:
             raise ValueError(f"position {position!r} is outside the vademecum's parameter domain")
         return self.X @ S
 
+    @functools.cached_property
+    def rank_floor(self) -> dict:
+        """The least error of any space of ``n_modes`` modes on this family (:mod:`.floor`)."""
+        return rank_floor(self.family, self.n_modes)
+
     def build_info(self) -> dict:
-        """JSON-able record of the build (modes, fixed-point iterations, stop reason ...)."""
+        """JSON-able record of the build (modes, fixed-point iterations, stop reason ...,
+        and the rank floor of the family at this number of modes)."""
         r = self.record
         return {"n_modes": self.n_modes, "fixed_point_iterations": list(r.fixed_point_iterations),
                 "fixed_point_converged": list(r.converged), "amplitudes": list(r.amplitudes),
                 "residuals": list(r.residuals), "stop_reason": r.stop_reason, "message": r.message,
                 "n_parameters": self.family.n_parameters, "n_free": self.family.n_free,
-                "operators": "stiffness K (free dofs) ⊗ parameter weights W; point loads f(s_j) ⊗ w_j e_j"}
+                "operators": "stiffness K (free dofs) ⊗ parameter weights W; point loads f(s_j) ⊗ w_j e_j",
+                "rank_floor": self.rank_floor}
 
 
 def build_vademecum(family: PointLoadFamily, n_modes: int = 10, tol: float = 1e-8, max_fixed_point: int = 50,
