@@ -200,7 +200,9 @@ class NgsolveSparseSolver(LinearSolver):
             return "reused"
         n = K.shape[0]
         rows = np.repeat(np.arange(n, dtype=np.int64), np.diff(K.indptr))
-        A = ngs.la.SparseMatrixd.CreateFromCOO(rows, K.indices.astype(np.int64), K.data.astype(float), n, n)
+        # Python lists, not numpy arrays: CreateFromCOO converts arrays element by element
+        # (0.47 s for the paper cornea's 1.6 M entries, against 0.12 s + 0.11 s of tolist)
+        A = ngs.la.SparseMatrixd.CreateFromCOO(rows.tolist(), K.indices.tolist(), K.data.astype(float).tolist(), n, n)
         self._requested = kind
         with tm:
             try:
