@@ -73,6 +73,28 @@ def test_time_latency_times_haptic_step_and_reconstruction_apart():
     assert r.median == r.max == 5.0  # reconstruction alone
 
 
+def test_time_latency_keeps_every_timed_step_with_its_abscissa():
+    """The samples behind the median: one row per timed step, in order, summing to the stats;
+    a path's abscissa is the point's x, a parameter that is no point's falls back to the
+    parameter named x_name, and one with neither is NaN."""
+    clock = FakeClock()
+    lat = time_latency(Counting(clock), _path(10), steps=25, warmup=4, clock=clock)
+    rows = lat["samples"]
+    assert [r["sample"] for r in rows] == list(range(30))
+    assert [r["x"] for r in rows] == pytest.approx(list(np.linspace(0.1, 1, 10)) * 3)
+    hap = np.array([r["haptic_s"] for r in rows])
+    assert np.median(hap) == lat["haptic"].median and hap.max() == lat["haptic"].max
+    assert {r["reconstruct_s"] for r in rows} == {5.0}
+    # the abscissa of a point is its x even where it is not a parameter (a held-out distance)
+    held = Evaluation("path", "distance", [EvaluationPoint({"load_factor": 0.5}, None, {}, 0.25)],
+                      timing_mus=[{"load_factor": 0.5}, {"load_factor": 0.7}])
+    xs = [r["x"] for r in time_latency(Counting(clock), held, steps=2, warmup=0, clock=clock)["samples"]]
+    assert xs[0] == 0.25 and np.isnan(xs[1])
+    held.x_name = "load_factor"
+    xs = [r["x"] for r in time_latency(Counting(clock), held, steps=2, warmup=0, clock=clock)["samples"]]
+    assert xs == [0.25, 0.7]
+
+
 def test_time_latency_refuses_an_empty_evaluation():
     with pytest.raises(ValueError, match="empty"):
         time_latency(Counting(FakeClock()), _path(0), clock=FakeClock())

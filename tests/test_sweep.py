@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from tissuebench.cli import main
-from tissuebench.studies.results import ResultsStore, SweepLocked, read_points, read_units
+from tissuebench.studies.results import ResultsStore, SweepLocked, read_latency, read_points, read_units
 from tissuebench.studies.schema import UNIT_COLUMNS
 from tissuebench.studies.spec import expand_units, list_presets, load_spec
 from tissuebench.studies.sweep import run_sweep
@@ -175,9 +175,17 @@ def test_store_has_one_row_per_unit_with_the_declared_schema(serial):
     assert (units["blas_threads"] == 1).all() and (units["calibration_s"] > 0).all()
     points = read_points(out)
     assert len(points) == sum(units["n_points"])
+    # every timed step is stored (the samples behind median and p99), with the path's load factor
+    latency = read_latency(out).set_index("unit_key")
+    for row in units.itertuples():
+        mine = latency.loc[row.unit_key]
+        assert len(mine) == row.haptic_n and mine["haptic_s"].median() == pytest.approx(row.haptic_median_s)
+        xs = points.loc[points["unit_key"] == row.unit_key, "x"]
+        assert mine["x"].between(xs.min(), xs.max()).all()
     man = json.loads((out / "_sweep.json").read_text())
     assert man["state"] == "finished" and len(man["units"]) == 7 and man["spec_hash"]
-    for name in ("pareto.parquet", "radius.parquet", "pareto_cornea_pinch.png", "radius.png"):
+    for name in ("pareto.parquet", "radius.parquet", "pareto_cornea_pinch.png", "radius.png",
+                 "errors_cornea_pinch.png", "latency_cornea_pinch.png"):
         assert (out / "_derived" / name).is_file()
     assert pd.read_parquet(out / "_derived" / "pareto.parquet")["pareto"].any()
 

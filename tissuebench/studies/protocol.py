@@ -132,40 +132,57 @@ def _start(model, evaluation, seq):
         model.start(seq[0])
 
 
+def _abscissae(evaluation, seq) -> list:
+    """The evaluation abscissa of every timed parameter: the ``x`` of the evaluation point with
+    the same ``mu`` (a scalpel's cut length, a held-out position's distance), else the
+    parameter named ``x_name`` (a trajectory's time, a map's random draw), else NaN."""
+    at_point = {repr(sorted(p.mu.items())): p.x for p in evaluation.points}
+    return [float(at_point.get(repr(sorted(mu.items())), mu.get(evaluation.x_name, np.nan))) for mu in seq]
+
+
 def time_latency(model, evaluation, history=None, steps: int = 200, warmup: int = 20, seed: int = 0,
                  clock=time.perf_counter) -> dict:
-    """Latency pass (module docstring, 2): ``{"haptic": LatencyStats, "reconstruct": LatencyStats | None}``.
+    """Latency pass (module docstring, 2).
 
+    Returns ``{"haptic": LatencyStats, "reconstruct": LatencyStats | None, "samples": rows}``,
+    ``rows`` one dict per timed step in timing order: ``sample``, ``x`` (its abscissa, see
+    :func:`_abscissae`), ``haptic_s`` and ``reconstruct_s`` [s] (NaN where nothing was
+    reconstructed): the distribution per cut length or load factor (pgd-cutting Fig. 8).
     ``clock`` returns seconds (injectable, for testing the protocol with exact durations)."""
     seq = _timing_sequence(model, evaluation, history, steps, seed)
     if not seq:
         raise ValueError("time_latency: an empty evaluation set cannot be timed")
+    xs = _abscissae(evaluation, seq)
     _start(model, evaluation, seq)
     for mu in seq[:warmup]:
         res = model.step(mu)
         model.outputs(res)
         if res.q is not None:
             model.reconstruct(res)
-    haptic, recon = [], []
+    haptic, recon, samples = [], [], []
     while len(haptic) < steps:
         _start(model, evaluation, seq)
-        for mu in seq:
+        for mu, x in zip(seq, xs):
             t0 = clock()
             res = model.step(mu)
             model.outputs(res)
             t1 = clock()
             haptic.append(t1 - t0)
+            r = np.nan
             if res.q is not None:
                 if res.mu is None:
                     res.mu = mu
                 t2 = clock()
                 model.reconstruct(res)
-                recon.append(clock() - t2)
+                r = clock() - t2
+                recon.append(r)
+            samples.append({"sample": len(samples), "x": x, "haptic_s": t1 - t0, "reconstruct_s": r})
             if res.status == "failed" and evaluation.kind == "trajectory":
                 break
         if not haptic:
             break
-    return {"haptic": latency_stats(haptic), "reconstruct": latency_stats(recon) if recon else None}
+    return {"haptic": latency_stats(haptic), "reconstruct": latency_stats(recon) if recon else None,
+            "samples": samples}
 
 
 def calibration_seconds(n: int = 256, repeats: int = 30, seed: int = 0) -> float:

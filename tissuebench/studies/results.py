@@ -5,12 +5,13 @@ Layout of a results folder ``DIR``::
     DIR/case=<id>/method=<name>/<key>.parquet          one row per unit (UNIT_COLUMNS)
     DIR/_points/case=<id>/method=<name>/<key>.parquet  one row per evaluation point
     DIR/_outputs/case=<id>/method=<name>/<key>.parquet one row per (point, monitored output)
+    DIR/_latency/case=<id>/method=<name>/<key>.parquet one row per timed haptic step
     DIR/_derived/                                      pareto.parquet, radius.parquet, PNG plots
     DIR/_sweep.json                                    the spec, its hash, provenance, unit keys
     DIR/.lock                                          held while a sweep writes (pid, host)
 
 ``pandas.read_parquet(DIR)`` reads the unit rows (folders and files starting with ``_`` or
-``.`` are not part of the dataset). A unit's points and outputs are written first, its row
+``.`` are not part of the dataset). A unit's points, outputs and latency samples are written first, its row
 last: each file goes to a temporary name and is renamed into place, so the row file is
 the unit's completion marker; a killed sweep leaves at most temporary files, removed at
 the next start. A row file that cannot be read back (truncated by a disk fault) does not
@@ -27,10 +28,12 @@ from pathlib import Path
 import pandas as pd
 import pyarrow.parquet as pq
 
-from .schema import OUTPUT_COLUMNS, POINT_COLUMNS, UNIT_COLUMNS, conform
+from .schema import LATENCY_COLUMNS, OUTPUT_COLUMNS, POINT_COLUMNS, UNIT_COLUMNS, conform
 from .store import write_json_atomic
 
-__all__ = ["ResultsStore", "SweepLocked", "read_units", "read_points", "read_outputs"]
+__all__ = ["ResultsStore", "SweepLocked", "read_units", "read_points", "read_outputs", "read_latency"]
+
+_SIDE_TABLES = ("_points", "_outputs", "_latency")
 
 _SAFE = re.compile(r"[A-Za-z0-9_.-]+")
 
@@ -118,7 +121,7 @@ class ResultsStore:
         return out
 
     def write_unit(self, outcome) -> Path:
-        """Write a unit's points, outputs, then its row (the completion marker)."""
+        """Write a unit's points, outputs, latency samples, then its row (the completion marker)."""
         row = dict(outcome.row)
         case, method, key = row.pop("case"), row.pop("method"), row["unit_key"]
         rel = self._rel(case, method, key)
@@ -126,12 +129,14 @@ class ResultsStore:
                      self.root / "_points" / rel)
         _write_table(conform([{**o, "unit_key": key} for o in outcome.outputs], OUTPUT_COLUMNS),
                      self.root / "_outputs" / rel)
+        _write_table(conform([{**s, "unit_key": key} for s in outcome.latency], LATENCY_COLUMNS),
+                     self.root / "_latency" / rel)
         _write_table(conform([row], UNIT_COLUMNS), self.root / rel)
         return self.root / rel
 
     def remove_unit(self, case: str, method: str, key: str) -> None:
         rel = self._rel(case, method, key)
-        for base in (self.root, self.root / "_points", self.root / "_outputs"):
+        for base in (self.root, *(self.root / t for t in _SIDE_TABLES)):
             (base / rel).unlink(missing_ok=True)
 
     def write_manifest(self, data: dict) -> None:
@@ -174,3 +179,9 @@ def read_points(root) -> pd.DataFrame:
 
 def read_outputs(root) -> pd.DataFrame:
     return _read(Path(root) / "_outputs")
+
+
+def read_latency(root) -> pd.DataFrame:
+    """The timed haptic steps of every unit (``LATENCY_COLUMNS``; empty for a folder written
+    before they were stored)."""
+    return _read(Path(root) / "_latency")

@@ -3,7 +3,8 @@
 ``UNIT_COLUMNS`` is one row per unit (the Parquet dataset ``pandas.read_parquet(DIR)``
 reads; ``case`` and ``method`` come from the partition folders ``case=<id>/method=<name>``);
 ``POINT_COLUMNS`` one row per evaluation point (``DIR/_points``); ``OUTPUT_COLUMNS`` one row
-per (point, monitored output) (``DIR/_outputs``). Every file of a dataset is written with
+per (point, monitored output) (``DIR/_outputs``); ``LATENCY_COLUMNS`` one row per timed haptic
+step (``DIR/_latency``: the samples behind a unit's median and p99). Every file of a dataset is written with
 exactly its schema, so the datasets read back with one set of columns and types.
 """
 from __future__ import annotations
@@ -12,7 +13,8 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
-__all__ = ["UNIT_COLUMNS", "POINT_COLUMNS", "OUTPUT_COLUMNS", "PARTITIONS", "arrow_schema", "conform"]
+__all__ = ["UNIT_COLUMNS", "POINT_COLUMNS", "OUTPUT_COLUMNS", "LATENCY_COLUMNS", "PARTITIONS", "arrow_schema",
+           "conform"]
 
 PARTITIONS = ("case", "method")
 
@@ -51,6 +53,8 @@ POINT_COLUMNS = {"unit_key": _S, "point": _I, "x": _F, "group": _F, "mu": _S, "s
                  # reference (studies/energy.py), NaN elsewhere
                  "energy_rel": _F, "reference_energy_rel": _F}
 OUTPUT_COLUMNS = {"unit_key": _S, "point": _I, "x": _F, "monitor": _S, "reference": _F, "rom": _F, "rel_error": _F}
+# x: the evaluation abscissa of the timed parameter (protocol._abscissae), NaN when it has none
+LATENCY_COLUMNS = {"unit_key": _S, "sample": _I, "x": _F, "haptic_s": _F, "reconstruct_s": _F}
 
 
 def arrow_schema(columns: dict) -> pa.Schema:

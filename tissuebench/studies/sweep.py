@@ -21,7 +21,7 @@ import pandas as pd
 
 from .executors import check_executor, execute
 from .metrics import TOLERANCES, pareto_front
-from .results import ResultsStore, read_outputs, read_points, read_units
+from .results import ResultsStore, read_latency, read_outputs, read_points, read_units
 from .spec import SweepSpec, expand_units
 from .store import check_output_location, provenance
 
@@ -137,15 +137,19 @@ def _line(done, total, unit, row, error_metric="max_rel_l2") -> str:
 
 
 def plot_trends(out: Path, units, error_metric: str, folder: Path) -> list[Path]:
-    """The grid-following figures of :mod:`~tissuebench.reports.trend_plots` into ``folder``."""
+    """The grid-following figures of :mod:`~tissuebench.reports.trend_plots` and
+    :mod:`~tissuebench.reports.point_plots` into ``folder``."""
+    from ..reports.point_plots import plot_latency, plot_point_errors
     from ..reports.trend_plots import plot_case_trends, plot_histories, plot_option_trends, plot_spectra
 
     manifest = out / "_sweep.json"
     cases = json.loads(manifest.read_text()).get("cases", []) if manifest.is_file() else []
-    outputs = read_outputs(out)
-    return (plot_histories(units, read_points(out), outputs, folder, error_metric)
+    outputs, points = read_outputs(out), read_points(out)
+    return (plot_histories(units, points, outputs, folder, error_metric)
             + plot_spectra(units, outputs, folder, error_metric) + plot_option_trends(units, folder, error_metric)
-            + plot_case_trends(units, cases, folder, error_metric))
+            + plot_case_trends(units, cases, folder, error_metric)
+            + plot_point_errors(units, points, folder, error_metric)
+            + plot_latency(units, read_latency(out), folder, error_metric))
 
 
 def paper_points(out: Path) -> pd.DataFrame:

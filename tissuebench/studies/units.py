@@ -77,6 +77,7 @@ class UnitOutcome:
     row: dict
     points: list = field(default_factory=list)
     outputs: list = field(default_factory=list)
+    latency: list = field(default_factory=list)  # one dict per timed haptic step (LATENCY_COLUMNS)
 
 
 def _nbytes(obj, seen=None, depth=0) -> int:
@@ -121,10 +122,11 @@ def run_unit(unit: WorkUnit) -> UnitOutcome:
         with threadpool_limits(limits=threads, user_api="blas"):
             row.update(_measure(unit, row))
             row.update(unit_status="ok", message="", unit_wall_s=time.perf_counter() - t0)
-            return UnitOutcome(row, row.pop("_points"), row.pop("_outputs"))
+            return UnitOutcome(row, row.pop("_points"), row.pop("_outputs"), row.pop("_latency"))
     except Exception as exc:  # a method that raises is a stored result, not the end of the sweep
         tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
-        row.pop("_points", None), row.pop("_outputs", None)
+        for side in ("_points", "_outputs", "_latency"):
+            row.pop(side, None)
         row.update(unit_status="failed", message=f"{tb} (in {_where(exc)})", unit_wall_s=time.perf_counter() - t0)
         return UnitOutcome(row)
 
@@ -169,7 +171,7 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
             **{k: evaluation.info.get(k) for k in ("reference_status", "reference_message",
                                                      "reference_energy_growth")}, **energy,
             "model_info": json.dumps(_jsonable(getattr(model, "info", {}))),
-            "_points": points.to_dict("records"), "_outputs": outputs.to_dict("records")}
+            "_points": points.to_dict("records"), "_outputs": outputs.to_dict("records"), "_latency": lat["samples"]}
 
 
 def _energy_drift(evaluation, driven, backend) -> tuple[dict, dict]:
