@@ -334,6 +334,20 @@ def test_nested_units_are_sliced_from_one_build_and_equal_fresh_builds(serial, t
         assert fresh.loc[label, col] == pytest.approx(sliced.loc[label, col], rel=1e-9, abs=1e-15), col
 
 
+def test_the_units_of_one_nested_group_run_one_after_another(tmp_path):
+    """n_modes (nested) varies fastest in the grid: the units still come group by group (one
+    parent build per group in a process), every option set once, groups in first-seen order."""
+    spec = tmp_path / "g.toml"
+    spec.write_text('[sweep]\nname = "g"\n[[case]]\nname = "heat1d_source"\ntraining = { kind = "operators" }\n'
+                    'evaluation = { kind = "map", mus = [{ position = 0.3 }] }\n[[method]]\nname = "pgd"\n'
+                    'list = [{ n_modes = 1, projection = "srb" }, { n_modes = 1, projection = "prb" }, '
+                    '{ n_modes = 3, projection = "srb" }, { n_modes = 3, projection = "prb" }, { n_modes = 2, '
+                    'projection = "srb", tol = 1e-6 }]\n')
+    units = expand_units(load_spec(spec))
+    got = [(u.options["projection"], u.options["n_modes"], (u.parent_options or {}).get("n_modes")) for u in units]
+    assert got == [("srb", 1, 3), ("srb", 3, 3), ("prb", 1, 3), ("prb", 3, 3), ("srb", 2, None)]
+
+
 def test_cases_option_keeps_only_the_named_cases():
     spec = load_spec("anm_pod", resolution="paper", only=["liver_palpation", "liver_palpation-heldout"])
     units = expand_units(spec)

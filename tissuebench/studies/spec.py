@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import hashlib
 import itertools
+import json
 import re
 import tomllib
 from dataclasses import dataclass
@@ -296,15 +297,23 @@ def load_spec(spec_or_preset, resolution: str | None = None, only: list | None =
 
 
 def expand_units(spec: SweepSpec) -> list[WorkUnit]:
-    """One :class:`WorkUnit` per (case, method, option set), in spec order, keys computed."""
+    """One :class:`WorkUnit` per (case, method, option set), keys computed: in spec order,
+    except that the option sets of one nested group (one parent, :func:`_nested_parents`)
+    run one after another, where the group first appears, so that a process builds each
+    parent once (a grid whose nested option varies fastest would otherwise interleave the
+    groups and rebuild their parents unit after unit)."""
     scene_hashes = {c["id"]: case_scene(c).content_hash() for c in spec.cases}
     by_id = {c["id"]: c for c in spec.cases}
     meta = {"name": spec.name, "hash": spec.hash}
     units = []
     for m in spec.methods:
         parents = _nested_parents(m["name"], m["option_sets"])
+        groups = {}
+        for i, parent in enumerate(parents):
+            groups.setdefault(i if parent is None else json.dumps(parent, sort_keys=True), []).append(i)
+        order = [i for members in groups.values() for i in members]
         for cid in m["cases"]:
-            for opts, parent in zip(m["option_sets"], parents):
+            for opts, parent in ((m["option_sets"][i], parents[i]) for i in order):
                 case = by_id[cid]
                 key = unit_key(case, scene_hashes[cid], m["name"], opts, m["protocol"])
                 units.append(WorkUnit(case, m["name"], opts, dict(m["protocol"]), meta, key, parent))
