@@ -71,3 +71,22 @@ def test_latency_figure_has_the_per_abscissa_panel_only_for_few_abscissae(tmp_pa
     assert a.name == b.name == "latency_cut.png"
     assert imread(a).shape[0] == 840 and imread(b).shape[0] == 420
     assert plot_latency(units, few[few["unit_key"] == "bad"], tmp_path / "c") == []  # only a failed unit timed
+
+
+def test_the_drawn_units_are_the_best_of_every_method_then_of_every_variant():
+    """srb beside prb, cracking-node beside condensed: the best of each categorical variant is
+    drawn before a second unit of a variant already shown, however good."""
+    import json
+
+    from tissuebench.reports.trend_plots import _best_units
+
+    rows = [{"method": "pgd_cutting", "unit_key": f"{e}-{p}-{n}", "max_rel_l2": err,
+             "options": json.dumps({"enrichment": e, "projection": p, "n_modes": n})}
+            for e, p, n, err in [("condensed", "srb", 30, 0.02), ("condensed", "srb", 20, 0.03),
+                                 ("condensed", "srb", 10, 0.06), ("cracking_node", "srb", 10, 0.28),
+                                 ("condensed", "prb", 10, 0.54), ("cracking_node", "prb", 10, 0.77),
+                                 ("cracking_node", "prb", 6, 0.8)]]
+    rows.append({"method": "pgd", "unit_key": "pgd", "max_rel_l2": 0.5, "options": "{}"})
+    chosen = _best_units(pd.DataFrame(rows), "max_rel_l2", 6)
+    assert list(chosen["unit_key"]) == ["condensed-srb-30", "pgd", "cracking_node-srb-10", "condensed-prb-10",
+                                        "cracking_node-prb-10", "condensed-srb-20"]

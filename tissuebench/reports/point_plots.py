@@ -11,7 +11,8 @@ and any method (trajectory units have their own ``history_<case>.png``):
   same process, and, where the timed steps fall on a few abscissae (cut lengths, load factors),
   the median and 99th percentile at each one (pgd-cutting Fig. 8: step time per cut length).
 
-Both draw the same units: the best of every method first, then the best of the rest.
+Both draw the same units: the best of every method first, then the best of every variant
+(categorical options: srb and prb, cracking-node and condensed), then the best of the rest.
 """
 from __future__ import annotations
 

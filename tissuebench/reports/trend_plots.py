@@ -39,12 +39,27 @@ def _numeric(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
+def _variant(row) -> tuple:
+    """A unit's method and its categorical options (projection, integrator, enrichment ...):
+    what a reader compares; the numeric ones (modes, handles) are what the best of it picks."""
+    try:
+        opts = json.loads(row["options"]) if isinstance(row.get("options"), str) else {}
+    except ValueError:
+        opts = {}
+    return (row["method"], *sorted((k, str(v)) for k, v in opts.items() if isinstance(v, (str, bool))))
+
+
 def _best_units(group: pd.DataFrame, error_metric: str, n: int) -> pd.DataFrame:
-    """The best unit of every method first, then the best of the rest, ``n`` in all."""
-    ranked = group.assign(_e=group[error_metric].fillna(np.inf)).sort_values("_e")
+    """The best unit of every method first, then of every other variant (method and
+    categorical options: srb beside prb, Bathe beside HHT), then the best of the rest, ``n``
+    in all."""
+    ranked = group.assign(_e=group[error_metric].fillna(np.inf)).sort_values("_e", kind="stable")
     first = ranked.drop_duplicates("method")
-    rest = ranked.drop(first.index)
-    return pd.concat([first, rest]).head(n)
+    variants = ranked.drop(first.index)
+    variants = variants[~variants.apply(_variant, axis=1).isin(set(first.apply(_variant, axis=1)))]
+    second = variants.loc[~variants.apply(_variant, axis=1).duplicated()] if len(variants) else variants
+    rest = ranked.drop(first.index).drop(second.index)
+    return pd.concat([first, second, rest]).head(n).drop(columns="_e")
 
 
 def _energy_rows(points, keys) -> pd.DataFrame:
