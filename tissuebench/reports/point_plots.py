@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from .figures import pyplot
+from .format import seconds
 from .sweep_plots import _file_part
 from .trend_plots import _best_units
 
@@ -98,7 +99,7 @@ def _distribution_panel(ax, chosen, samples, short):
     ref = ref[np.isfinite(ref)]
     if ref.size:
         ax.axvline(float(np.median(ref)), color="k", ls="--", lw=1,
-                   label=f"full model's step {np.median(ref) * 1e3:.3g} ms (same process)")
+                   label=f"full model's step {seconds(float(np.median(ref)))} (same process)")
     ax.axvline(HAPTIC_BUDGET_S, color="tab:red", ls=":", lw=1, label="1 ms (1 kHz)")
     ax.set_xscale("log")
     ax.set_xlabel("haptic step [s]")
