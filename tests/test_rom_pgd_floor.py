@@ -77,3 +77,39 @@ def test_boundary_parameter_nodes_and_large_families():
     assert "max_parameters = 10" in skipped["skipped"] and "rms_rel_l2" not in skipped
     with pytest.raises(ValueError, match="n_modes"):
         rank_floor(family, 0)
+
+
+def _path_floor_example():
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    name = "pgd_cut_path_floor"
+    if name not in sys.modules:
+        path = Path(__file__).resolve().parents[1] / "examples" / f"{name}.py"
+        spec = importlib.util.spec_from_file_location(name, path)
+        sys.modules[name] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(sys.modules[name])
+    return sys.modules[name]
+
+
+def test_the_scalpel_path_floor_bounds_the_cracking_node_model():
+    """examples/pgd_cut_path_floor.py at ci (2 cut lengths): zero from 2 modes (two fields),
+    and the cracking-node model of 1 mode, srb or prb, is not below its 1-mode floor on the
+    preset's own evaluation (the bound holds whatever the basis)."""
+    from tissuebench.studies.evaluation import build_evaluation
+    from tissuebench.studies.spec import expand_units, load_spec
+    from tissuebench.studies.training import build_training, case_scene
+
+    out = _path_floor_example().main(["--resolution", "ci", "--modes", "1,2"])
+    assert out["n_cut_lengths"] == 2 and 0 < out["delta_max"] < 0.2
+    assert out["floors"][1] > 0.3 and out["floors"][2] < 1e-12
+    unit = next(u for u in expand_units(load_spec("pgd_cutting", only=["cornea_cut"])) if u.method == "pgd_cutting")
+    scene = case_scene(unit.case)
+    training = build_training(unit.case, scene)
+    for projection in ("srb", "prb"):
+        model = make_method("pgd_cutting", **{**unit.options, "n_modes": 1, "projection": projection}).build(training)
+        points = build_evaluation(unit.case, scene, model).points
+        e = [np.linalg.norm(model.reconstruct(model.step(p.mu)) - p.reference) / np.linalg.norm(p.reference)
+             for p in points]
+        assert np.sqrt(np.mean(np.square(e))) >= out["floors"][1], projection

@@ -1,5 +1,6 @@
 """Haptic step of the PGD cutting model (cornea_cut, ci resolution; the paper-resolution
-figures come from examples/pgd_cutting_study.py, which also times the full FE step).
+figures come from ``tissuebench sweep --preset pgd_cutting --resolution paper``, which also
+times the full FE step of each cut and draws the step time per cut length).
 
 Timed with pytest-benchmark (``pytest -n 0 tests/benchmarks/test_bench_pgd.py --benchmark-enable``);
 the plain test run executes each once, untimed. Target (issue 12, at paper resolution):

@@ -24,7 +24,28 @@ import numpy as np
 from ...refsolvers.sparse_direct import factorized
 from .family import PointLoadFamily
 
-__all__ = ["rank_floor"]
+__all__ = ["rank_floor", "snapshot_floor"]
+
+
+def snapshot_floor(U: np.ndarray, n_modes: int) -> dict:
+    """Eckart-Young floor of the columns of ``U`` (n, m), each scaled to unit norm: no space of
+    ``n_modes`` dimensions approximates them with an RMS relative error below ``rms_rel_l2``;
+    ``max_rel_l2_svd`` is the worst column of the projection on the leading singular vectors.
+    Zero columns (nothing to approximate) are counted apart."""
+    if isinstance(n_modes, bool) or not isinstance(n_modes, (int, np.integer)) or n_modes < 1:
+        raise ValueError(f"snapshot_floor: n_modes must be an integer >= 1, got {n_modes!r}")
+    U = np.asarray(U, float)
+    if U.ndim != 2 or not np.all(np.isfinite(U)):
+        raise ValueError(f"snapshot_floor: U must be a finite 2D array (n, m), got shape {U.shape}")
+    norms = np.linalg.norm(U, axis=0)
+    live = norms > 0  # a load on a clamped boundary node moves nothing: every model is exact there
+    Un = U[:, live] / norms[live]
+    Q, s, _ = np.linalg.svd(Un, full_matrices=False)
+    V = Q[:, :n_modes]
+    e = np.linalg.norm(Un - V @ (V.T @ Un), axis=0)
+    return {"n_modes": int(n_modes), "n_parameters": int(live.sum()), "n_zero_responses": int((~live).sum()),
+            "rms_rel_l2": float(np.sqrt(np.sum(s[n_modes:] ** 2) / max(int(live.sum()), 1))),
+            "max_rel_l2_svd": float(e.max()) if e.size else 0.0}
 
 
 def rank_floor(family: PointLoadFamily, n_modes: int, max_parameters: int = 400) -> dict:
@@ -44,14 +65,5 @@ def rank_floor(family: PointLoadFamily, n_modes: int, max_parameters: int = 400)
         return {"n_modes": int(n_modes), "n_parameters": n_s,
                 "skipped": f"{n_s} parameter nodes > max_parameters = {max_parameters} (as many full solves)"}
     U = factorized(family.K)(family.loads.toarray())
-    norms = np.linalg.norm(U, axis=0)
-    live = norms > 0  # a load on a clamped boundary node moves nothing: every model is exact there
-    Un = U[:, live] / norms[live]
-    n_s = int(live.sum())
-    Q, s, _ = np.linalg.svd(Un, full_matrices=False)
-    V = Q[:, :n_modes]
-    e = np.linalg.norm(Un - V @ (V.T @ Un), axis=0)
-    return {"n_modes": int(n_modes), "n_parameters": n_s, "n_zero_responses": int((~live).sum()),
-            "rms_rel_l2": float(np.sqrt(np.sum(s[n_modes:] ** 2) / n_s)),
-            "max_rel_l2_svd": float(e.max()),
+    return {**snapshot_floor(U, n_modes),
             "norm": "Euclidean on the free dofs, every response scaled to 1; mean over the parameter nodes"}
