@@ -54,12 +54,15 @@ def _best_units(group: pd.DataFrame, error_metric: str, n: int) -> pd.DataFrame:
     categorical options: srb beside prb, Bathe beside HHT), then the best of the rest, ``n``
     in all."""
     ranked = group.assign(_e=group[error_metric].fillna(np.inf)).sort_values("_e", kind="stable")
-    first = ranked.drop_duplicates("method")
-    variants = ranked.drop(first.index)
-    variants = variants[~variants.apply(_variant, axis=1).isin(set(first.apply(_variant, axis=1)))]
-    second = variants.loc[~variants.apply(_variant, axis=1).duplicated()] if len(variants) else variants
-    rest = ranked.drop(first.index).drop(second.index)
-    return pd.concat([first, second, rest]).head(n).drop(columns="_e")
+    first = list(ranked.drop_duplicates("method").index)
+    seen, second = {_variant(ranked.loc[i]) for i in first}, []
+    for i in ranked.index:
+        v = _variant(ranked.loc[i])
+        if i not in first and v not in seen:
+            seen.add(v)
+            second.append(i)
+    rest = [i for i in ranked.index if i not in first and i not in second]
+    return ranked.loc[first + second + rest].head(n).drop(columns="_e")
 
 
 def _energy_rows(points, keys) -> pd.DataFrame:
