@@ -37,8 +37,8 @@ HEADER = """# gate test baseline: a comment that --update-baseline must keep
 [defaults]
 error_rtol = 0.25
 error_atol = 1e-9
-latency_tolerance = 1.5   # the 2x slowdown below must trip it
-reference_latency_tolerance = 1.5
+latency_tolerance = 4   # the 12x slowdown below must trip it; identical runs differ by up to 2.3x
+reference_latency_tolerance = 4
 latency_floor = 0.0   # the steps here are microseconds: no floor, or the slowdown would hide under it
 """
 
@@ -61,13 +61,13 @@ def test_a_run_holds_against_its_own_baseline(gated, capsys):
     assert main(["check", str(out), "--baseline", str(baseline)]) == 0
     assert "2 units hold" in capsys.readouterr().out
     text = baseline.read_text()
-    assert text.startswith("# gate test baseline") and "latency_tolerance = 1.5   # the 2x slowdown" in text
+    assert text.startswith("# gate test baseline") and "latency_tolerance = 4   # the 12x slowdown" in text
     _, units = load_baseline(baseline)
     assert {u["method"] for u in units} == {"anm_pod", "pod_interp"}
     assert all(u["latency_per_calibration"] > 0 and u["latency_per_reference"] > 0 for u in units)
 
 
-def _slow_step(monkeypatch, factor=2.0):
+def _slow_step(monkeypatch, factor=12.0):
     """Every ANM-POD step takes ``factor`` times its own duration (busy wait, not sleep)."""
     original = AnmPodModel.step
 
@@ -81,7 +81,7 @@ def _slow_step(monkeypatch, factor=2.0):
     monkeypatch.setattr(AnmPodModel, "step", slowed)
 
 
-def test_an_injected_2x_slowdown_fails_the_gate(gated, tmp_path, monkeypatch, capsys):
+def test_an_injected_12x_slowdown_fails_the_gate(gated, tmp_path, monkeypatch, capsys):
     spec, _, baseline = gated
     _slow_step(monkeypatch)
     out = tmp_path / "slow"
@@ -109,19 +109,19 @@ def _scaled_baseline(baseline, tmp_path, factor, floor):
 
 
 def test_the_latency_floor_spares_microsecond_noise_only(gated, tmp_path):
-    """A run 3x slower than its baseline (the baseline scaled down by 3) fails without a floor;
+    """A run 6x slower than its baseline (the baseline scaled down by 6) fails without a floor;
     with a floor above the units' steps it holds; with a floor below them it fails again, and so
-    it does when the floor raises the baseline but not past the step over the tolerance (1.5)."""
+    it does when the floor raises the baseline but not past the step over the tolerance (4)."""
     _, out, baseline = gated
     steps = [u["latency_per_calibration"] for u in load_baseline(baseline)[1]]
-    slower = lambda floor: check(out, _scaled_baseline(baseline, tmp_path, 1 / 3, floor))  # noqa: E731
+    slower = lambda floor: check(out, _scaled_baseline(baseline, tmp_path, 1 / 6, floor))  # noqa: E731
     assert {f.metric for f in slower(0.0).regressions} == {"latency_per_calibration", "latency_per_reference"}
     assert slower(2 * max(steps)).ok
     below = slower(min(steps) / 10)
     assert {f.metric for f in below.regressions} == {"latency_per_calibration", "latency_per_reference"}
     assert not any("floor" in f.tolerance for f in below.regressions)
     # a floor that raises the baseline but stays under the step / tolerance still catches it
-    raised = slower(min(steps) / 2)
+    raised = slower(min(steps) / 5)  # above the scaled baseline (1/6), below the step / tolerance (1/4)
     fastest = min(load_baseline(baseline)[1], key=lambda u: u["latency_per_calibration"])["method"]
     assert {f.metric for f in raised.per_unit[next(k for k in raised.per_unit if k[1] == fastest)]
             if "floor" in f.tolerance} == {"latency_per_calibration", "latency_per_reference"}
@@ -139,8 +139,10 @@ def test_a_less_accurate_method_fails_the_gate(gated, tmp_path, monkeypatch):
     run_sweep(load_spec(spec), out, progress=False)
     result = check(out, baseline)
     assert not result.ok
-    assert [f.metric for f in result.regressions] == ["error"]
-    assert result.regressions[0].now == pytest.approx(0.02, rel=1e-3)
+    # the error finding, exactly once; this run's latency against the baseline's depends on the
+    # machine's load at that moment (microsecond steps, no floor here), so it is not asserted
+    errors = [f for f in result.regressions if f.metric == "error"]
+    assert len(errors) == 1 and errors[0].now == pytest.approx(0.02, rel=1e-3)
 
 
 def test_a_missing_unit_is_a_regression(gated, tmp_path):
