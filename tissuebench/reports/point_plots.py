@@ -33,14 +33,18 @@ HAPTIC_BUDGET_S = 1e-3  # 1 kHz: the haptic rate the papers aim at
 MAX_ABSCISSAE = 60  # more distinct abscissae than this (random draws): no per-abscissa panel
 
 
-def _chosen(units: pd.DataFrame, error_metric: str) -> dict:
-    """``{case: the units drawn}`` of the non-trajectory units that finished."""
+def _per_case(units: pd.DataFrame, table: pd.DataFrame, error_metric: str):
+    """Yield ``(case, units drawn, error metric, rows of table of those units)`` for every case
+    of the non-trajectory units that finished and have rows in ``table``."""
+    if units.empty or table.empty:
+        return
     ok = units[(units["unit_status"] == "ok") & (units["kind"] != "trajectory")]
-    out = {}
     for case, group in ok.groupby("case"):
         metric = error_metric if error_metric in group else "max_rel_l2"
-        out[case] = (_best_units(group, metric, MAX_UNITS), metric)
-    return out
+        chosen = _best_units(group, metric, MAX_UNITS)
+        rows = table[table["unit_key"].isin(chosen["unit_key"])]
+        if not rows.empty:
+            yield case, chosen, metric, rows
 
 
 def _short_labels(chosen: pd.DataFrame) -> tuple[list[str], str]:
@@ -53,23 +57,21 @@ def _short_labels(chosen: pd.DataFrame) -> tuple[list[str], str]:
     return short, " ".join(common)
 
 
-def _save(fig, folder: Path, stem: str, case: str) -> Path:
+def _save(plt, fig, folder: Path, stem: str, case: str) -> Path:
     fig.tight_layout()
     path = Path(folder) / f"{stem}_{_file_part(case)}.png"
     fig.savefig(path, dpi=100)
+    plt.close(fig)
     return path
 
 
 def plot_point_errors(units: pd.DataFrame, points: pd.DataFrame, folder: Path,
                       error_metric: str = "max_rel_l2") -> list[Path]:
     """``errors_<case>.png`` for every case with at least two abscissae with a reference."""
-    if units.empty or points.empty:
-        return []
     plt = pyplot()
     paths = []
-    finite = points[np.isfinite(points["rel_l2"]) & points["has_reference"].astype(bool)]
-    for case, (chosen, metric) in _chosen(units, error_metric).items():
-        mine = finite[finite["unit_key"].isin(chosen["unit_key"])]
+    finite = points[np.isfinite(points["rel_l2"]) & points["has_reference"].astype(bool)] if len(points) else points
+    for case, chosen, metric, mine in _per_case(units, finite, error_metric):
         if mine["x"].nunique() < 2:
             continue
         fig, ax = plt.subplots(figsize=(8, 4.2))
@@ -84,8 +86,7 @@ def plot_point_errors(units: pd.DataFrame, points: pd.DataFrame, folder: Path,
         ax.set_title(f"{case}: error along the evaluation ({metric} in the legend)\n{common}", fontsize=9)
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=6)
-        paths.append(_save(fig, folder, "errors", case))
-        plt.close(fig)
+        paths.append(_save(plt, fig, folder, "errors", case))
     return paths
 
 
@@ -136,14 +137,9 @@ def _abscissa_panel(ax, chosen, samples, short):
 def plot_latency(units: pd.DataFrame, latency: pd.DataFrame, folder: Path,
                  error_metric: str = "max_rel_l2") -> list[Path]:
     """``latency_<case>.png`` for every case whose drawn units have timed steps."""
-    if units.empty or latency.empty:
-        return []
     plt = pyplot()
     paths = []
-    for case, (chosen, _) in _chosen(units, error_metric).items():
-        samples = latency[latency["unit_key"].isin(chosen["unit_key"])]
-        if samples.empty:
-            continue
+    for case, chosen, _, samples in _per_case(units, latency, error_metric):
         n_x = samples.loc[np.isfinite(samples["x"])].groupby("unit_key")["x"].nunique()
         per_x = len(n_x) > 0 and 1 < n_x.max() <= MAX_ABSCISSAE
         short, common = _short_labels(chosen)
@@ -153,6 +149,5 @@ def plot_latency(units: pd.DataFrame, latency: pd.DataFrame, folder: Path,
                              fontsize=9)
         if per_x:
             _abscissa_panel(axes[1, 0], chosen, samples, short)
-        paths.append(_save(fig, folder, "latency", case))
-        plt.close(fig)
+        paths.append(_save(plt, fig, folder, "latency", case))
     return paths
