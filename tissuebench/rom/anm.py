@@ -71,7 +71,10 @@ class AnmSeries:
         # Horner tables, kept as Python floats for the microsecond root search
         self._Z = np.vstack([self.u0[None, :], self.u])
         self._c = [float(self.lam0), *map(float, self.lam)]
+        self._rc = tuple(reversed(self._c))  # highest order first: Horner's order
+        self._exps = np.arange(len(self._c), dtype=float)
         self._mono = None  # (lo, hi): lam'(a) > 0 on (lo, hi) around 0, computed at first use
+        self._table = None  # (lam values, a values) of prepare_roots: the brackets of the fast root
 
     @property
     def order(self) -> int:
@@ -101,8 +104,46 @@ class AnmSeries:
 
     def evaluate(self, a: float):
         """(u(a), lam(a)): state in the series' space, shape (n,), and load factor."""
-        pw = np.array([a ** p for p in range(len(self._c))])
-        return pw @ self._Z, self.load_factor(a)
+        return self.state(a), self.load_factor(a)
+
+    def state(self, a: float) -> np.ndarray:
+        """u(a) (n,): the powers ``a^0 .. a^N`` times the coefficient rows (one product)."""
+        return (a ** self._exps) @ self._Z
+
+    def prepare_roots(self, n: int = 257) -> bool:
+        """Tabulate lam(a) on ``n`` points of the bracket :meth:`load_factor_to_a` searches
+        (the monotone interval around 0 within ``a_end``), so :meth:`root` starts Newton from
+        the linear interpolant of the inverse inside one table interval: one or two Horner
+        steps instead of a search from 0 (the online step of a precomputed continuation).
+        The table is evaluated by the same Horner scheme as the search, so the bracket holds
+        in floating point. False (no table) when the bracket is empty or unbounded.
+        """
+        lim = self.a_end if self.a_end is not None else math.inf
+        lo, hi = self.monotone_interval()
+        a_lo, a_hi = max(lo, -lim), min(hi, lim)
+        self._table = None
+        if not (a_lo < a_hi and math.isfinite(a_lo) and math.isfinite(a_hi)):
+            return False
+        A = np.linspace(a_lo, a_hi, int(n)).tolist()
+        A[0], A[-1] = a_lo, a_hi
+        L = [_horner(self._c, a)[0] for a in A]
+        if not all(x < y for x, y in zip(L, L[1:])):
+            return False
+        self._table = (L, A)
+        return True
+
+    def root(self, lam_star: float):
+        """:meth:`load_factor_to_a` (default limit), from the table of :meth:`prepare_roots`
+        when it brackets ``lam_star``: the same root (the unique one of the monotone bracket)
+        to the last bits of Newton's convergence test."""
+        t = self._table
+        if t is not None:
+            L, A = t
+            j = bisect.bisect_right(L, lam_star) - 1
+            if 0 <= j < len(L) - 1:
+                l0, a0, a1 = L[j], A[j], A[j + 1]
+                return _newton_in(self._rc, lam_star, a0, a1, a0 + (a1 - a0) * (lam_star - l0) / (L[j + 1] - l0))
+        return self.load_factor_to_a(lam_star)
 
     def load_factor_to_a(self, lam_star: float, a_limit: float | None = None):
         """The ``a`` with ``lam(a) = lam_star`` nearest to 0 on the side of ``lam_star - lam0``.
@@ -186,6 +227,32 @@ def _bracketed_root(c, target, lo, hi):
     a = 0.0 if lo <= 0.0 <= hi else 0.5 * (lo + hi)
     for _ in range(100):
         v, d = _horner(c, a)
+        v -= target
+        if v == 0.0:
+            return a
+        if v < 0:
+            lo = a
+        else:
+            hi = a
+        nxt = a - v / d if d > 0 else 0.5 * (lo + hi)
+        if not lo < nxt < hi:
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - a) <= 1e-15 * max(abs(nxt), 1e-300) or hi - lo <= 1e-15 * max(abs(hi), abs(lo)):
+            return nxt
+        a = nxt
+    return a
+
+
+def _newton_in(rc, target, lo, hi, a):
+    """The root of ``p(a) = target`` in [lo, hi] where p increases and changes sign, from ``a``:
+    Newton safeguarded by bisection, the convergence test of :func:`_bracketed_root`
+    (``rc``: coefficients, highest order first)."""
+    top, rest = rc[0], rc[1:]
+    for _ in range(100):
+        v, d = top, 0.0
+        for ck in rest:
+            d = d * a + v
+            v = v * a + ck
         v -= target
         if v == 0.0:
             return a
