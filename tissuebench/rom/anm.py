@@ -136,7 +136,9 @@ class AnmSeries:
         """:meth:`load_factor_to_a` (default limit), from the table of :meth:`prepare_roots`
         when it brackets ``lam_star``: the same root (the unique one of the monotone bracket)
         to the last bits of Newton's convergence test."""
-        t = self._table
+        t, rc = self._table, self._rc
+        if len(rc) == 2 and rc[0] > 0.0 and (self.a_end is None or self.a_end == math.inf):
+            return (lam_star - rc[1]) / rc[0]  # order 1: lam = lam0 + lam1 a, no limit
         if t is not None:
             L, A = t
             j = bisect.bisect_right(L, lam_star) - 1
@@ -160,7 +162,7 @@ class AnmSeries:
             None when no root lies within the limit.
         """
         lim = (self.a_end if self.a_end is not None else math.inf) if a_limit is None else a_limit
-        lo, hi = self.monotone_interval()
+        lo, hi = self._monotone_within(lim)
         if lo < hi:  # lam increases on (lo, hi): a root there is the one nearest 0, and unique
             c = self._c
             if lam_star >= c[0]:
@@ -172,6 +174,21 @@ class AnmSeries:
             if (lam_star >= c[0] and hi >= lim) or (lam_star < c[0] and lo <= -lim):
                 return None  # monotone up to the limit and the target is not reached there
         return _robust_root(self._c, lam_star, lim)
+
+    def _monotone_within(self, lim: float) -> tuple[float, float]:
+        """:meth:`monotone_interval`, or ``(-lim, lim)`` when ``lam' > 0`` provably holds on
+        ``[-lim, lim]`` (``lam_1 > sum_k k |lam_k| lim^(k-1)``): the search then brackets the same
+        way and a series built for one step needs no roots of ``lam'`` (a companion-matrix
+        eigenvalue problem)."""
+        if self._mono is None and math.isfinite(lim) and len(self._c) > 2:
+            c = self._c
+            bound, p = 0.0, 1.0
+            for k in range(2, len(c)):
+                p *= lim
+                bound += k * abs(c[k]) * p
+            if c[1] > bound:
+                return -lim, lim
+        return self.monotone_interval()
 
     def monotone_interval(self) -> tuple[float, float]:
         """``(lo, hi)`` around 0 on which ``lam'(a) > 0`` (the roots of lam' nearest 0, or
@@ -466,8 +483,11 @@ def reduced_series(poly, q0=None, lam0: float = 0.0, order: int = 6) -> AnmSerie
         Reduced coefficients ``zeta_p`` (m,), tangent ``K_r(q0)`` factorised once.
     """
     m = poly.m
-    q0 = np.zeros(m) if q0 is None else np.asarray(q0, dtype=float)
-    K, Q0 = poly.about(q0)
+    if q0 is None:  # the expansion about the origin: K_t(0) = L, Q0 = Q (about(0) adds zeros)
+        q0, K, Q0 = np.zeros(m), poly.L, poly.Q
+    else:
+        q0 = np.asarray(q0, dtype=float)
+        K, Q0 = poly.about(q0)
     # m x m with m <= ~30: an explicit inverse costs less than the LAPACK wrappers' call
     # overhead (about 15 us per lu_solve) and is accurate for the well-conditioned K_r
     solve = (np.linalg.inv(K).__matmul__ if m <= 32 else

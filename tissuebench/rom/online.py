@@ -33,8 +33,8 @@ INVERSE_MAX = 32
 
 
 def parameter(mu, key: str, who: str) -> float:
-    """``mu[key]`` as a finite float; a Python float is returned as is (the haptic path), any
-    other value is converted or refused by :func:`~.base.check_parameters` (ValueError or
+    """``mu[key]`` as a finite float; a Python float is returned as is and a Python int converted
+    (the haptic path), any other value is converted or refused by :func:`~.base.check_parameters` (ValueError or
     TypeError naming ``who``, the key and the value)."""
     try:
         v = mu[key]
@@ -42,6 +42,8 @@ def parameter(mu, key: str, who: str) -> float:
         v = None
     if type(v) is float and v - v == 0.0:  # finite: inf - inf and nan - nan are nan
         return v
+    if type(v) is int:  # a node index, a cut length (bool is not int's type)
+        return float(v)
     from .base import check_parameters
 
     return float(check_parameters(mu, (key,), who)[key])
