@@ -75,6 +75,7 @@ class AnmSeries:
         self._exps = np.arange(len(self._c), dtype=float)
         self._mono = None  # (lo, hi): lam'(a) > 0 on (lo, hi) around 0, computed at first use
         self._table = None  # (lam values, a values) of prepare_roots: the brackets of the fast root
+        self._table_far = None  # the same for the search without limit (a step past the last series)
 
     @property
     def order(self) -> int:
@@ -110,42 +111,52 @@ class AnmSeries:
         """u(a) (n,): the powers ``a^0 .. a^N`` times the coefficient rows (one product)."""
         return (a ** self._exps) @ self._Z
 
-    def prepare_roots(self, n: int = 257) -> bool:
+    def prepare_roots(self, n: int = 257, n_far: int = 4097) -> bool:
         """Tabulate lam(a) on ``n`` points of the bracket :meth:`load_factor_to_a` searches
         (the monotone interval around 0 within ``a_end``), so :meth:`root` starts Newton from
         the linear interpolant of the inverse inside one table interval: one or two Horner
         steps instead of a search from 0 (the online step of a precomputed continuation).
-        The table is evaluated by the same Horner scheme as the search, so the bracket holds
-        in floating point. False (no table) when the bracket is empty or unbounded.
+        A second table, on ``n_far`` points, covers the search without limit (the monotone
+        interval, cut at 64 ``a_end`` where it is unbounded): the extrapolation of a step past
+        the last series. The tables are evaluated by the same Horner scheme as the search, so
+        their brackets hold in floating point. False (no table) when the bracket is empty or
+        unbounded.
         """
         lim = self.a_end if self.a_end is not None else math.inf
         lo, hi = self.monotone_interval()
-        a_lo, a_hi = max(lo, -lim), min(hi, lim)
-        self._table = None
+        self._table = self._tabulate(max(lo, -lim), min(hi, lim), n)
+        if math.isfinite(lim):
+            far = 64.0 * lim
+            self._table_far = self._tabulate(max(lo, -far), min(hi, far), n_far)
+        return self._table is not None
+
+    def _tabulate(self, a_lo: float, a_hi: float, n: int):
         if not (a_lo < a_hi and math.isfinite(a_lo) and math.isfinite(a_hi)):
-            return False
+            return None
         A = np.linspace(a_lo, a_hi, int(n)).tolist()
         A[0], A[-1] = a_lo, a_hi
         L = [_horner(self._c, a)[0] for a in A]
-        if not all(x < y for x, y in zip(L, L[1:])):
-            return False
-        self._table = (L, A)
-        return True
+        if not all(x < y for x, y in zip(L, L[1:])) or not all(map(math.isfinite, L)):
+            return None
+        return L, A
 
-    def root(self, lam_star: float):
-        """:meth:`load_factor_to_a` (default limit), from the table of :meth:`prepare_roots`
-        when it brackets ``lam_star``: the same root (the unique one of the monotone bracket)
-        to the last bits of Newton's convergence test."""
-        t, rc = self._table, self._rc
-        if len(rc) == 2 and rc[0] > 0.0 and (self.a_end is None or self.a_end == math.inf):
-            return (lam_star - rc[1]) / rc[0]  # order 1: lam = lam0 + lam1 a, no limit
+    def root(self, lam_star: float, a_limit: float | None = None):
+        """:meth:`load_factor_to_a`, from the tables of :meth:`prepare_roots` when they bracket
+        ``lam_star`` (``a_limit``: None, the default limit, or inf): the same root (the unique
+        one of the monotone bracket) to the last bits of Newton's convergence test."""
+        rc = self._rc
+        if len(rc) == 2 and rc[0] > 0.0 and (a_limit is None or a_limit == math.inf):
+            a = (lam_star - rc[1]) / rc[0]  # order 1: lam = lam0 + lam1 a
+            if a_limit is not None or self.a_end is None or abs(a) <= self.a_end:
+                return a
+        t = self._table if a_limit is None else self._table_far if a_limit == math.inf else None
         if t is not None:
             L, A = t
             j = bisect.bisect_right(L, lam_star) - 1
             if 0 <= j < len(L) - 1:
                 l0, a0, a1 = L[j], A[j], A[j + 1]
-                return _newton_in(self._rc, lam_star, a0, a1, a0 + (a1 - a0) * (lam_star - l0) / (L[j + 1] - l0))
-        return self.load_factor_to_a(lam_star)
+                return _newton_in(rc, lam_star, a0, a1, a0 + (a1 - a0) * (lam_star - l0) / (L[j + 1] - l0))
+        return self.load_factor_to_a(lam_star, a_limit)
 
     def load_factor_to_a(self, lam_star: float, a_limit: float | None = None):
         """The ``a`` with ``lam(a) = lam_star`` nearest to 0 on the side of ``lam_star - lam0``.

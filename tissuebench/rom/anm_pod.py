@@ -141,6 +141,7 @@ class AnmPodModel(LinearReconstruction, OnlineModel):
         self._ends = []
         self._top, self._fixed_path = -math.inf, False
         self._ok = (envelope[0] - 1e-12, envelope[1] + 1e-12)
+        self._beyond_texts = {}
         self.info = {}
 
     @property
@@ -250,18 +251,21 @@ class AnmPodModel(LinearReconstruction, OnlineModel):
         """Past the last (or before the first) series: extrapolate it and say by how much."""
         first = lam <= path[0].lam0
         s = path[0] if first else path[-1]
-        covered = (path[0].load_factor(-path[0].a_end) if first else s.load_factor(s.a_end))
-        a = s.load_factor_to_a(lam, a_limit=math.inf)
+        covered = (path[0].load_factor(-path[0].a_end) if first else
+                   (self._ends[-1] if path is self._path and self._ends else s.load_factor(s.a_end)))
+        a = s.root(lam, math.inf)
         extra = "" if a is None else f"; the series is extrapolated to a = {a:.4g} ({abs(a) / s.a_end:.3g} a_max)"
         if a is None:
             a = -s.a_end if first else s.a_end
             extra = f"; no solution of lam(a) = {lam:.6g}: the state at the range end is returned"
         q = s.state(a)
-        if not np.all(np.isfinite(q)):
+        if not math.isfinite(q.sum()) and not np.all(np.isfinite(q)):
             return StepResult(None, "failed", f"load factor {lam:.6g}: the extrapolated series overflowed")
-        side = "below" if first else "above"
-        msg = (f"load factor {lam:.6g} is {abs(lam - covered):.3g} {side} the range covered by "
-               f"{len(path)} ANM segment(s) (max_segments={self.options.max_segments}, ends at {covered:.6g})"
-               f"{extra}")
+        key = (first, len(path), covered)
+        tail = self._beyond_texts.get(key)
+        if tail is None:  # the part of the message that depends on the continuation only
+            tail = self._beyond_texts[key] = (f" {'below' if first else 'above'} the range covered by {len(path)} "
+                                              f"ANM segment(s) (max_segments={self.options.max_segments}, ends at "
+                                              f"{covered:.6g})")
+        msg = f"load factor {lam:.6g} is {abs(lam - covered):.3g}{tail}{extra}"
         return StepResult(q, "beyond_validity", msg, {"segment": 0 if first else len(path) - 1, "a": a})
-
