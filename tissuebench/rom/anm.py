@@ -109,7 +109,7 @@ class AnmSeries:
 
     def state(self, a: float) -> np.ndarray:
         """u(a) (n,): the powers ``a^0 .. a^N`` times the coefficient rows (one product)."""
-        return (a ** self._exps) @ self._Z
+        return np.dot(a ** self._exps, self._Z)
 
     def prepare_roots(self, n: int = 257, n_far: int = 4097) -> bool:
         """Tabulate lam(a) on ``n`` points of the bracket :meth:`load_factor_to_a` searches

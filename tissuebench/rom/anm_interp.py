@@ -274,7 +274,7 @@ class AnmPodInterpModel(OnlineModel):
             CB = rec["outputs"] = self._reduced_outputs.operator(rec["indices"], rec["weights"])
             if CB is None:
                 return super().outputs(result)
-        return dict(zip(names, (CB @ q).tolist()))
+        return dict(zip(names, np.dot(CB, q).tolist()))
 
     def floor_ops(self):
         """A step at a new position, written with the fewest products: the tensors interpolated

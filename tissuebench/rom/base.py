@@ -290,13 +290,13 @@ class OnlineModel(ABC):
         if C_r is None:
             y = C @ self.reconstruct(result)
         else:
-            y = C_r @ q
+            y = np.dot(C_r, q)  # np.dot: less call overhead than @ at these sizes
             if fixed_part is not None:
                 if type(fixed_part) is tuple:
                     c0, c1 = fixed_part
                     y += c0 + float(result.mu["load_factor"]) * c1
                 else:
-                    y += fixed_part @ self.prescribed(result.mu)[1]
+                    y += np.dot(fixed_part, self.prescribed(result.mu)[1])
         return dict(zip(names, y.tolist()))
 
     @property

@@ -102,7 +102,7 @@ class LinearSimplex:
         k = int(c.min(axis=1).argmax())
         if not c[k].min() >= -_EPS:
             return None
-        return c[k] @ self.V[k]
+        return np.dot(c[k], self.V[k])
 
     def floor(self, x):
         """The barycentric coordinates in every simplex, the containing one, the blend."""
@@ -142,7 +142,7 @@ class RbfAtPoint:
 
     def _eval(self, X):
         y, kernel, eps, powers, shift, scale = self._args
-        return (self._build(X, y, kernel, eps, powers, shift, scale) @ self._coeffs).reshape(-1)
+        return np.dot(self._build(X, y, kernel, eps, powers, shift, scale), self._coeffs).reshape(-1)
 
     def __call__(self, x) -> np.ndarray:
         X = x.reshape(1, -1)

@@ -118,7 +118,7 @@ class DirectModel(OnlineModel):
         out = None if inside else ev.outside(s)
         w = ev.blend(s)
         with np.errstate(over="ignore", invalid="ignore"):
-            q = self._R @ w
+            q = np.dot(self._R, w)
         for dst, src in self._shift:
             q[dst] = self.q[src]
         if not math.isfinite(q.sum()) and not np.all(np.isfinite(q)):
@@ -191,5 +191,5 @@ class DirectModel(OnlineModel):
         if result.q is None:
             return {n: float("nan") for n in names}
         w = (result.info or {}).get("weights")
-        y = C_r @ w if w is not None else self._outputs[1] @ self.reconstruct(result)
+        y = np.dot(C_r, w) if w is not None else self._outputs[1] @ self.reconstruct(result)
         return dict(zip(names, y.tolist()))

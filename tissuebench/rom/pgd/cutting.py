@@ -167,13 +167,13 @@ class CuttingModel(OnlineModel):
         self._c = c
         b = np.zeros(Minv.shape[0])
         r = self.r
-        b[:r] = Fv @ B if self._gamma is None else self._gamma * (Fv @ B)
+        b[:r] = np.dot(Fv, B) if self._gamma is None else self._gamma * np.dot(Fv, B)
         if G is not None and c:
-            b[r:] = -self._S_measure * (Fv @ G[:, :len(b) - r])
-        x = Minv @ b
+            b[r:] = -self._S_measure * np.dot(Fv, G[:, :len(b) - r])
+        x = np.dot(Minv, b)
         if ct.S_p is not None and self.projection == "prb":
             x[:r] *= ct.S_p
-        u_c = B @ x[:r]  # the contact node is a crack-front node: not enriched
+        u_c = np.dot(B, x[:r])  # the contact node is a crack-front node: not enriched
         f0, f1, f2 = F.tolist()
         F_n = f0 * nf[0] + f1 * nf[1] + f2 * nf[2]
         F_par = math.sqrt((f0 - F_n * nf[0]) ** 2 + (f1 - F_n * nf[1]) ** 2 + (f2 - F_n * nf[2]) ** 2)

@@ -122,14 +122,14 @@ class PgdModel(LinearReconstruction, OnlineModel):
         if self.proj is None:
             q = c.S_p * lam
         else:
-            q = c.values @ B  # Phi^T f
+            q = np.dot(c.values, B)  # Phi^T f
             if self.projection == "prb":  # beta of eq. 14, times S(s_p)
                 q *= self.proj.gamma
-                q = self.proj._inv @ q
+                q = np.dot(self.proj._inv, q)
                 q *= c.S_p
             if lam != 1.0:
                 q *= lam
-        u_c = B @ q  # displacement at the loaded dofs (tool tip)
+        u_c = np.dot(B, q)  # displacement at the loaded dofs (tool tip)
         return StepResult(q, status, msg, {"contact_displacement": u_c, "parameter_index": c.index}, mu)
 
     def floor_ops(self):

@@ -127,7 +127,7 @@ class PgdSvkModel(LinearReconstruction, OnlineModel):
         c, status, msg, lam = locate(self.vademecum, mu, self.name, need_S=False)
         if c is None:
             return StepResult(None, "failed", msg, mu=dict(mu))
-        f = c.values @ self.basis[c.rows]
+        f = np.dot(c.values, self.basis[c.rows])
         if lam != 1.0:
             f *= lam
         scale = max(math.sqrt(f @ f), 1e-300)
