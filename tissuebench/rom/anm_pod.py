@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from .anm import AnmPath, AnmSeries, reduced_path, reduced_series
-from .base import LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, register
+from .base import DeferredStepResult, LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, register
 from .online import parameter
 from .pod import pod_basis
 from .polynomial import check_polynomial_problem, reduced_polynomial
@@ -141,7 +141,6 @@ class AnmPodModel(LinearReconstruction, OnlineModel):
         self._ends = []
         self._top, self._fixed_path = -math.inf, False
         self._ok = (envelope[0] - 1e-12, envelope[1] + 1e-12)
-        self._beyond_texts = {}
         self.info = {}
 
     @property
@@ -225,8 +224,8 @@ class AnmPodModel(LinearReconstruction, OnlineModel):
                 if lo <= lam <= hi:
                     return StepResult(q, "ok", "", {"segment": k, "a": a})
                 lo, hi = self._env
-                return StepResult(q, "extrapolation", f"load factor {lam:.6g} outside the training envelope "
-                                  f"[{lo:.6g}, {hi:.6g}]", {"segment": k, "a": a})
+                return DeferredStepResult(q, "extrapolation", lambda: f"load factor {lam:.6g} outside the training "
+                                          f"envelope [{lo:.6g}, {hi:.6g}]", {"segment": k, "a": a})
         return self._beyond(path, lam)
 
     def floor_ops(self):
@@ -254,18 +253,18 @@ class AnmPodModel(LinearReconstruction, OnlineModel):
         covered = (path[0].load_factor(-path[0].a_end) if first else
                    (self._ends[-1] if path is self._path and self._ends else s.load_factor(s.a_end)))
         a = s.root(lam, math.inf)
-        extra = "" if a is None else f"; the series is extrapolated to a = {a:.4g} ({abs(a) / s.a_end:.3g} a_max)"
-        if a is None:
+        solved = a is not None
+        if not solved:
             a = -s.a_end if first else s.a_end
-            extra = f"; no solution of lam(a) = {lam:.6g}: the state at the range end is returned"
         q = s.state(a)
         if not math.isfinite(q.sum()) and not np.all(np.isfinite(q)):
             return StepResult(None, "failed", f"load factor {lam:.6g}: the extrapolated series overflowed")
-        key = (first, len(path), covered)
-        tail = self._beyond_texts.get(key)
-        if tail is None:  # the part of the message that depends on the continuation only
-            tail = self._beyond_texts[key] = (f" {'below' if first else 'above'} the range covered by {len(path)} "
-                                              f"ANM segment(s) (max_segments={self.options.max_segments}, ends at "
-                                              f"{covered:.6g})")
-        msg = f"load factor {lam:.6g} is {abs(lam - covered):.3g}{tail}{extra}"
-        return StepResult(q, "beyond_validity", msg, {"segment": 0 if first else len(path) - 1, "a": a})
+        n_seg, max_seg = len(path), self.options.max_segments
+
+        def message():
+            tail = (f" {'below' if first else 'above'} the range covered by {n_seg} ANM segment(s) "
+                    f"(max_segments={max_seg}, ends at {covered:.6g})")
+            extra = (f"; the series is extrapolated to a = {a:.4g} ({abs(a) / s.a_end:.3g} a_max)" if solved else
+                     f"; no solution of lam(a) = {lam:.6g}: the state at the range end is returned")
+            return f"load factor {lam:.6g} is {abs(lam - covered):.3g}{tail}{extra}"
+        return DeferredStepResult(q, "beyond_validity", message, {"segment": 0 if first else len(path) - 1, "a": a})

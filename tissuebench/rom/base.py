@@ -41,8 +41,8 @@ from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["Training", "StepResult", "OnlineModel", "RomMethod", "METHODS", "register", "make_method",
-           "STEP_STATUSES", "MODEL_KINDS", "check_parameters", "LinearReconstruction", "method_class"]
+__all__ = ["Training", "StepResult", "DeferredStepResult", "OnlineModel", "RomMethod", "METHODS", "register",
+           "make_method", "STEP_STATUSES", "MODEL_KINDS", "check_parameters", "LinearReconstruction", "method_class"]
 
 STEP_STATUSES = ("ok", "extrapolation", "beyond_validity", "failed")
 MODEL_KINDS = ("map", "path", "trajectory")
@@ -150,6 +150,38 @@ class StepResult:
     @property
     def ok(self) -> bool:
         return self.status == "ok"
+
+
+_MESSAGE = StepResult.__dict__["message"]  # the slot of StepResult.message
+
+
+class DeferredStepResult(StepResult):
+    """A :class:`StepResult` whose ``message`` is formatted at its first reading: ``message_of``
+    (a zero-argument callable returning the text) runs then, once. A haptic loop steps past
+    the training envelope at every step and rarely reads why; the message is the same as an
+    eager one whenever it is read."""
+
+    __slots__ = ("_message_of",)
+
+    def __init__(self, q, status: str, message_of, info=None, mu=None):
+        self.q, self.status, self.info, self.mu, self._message_of = q, status, {} if info is None else info, mu, \
+            message_of
+        if message_of is None:
+            _MESSAGE.__set__(self, "")
+        self.__post_init__()
+
+    @property
+    def message(self) -> str:
+        f = getattr(self, "_message_of", None)
+        if f is not None:
+            self._message_of = None
+            _MESSAGE.__set__(self, f())
+        return _MESSAGE.__get__(self)
+
+    @message.setter
+    def message(self, value: str) -> None:
+        self._message_of = None
+        _MESSAGE.__set__(self, value)
 
 
 def check_parameters(mu, required: tuple, name: str) -> dict:

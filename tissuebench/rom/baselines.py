@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import LinearNDInterpolator, RBFInterpolator
 
-from .base import LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, register
+from .base import DeferredStepResult, LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, register
 from .interpolants import Linear1D, LinearSimplex, RbfAtPoint
 from .online import parameter
 from .pod import pod_basis
@@ -65,9 +65,11 @@ class _ParametricModel(OnlineModel):
             x[i] = (v - a) / s
         return x, inside
 
-    def _message(self, inside, mu) -> str:
-        return "" if inside else f"mu = { {k: float(mu[k]) for k in self.keys} } outside the training envelope " \
-                                 f"{self.envelope}"
+    def _outside(self, q, info, mu) -> DeferredStepResult:
+        """The ``extrapolation`` result, its message formatted when read."""
+        values = {k: float(mu[k]) for k in self.keys}
+        return DeferredStepResult(q, "extrapolation", lambda: f"mu = {values} outside the training envelope "
+                                  f"{self.envelope}", info, mu)
 
 
 @register
@@ -108,7 +110,7 @@ class _NearestModel(_ParametricModel):
         j = self._nearest(x)
         if inside:
             return StepResult(np.array([float(j)]), "ok", "", {"snapshot": j}, mu)
-        return StepResult(np.array([float(j)]), "extrapolation", self._message(inside, mu), {"snapshot": j}, mu)
+        return self._outside(np.array([float(j)]), {"snapshot": j}, mu)
 
     def floor_ops(self):
         """The distances to the stored parameters, their argmin, the stored outputs of that snapshot."""
@@ -219,7 +221,7 @@ class _PodInterpModel(LinearReconstruction, _ParametricModel):
             inside = False
         if inside:
             return StepResult(q, "ok", "", {}, mu)
-        return StepResult(q, "extrapolation", self._message(inside, mu), {}, mu)
+        return self._outside(q, {}, mu)
 
     def floor_ops(self):
         """The interpolant's arithmetic at one point (:mod:`.interpolants`) and the output product."""

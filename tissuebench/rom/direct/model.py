@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from ..base import OnlineModel, StepResult
+from ..base import DeferredStepResult, OnlineModel, StepResult
 from ..online import parameter
 from .schemes import SCHEMES, StepOperators, VectorAlgebra
 from .vademecum import Evaluator, Vademecum
@@ -129,10 +129,11 @@ class DirectModel(OnlineModel):
         if out is not None and out.size:
             self.extrapolations += 1
             d = int(out[0])
+            n_out, step, value = out.size, self.n_steps, float(p[d])  # p is overwritten by the next step
             name, (lo, hi) = self.vademecum.param_names[d], (self.vademecum.meshes[d].lo, self.vademecum.meshes[d].hi)
-            msg = (f"step {self.n_steps}: {out.size} parameter(s) outside the vademecum, e.g. {name} = "
-                   f"{p[d]:.6g} not in [{lo:.6g}, {hi:.6g}]; linearly extrapolated")
-            return StepResult(q, "extrapolation", msg, info, mu)
+            return DeferredStepResult(q, "extrapolation", lambda: (
+                f"step {step}: {n_out} parameter(s) outside the vademecum, e.g. {name} = {value:.6g} not in "
+                f"[{lo:.6g}, {hi:.6g}]; linearly extrapolated"), info, mu)
         return StepResult(q, "ok", "", info, mu)
 
     def floor_ops(self):
