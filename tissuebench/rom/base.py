@@ -18,6 +18,9 @@ PGD, skinning-cubature, direct time integrators, baselines), so the sweep harnes
    haptic step that latency measures; neither touches a full-size vector.
 3. **Reconstruction**: ``u = model.reconstruct(res)`` gives the full dof vector (n_dof,),
    including the prescribed (Dirichlet) values at that step; timed separately.
+4. **Floor**: ``model.floor_ops()`` returns a zero-argument callable doing only the
+   arithmetic a haptic step cannot avoid at the model's sizes (:mod:`.online`); the latency
+   protocol times it beside the step and reports ``efficiency = floor / haptic median``.
 
 ``OnlineModel.kind`` says how a model is driven: ``"map"`` (a static state at any ``mu``,
 in any order), ``"path"`` (a static load path followed in increasing load factor: warm
