@@ -64,11 +64,7 @@ def _parser():
     rep.add_argument("--require", default=None,
                      help='e.g. "rate>=500Hz, error<=2%%" (default: 1 kHz on the p99 haptic step, error <= 1 %%)')
     rep.add_argument("--case", default=None, help="only this case id (or catalogue case name)")
-    chk = sub.add_parser("check", help="fail on a regression in error or latency against a baseline")
-    chk.add_argument("results", type=Path, help="a sweep's results folder")
-    chk.add_argument("--baseline", type=Path, required=True, help="baseline TOML (e.g. baselines/ci.toml)")
-    chk.add_argument("--update-baseline", action="store_true", help="rewrite the baseline from the results")
-    chk.add_argument("--junit", type=Path, default=None, help="also write JUnit XML here")
+    _check_parser(sub)
     ver = sub.add_parser("verify", help="our values against the external anchors (Cook, Land et al., analytic)")
     ver.add_argument("results", type=Path, nargs="?", default=None,
                      help="a sweep's results folder: the table goes to RESULTS/_anchors.parquet (the report shows it)")
@@ -201,25 +197,84 @@ def _report(args) -> int:
     return 0
 
 
+def _check_parser(sub):
+    chk = sub.add_parser("check", help="fail on a regression in error or latency (A/B against a git ref) or on a "
+                                       "requirement no unit meets")
+    chk.add_argument("results", type=Path, help="a sweep's results folder")
+    chk.add_argument("--baseline", type=Path, default=None, help="baseline TOML: errors gated exactly (e.g. "
+                     "baselines/ci.toml); latency too when there is no --against")
+    chk.add_argument("--against", default=None, metavar="REF", help="git ref (e.g. HEAD~1): every unit re-timed "
+                     "with REF's code and this code in alternating processes (A/B); falls back to the baseline's "
+                     "latency ratios when REF is not in the clone")
+    chk.add_argument("--require", default=None, help='e.g. "rate>=500Hz, error<=2%%": every case needs a unit that '
+                     "meets it (p99 rule of the report)")
+    chk.add_argument("--update-baseline", action="store_true", help="rewrite the baseline from the results")
+    chk.add_argument("--junit", type=Path, default=None, help="also write JUnit XML here")
+    chk.add_argument("--ab-rounds", default="3,8", metavar="MIN,MAX",
+                     help="A/B rounds: at least MIN, at most MAX (default 3,8)")
+    chk.add_argument("--ab-blocks", type=int, default=3, help="timed blocks per unit and worker process (default 3)")
+    chk.add_argument("--ab-budget", type=float, default=900.0, help="A/B time budget [s] (default 900)")
+
+
+def _ab_settings(args):
+    from .reports.gate import ABSettings
+
+    try:
+        lo, hi = (int(x) for x in args.ab_rounds.split(","))
+    except ValueError:
+        raise ValueError(f"--ab-rounds = {args.ab_rounds!r}: expected MIN,MAX (two integers, e.g. 3,8)") from None
+    if not 2 <= lo <= hi <= 100:
+        raise ValueError(f"--ab-rounds = {args.ab_rounds!r}: need 2 <= MIN <= MAX <= 100")
+    if not 1 <= args.ab_blocks <= 100:
+        raise ValueError(f"--ab-blocks = {args.ab_blocks}: need 1..100")
+    if not args.ab_budget > 0:
+        raise ValueError(f"--ab-budget = {args.ab_budget}: need a positive number of seconds")
+    return ABSettings(lo, hi, args.ab_blocks, args.ab_budget)
+
+
 def _check(args) -> int:
-    from .reports.check import check, update_baseline, write_junit
+    from .reports.gate import GateOutputError, baseline_rows, check, update_baseline, write_junit
 
     if args.update_baseline:
-        n = update_baseline(args.results, args.baseline)
+        if args.baseline is None:
+            raise ValueError("--update-baseline needs --baseline FILE")
+        rows, left = baseline_rows(args.results)
+        for key, why in left:
+            print(f"note: {' '.join(key)} left out of the baseline: {why}")
+        n = update_baseline(rows, args.baseline)
         print(f"baseline {args.baseline}: {n} units written from {args.results}")
         return 0
-    result = check(args.results, args.baseline)
+    result = check(args.results, args.baseline, args.against, args.require, _ab_settings(args),
+                   log=lambda m: print(m, file=sys.stderr, flush=True))
+    _print_check(result, args)
     if args.junit:
-        write_junit(result, args.junit)
+        try:
+            write_junit(result, args.junit)
+        except GateOutputError as exc:
+            return _error(exc)
+    return 0 if result.ok else 1
+
+
+def _print_check(result, args) -> None:
+    for note in result.notes:
+        print(f"note: {note}")
     for key in result.new_units:
-        print(f"note: {' '.join(key)} is not in the baseline (run --update-baseline to add it)")
+        print(f"note: {' '.join(key)} is not in the baseline" + (" and failed (--update-baseline leaves failed "
+              "units out)" if key in result.new_failed else " (run --update-baseline to add it)"))
+    for key, v in sorted(result.ab.items(), key=lambda kv: -kv[1].ratio):
+        print(f"A/B {v.verdict:6s} {key[0]} {key[1]} {key[2]}: {v.text()}")
+    errors = {"ref": f"errors against {args.against}", "baseline": f"errors against {args.baseline}",
+              "none": "no error check"}[result.errors_against]
+    latency = {"ab": f"latency A/B against {args.against}", "file": f"latency against {args.baseline}",
+               "none": "no latency check"}[result.latency_mode]
+    what = f"{errors}, {latency}" + (f", requirement {args.require!r}" if args.require else "")
+    units = len([k for k in result.per_unit if k[1] != "*"])
     if result.ok:
-        print(f"check: {result.checked} units hold against {args.baseline}")
-        return 0
-    print(f"check: {len(result.regressions)} regressions in {result.checked} units against {args.baseline}:")
+        print(f"check: {units} units hold ({what})")
+        return
+    print(f"check: {len(result.regressions)} regressions in {units} units ({what}):")
     for f in result.regressions:
         print("  " + f.line())
-    return 1
 
 
 def _cache(args) -> int:
