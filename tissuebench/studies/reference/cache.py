@@ -50,7 +50,7 @@ def cache_dir() -> Path:
     return Path(base) / "tissuebench"
 
 
-def reference_key(scene, backend: str = "skfem", linear_solver: str = "direct") -> str:
+def reference_key(scene, backend: str = "skfem", linear_solver: str = "auto") -> str:
     """SHA-256 identifying the reference run of ``scene`` (module docstring)."""
     versions = package_versions()
     content = {"scene": scene.content(), "backend": backend if scene.is_fe else "line",
@@ -122,7 +122,7 @@ def _read(entry: Path, meta: dict, scene) -> ReferenceResult:
                            problem=scene.to_problem() if scene.is_fe else None)
 
 
-def cached_solve(scene, backend: str = "skfem", linear_solver: str = "direct", progress=None,
+def cached_solve(scene, backend: str = "skfem", linear_solver: str = "auto", progress=None,
                  cache: Path | None = None) -> tuple[ReferenceResult, bool]:
     """``(reference result, hit)``: read from the cache when a valid entry exists, else solved
     (:func:`~.runner.solve`) and stored. A corrupted entry is replaced, with a warning."""
