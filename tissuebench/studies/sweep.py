@@ -23,7 +23,7 @@ from .metrics import TOLERANCES, pareto_front
 from .results import (ResultsStore, SweepManifestError, read_latency, read_outputs, read_points, read_sweep_manifest,
                       read_units)
 from .spec import SweepSpec, expand_units
-from .store import check_output_location, provenance
+from .store import _writable, check_output_location, provenance
 
 __all__ = ["SweepSummary", "run_sweep", "check_output_folder", "write_derived"]
 
@@ -44,6 +44,8 @@ def check_output_folder(out: Path, resume: bool) -> None:
     and a folder that holds a sweep without ``resume``."""
     check_output_location(out, overwrite=True)
     out = Path(out)
+    if out.is_dir() and not _writable(out):
+        raise ValueError(f"--out = {out}: the folder is not writable")
     if out.is_dir() and any(out.glob("case=*")) and not resume:
         raise FileExistsError(f"results folder {out} holds a sweep; pass --resume to continue it, "
                               "or choose another --out")
