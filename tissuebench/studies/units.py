@@ -32,7 +32,7 @@ from .protocol import (blas_info, cached_dynamics_system, calibration_seconds, d
 from .store import code_hash, git_commit, package_versions
 from .training import build_training, case_scene
 
-__all__ = ["WorkUnit", "UnitOutcome", "unit_key", "options_text", "run_unit", "DEFAULT_PROTOCOL"]
+__all__ = ["WorkUnit", "UnitOutcome", "unit_key", "options_text", "run_unit", "failed_outcome", "DEFAULT_PROTOCOL"]
 
 DEFAULT_PROTOCOL = {"latency_steps": 200, "warmup": 20, "blas_threads": 1, "reference_samples": 3, "seed": 0}
 
@@ -129,6 +129,14 @@ def run_unit(unit: WorkUnit) -> UnitOutcome:
             row.pop(side, None)
         row.update(unit_status="failed", message=f"{tb} (in {_where(exc)})", unit_wall_s=time.perf_counter() - t0)
         return UnitOutcome(row)
+
+
+def failed_outcome(unit: WorkUnit, message: str, wall_s: float = float("nan")) -> UnitOutcome:
+    """The stored row of a unit that could not run to its end outside :func:`run_unit` (its
+    worker process died): ``unit_status = "failed"`` with ``message``."""
+    row = {**_base_row(unit), **_provenance_row()}
+    row.update(unit_status="failed", message=message, unit_wall_s=wall_s)
+    return UnitOutcome(row)
 
 
 def _where(exc) -> str:
