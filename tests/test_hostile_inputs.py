@@ -325,3 +325,23 @@ def test_an_odd_store_layout_reads_as_nothing_with_names(tmp_path):
     (root / "case=a" / "method=b" / "k.parquet").mkdir()  # a folder where a unit file belongs
     (root / "case=a" / "method=b" / ".k.parquet.1.tmp").write_text("")  # a unit being written
     assert read_units(root, "ignore").empty and foreign_files(root) == []
+
+
+# ------------------------------------------------------------------------ minor: what is capped is said
+def test_minor_modes_warmup_and_threads_beyond_what_runs_are_said_in_the_row(tmp_path):
+    import os
+
+    text = ONE.format(name="capped", method="pod_interp").replace("warmup = 1", "warmup = 1000\nblas_threads = 200")
+    path = spec_file(tmp_path, text + "grid = { n_modes = [2, 40] }\n")
+    run_sweep(load_spec(path), tmp_path / "out", progress=False)
+    units = read_units(tmp_path / "out").set_index("options")
+    big, small = units.loc['{"n_modes":40}'], units.loc['{"n_modes":2}']
+    assert big["unit_status"] == small["unit_status"] == "ok"
+    n = int(big["n_reduced"])
+    assert n < 40 and big["label"] == f"pod_interp n_modes=40 ({n} built)" and small["label"] == "pod_interp n_modes=2"
+    assert f"n_modes = 40 asked, the model has {n} reduced coordinates" in big["message"]
+    assert "n_modes" not in small["message"]
+    for row in (big, small):
+        assert "warmup = 1000 asked" in row["message"] and "untimed steps run" in row["message"]
+        if (os.cpu_count() or 1) < 200:
+            assert "blas_threads = 200 asked, the BLAS ran" in row["message"]
