@@ -234,10 +234,45 @@ def _check_table(path: Path, table: pa.Table, columns: dict, one_row: bool) -> s
     return None
 
 
+def _listed_units(root: Path) -> dict:
+    """``{unit key: (case, method)}`` as the folder's valid ``_sweep.json`` lists them ({} if none)."""
+    try:
+        units = read_sweep_manifest(root, missing_ok=True).get("units", [])
+    except SweepManifestError:
+        return {}
+    return {u["key"]: (u["case"], u["method"]) for u in units}
+
+
+def _single_copies(found: list, root: Path, stray: list) -> list:
+    """``found`` (path, case, method, table) without the copies of a unit key stored in several
+    partitions: the copy ``_sweep.json`` lists is kept, the others (all, when it decides none)
+    are named as foreign."""
+    by_key: dict = {}
+    for item in found:
+        by_key.setdefault(item[0].stem, []).append(item)
+    if all(len(v) == 1 for v in by_key.values()):
+        return found
+    listed = _listed_units(root)
+    keep = []
+    for key, items in by_key.items():
+        if len(items) == 1:
+            keep += items
+            continue
+        genuine = [it for it in items if listed.get(key) == (it[1], it[2])][:1]
+        keep += genuine
+        for it in items:
+            if it not in genuine:
+                others = ", ".join(str(o[0]) for o in items if o is not it)
+                stray.append((it[0], f"unit {key} is stored more than once (also {others}); _sweep.json lists "
+                                     + (f"the one in case={genuine[0][1]}/method={genuine[0][2]}" if genuine
+                                        else "none of them")))
+    return sorted(keep, key=lambda it: str(it[0]))
+
+
 def _read_dataset(root: Path, dataset: str, foreign) -> pd.DataFrame:
     files, stray = _scan(root, dataset)
     columns = _DATASETS[dataset]
-    tables = []
+    found = []
     for path in files:
         try:
             table = pq.read_table(path)
@@ -249,7 +284,9 @@ def _read_dataset(root: Path, dataset: str, foreign) -> pd.DataFrame:
             stray.append((path, why))
             continue
         # partition values as pyarrow's hive partitioning reads them (URI-decoded)
-        case, method = unquote(path.parent.parent.name[5:]), unquote(path.parent.name[7:])
+        found.append((path, unquote(path.parent.parent.name[5:]), unquote(path.parent.name[7:]), table))
+    tables = []
+    for _, case, method, table in _single_copies(found, root, stray):
         n = table.num_rows
         table = table.append_column("case", pa.array([case] * n, pa.string()))
         tables.append(table.append_column("method", pa.array([method] * n, pa.string())))
@@ -281,17 +318,9 @@ def _report_foreign(stray: list, foreign) -> None:
 
 def foreign_files(root) -> list:
     """``(path, why)`` of every file in a results folder's datasets that the readers ignore."""
-    root, out = Path(root), []
-    for dataset, columns in _DATASETS.items():
-        files, stray = _scan(root, dataset)
-        out += stray
-        for path in files:
-            try:
-                why = _check_table(path, pq.read_table(path), columns, one_row=not dataset)
-            except Exception as exc:  # noqa: BLE001
-                why = f"not a readable Parquet file ({type(exc).__name__})"
-            if why is not None:
-                out.append((path, why))
+    out: list = []
+    for dataset in _DATASETS:
+        _read_dataset(Path(root), dataset, out)
     return out
 
 
