@@ -156,8 +156,13 @@ def coincident_nodes(points: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
         return np.zeros((0, 2), dtype=np.int64)
     from scipy.spatial import cKDTree
 
-    size = float(np.max(np.ptp(pts, axis=0))) or 1.0
-    pairs = cKDTree(pts).query_pairs(rtol * size, output_type="ndarray")
+    with np.errstate(over="ignore", invalid="ignore"):
+        low = pts.min(axis=0)
+        size = float(np.max(pts.max(axis=0) - low))
+        unit = (pts - low) / size if np.isfinite(size) and size > 0 else None
+    if unit is None or not np.all(np.isfinite(unit)):
+        return np.zeros((0, 2), dtype=np.int64)
+    pairs = cKDTree(unit).query_pairs(rtol, output_type="ndarray")  # scaled: 1e200 m squares without overflow
     return pairs[np.lexsort(pairs.T[::-1])] if len(pairs) else pairs.reshape(0, 2)
 
 
