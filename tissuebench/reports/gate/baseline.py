@@ -66,7 +66,11 @@ def unit_identity(case: str, method: str, options: str) -> tuple:
 def _number(path, v, kind):
     if isinstance(v, bool) or not isinstance(v, (int, float)) or (kind is int and not isinstance(v, int)):
         raise BaselineError(f"{path} = {v!r}: expected {'an integer' if kind is int else 'a number'}")
-    if math.isnan(v) or v == -math.inf:
+    try:
+        as_float = float(v)
+    except OverflowError:
+        raise BaselineError(f"{path} = {str(v)[:20]}...: a number too large") from None
+    if math.isnan(as_float) or as_float == -math.inf:
         raise BaselineError(f"{path} = {v!r}: expected a number")
     name = path.rsplit(".", 1)[-1]
     if name in _RANGES:
@@ -79,12 +83,21 @@ def _number(path, v, kind):
 
 
 def load_baseline(path) -> tuple[dict, list]:
-    """``(tolerance defaults, units)`` of a baseline file; :class:`BaselineError` naming a bad key.
+    """``(tolerance defaults, units)`` of a baseline file; :class:`BaselineError` naming the file
+    and the bad key.
 
     Refused: a missing or unreadable file, TOML errors, unknown keys, wrong types, values out
     of range (negative errors or counts, tolerances <= 1 or negative), a baseline with no
     unit, and the same unit (options compared parsed) twice."""
-    path = Path(path)
+    try:
+        return _load(Path(path))
+    except BaselineError as exc:
+        if str(path) in str(exc):
+            raise
+        raise BaselineError(f"{path}: {exc}") from None
+
+
+def _load(path: Path) -> tuple[dict, list]:
     if not path.is_file():
         raise BaselineError(f"baseline {path} does not exist or is not a file (create it with --update-baseline)")
     try:

@@ -16,8 +16,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from ...studies.results import read_units, write_table
-from ...studies.spec import ERROR_METRICS
+from ...studies.results import read_sweep_manifest, read_units, write_table
 
 __all__ = ["GateOutputError", "read_gate_results", "write_ab_artifacts", "write_junit"]
 
@@ -26,39 +25,19 @@ class GateOutputError(OSError):
     """A gate output (JUnit, baseline) that cannot be written (the message names the path)."""
 
 
-def _manifest_metric(results_dir: Path) -> str:
-    path = results_dir / "_sweep.json"
-    if not path.is_file():
-        return "max_rel_l2"
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise ValueError(f"{path}: not readable JSON ({exc}): the sweep's manifest is damaged") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a JSON object, got {type(data).__name__}: the manifest is damaged")
-    metric = data.get("error_metric", "max_rel_l2")
-    if metric not in ERROR_METRICS:
-        raise ValueError(f"{path}: error_metric = {metric!r}: not an error metric (valid: {list(ERROR_METRICS)})")
-    return metric
-
-
 def read_gate_results(results_dir) -> tuple[dict, str]:
     """``({(case, method, canonical options): unit row}, error metric)`` of a results folder,
     ``error`` set to the sweep's metric. ValueError naming the folder or file when there are
-    no units, the manifest is damaged, or a unit appears twice."""
+    no units, the manifest is damaged (:func:`~tissuebench.studies.results.read_sweep_manifest`),
+    a file in the store is not one the store wrote (refused, not skipped: a gate must not pass
+    on what it could not read), or a unit appears twice."""
     root = Path(results_dir)
     if not root.is_dir():
         raise ValueError(f"results {root}: not a folder")
-    metric = _manifest_metric(root)
-    try:
-        units = read_units(root)
-    except Exception as exc:  # pyarrow's schema and file errors: a damaged or foreign file in the store
-        raise ValueError(f"results {root}: the unit rows cannot be read ({type(exc).__name__}: {exc})") from None
+    metric = read_sweep_manifest(root, missing_ok=True)["error_metric"]
+    units = read_units(root, foreign="raise")
     if units.empty:
         raise ValueError(f"results {root}: no sweep results (no case=*/method=*/*.parquet)")
-    missing = [c for c in ("case", "method", "options", "unit_status", metric) if c not in units]
-    if missing:
-        raise ValueError(f"results {root}: unit rows lack the columns {missing}: not a tissuebench store")
     units["error"] = units[metric].astype(float)
     rows = {}
     for _, r in units.iterrows():
