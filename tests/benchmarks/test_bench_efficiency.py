@@ -1,6 +1,6 @@
 """The efficiency of every method's haptic step: its arithmetic floor over its median step.
 
-``pytest -n 0 tests/benchmarks/test_bench_efficiency.py --benchmark-enable`` runs, for one unit
+``pytest -n 0 -m slow tests/benchmarks/test_bench_efficiency.py --benchmark-enable -s`` runs, for one unit
 of every registered method (the first of its units in the ``ci`` preset; ``pgd_svk``, which
 that preset does not carry, from ``pgd_cutting``'s ``cornea-svk`` case), the latency protocol
 of the sweeps (:func:`tissuebench.studies.protocol.time_latency`: 2000 haptic steps, step +
@@ -9,8 +9,9 @@ right after each) and records in ``extra_info``: the median and p99 step, the fl
 efficiency ``floor / median`` (issue 32's target: >= 0.5), the calibration kernel (256 x 256
 matmul) and the load average, so a figure says under which load it was taken. Nothing is
 asserted on the timings (a shared machine makes them noisy; the gate and the report read
-the sweep's columns); the untimed run (``--benchmark-disable``, the default) steps each model
-a few times and checks the floor runs. Slow: every unit builds its model.
+the sweep's columns; ``-s`` prints one line per method); the untimed run (``-m slow`` without
+``--benchmark-enable``) steps each model a few times and checks the floor runs. Slow: every
+unit builds its model.
 """
 from __future__ import annotations
 

@@ -104,8 +104,11 @@ class AnmSeries:
         return v
 
     def evaluate(self, a: float):
-        """(u(a), lam(a)): state in the series' space, shape (n,), and load factor."""
-        return self.state(a), self.load_factor(a)
+        """(u(a), lam(a)): state in the series' space, shape (n,), and load factor (the offline
+        form: a continuation expands its next series about this state, so its arithmetic is kept
+        as it was; :meth:`state` is the online one, equal to round-off)."""
+        pw = np.array([a ** p for p in range(len(self._c))])
+        return pw @ self._Z, self.load_factor(a)
 
     def state(self, a: float) -> np.ndarray:
         """u(a) (n,): the powers ``a^0 .. a^N`` times the coefficient rows (one product)."""
