@@ -175,6 +175,7 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
             "reconstruct_median_s": r.median if r else np.nan, "reconstruct_p99_s": r.p99 if r else np.nan,
             "reference_step_s": ref_step, "speedup": ref_step / h.median if h.median > 0 else np.nan,
             "calibration_s": calib, "haptic_per_calibration": h.median / calib, **blas_info(),
+            "floor_s": lat["floor"].median, "efficiency": lat["floor"].median / h.median,
             "offline_s": offline, "build_peak_bytes": int(peak), "model_bytes": _nbytes(model),
             "scene_hash": scene.content_hash(),
             **{k: evaluation.info.get(k) for k in ("reference_status", "reference_message",
