@@ -251,7 +251,7 @@ def cached_solve(scene, backend: str = "skfem", linear_solver: str = "auto", pro
     return result, False
 
 
-def cached_table(scene, backend: str = "skfem", linear_solver: str = "direct", cache: Path | None = None):
+def cached_table(scene, backend: str = "skfem", linear_solver: str = "auto", cache: Path | None = None):
     """The table of the cached reference run of ``scene`` (None when not cached or not valid);
     nothing is solved."""
     entry = Path(cache or cache_dir()) / "references" / reference_key(scene, backend, linear_solver)
