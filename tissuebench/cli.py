@@ -200,6 +200,8 @@ def _sweep(args, preset=None) -> int:
                      max_units=args.max_units)
     out = args.out or Path("out") / f"sweep-{safe_name(spec.name)}-{spec.resolution}"
     log = (lambda *_: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    for s in spec.skipped:  # before any reference is computed: one line per (case, method) pair
+        log(f"skipped: {s['case']} {s['method']}{' ' + s['options'] if s['options'] else ''}: {s['why']}")
     resume_hint = f"tissuebench sweep {source} --out {out} --resume"
     try:
         summary = run_sweep(spec, out, args.executor, args.workers, args.scheduler, args.resume,

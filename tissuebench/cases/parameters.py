@@ -38,6 +38,7 @@ _POSITION = {"load": lambda p, v: _c_index(p, v), "axis": c_enum(*AXES), "point"
              "frame": c_enum("absolute", "bbox"), "range": lambda p, v: _c_range(p, v), "description": c_str,
              "unit": c_str}
 PARAMETER_KINDS = {"position": _POSITION}
+_STATIC_KEYS, _DYNAMIC_KEYS = ("max_load_factor", "load_steps"), ("t_end", "dt")  # integrator: below
 ANALYSIS_OVERRIDES = {"max_load_factor": c_pos, "load_steps": c_int_range(1, MAX_LOAD_STEPS), "t_end": c_pos,
                       "dt": c_pos, "integrator": c_enum(*INTEGRATOR_NAMES)}
 
@@ -90,6 +91,11 @@ def apply_mu(scene_fields: dict, parameters: dict, mu: dict, who: str) -> dict:
             material[key] = value  # validated with the whole material below
             continue
         if key in ANALYSIS_OVERRIDES:
+            kind = analysis.get("type")
+            if key in _STATIC_KEYS and kind != "static" or key in _DYNAMIC_KEYS and kind != "dynamic":
+                # accepted, it would change nothing: a parameter study that varies nothing
+                fail(f"{who}: mu.{key}", value, f"the scene's analysis is {kind!r}; {key} is a parameter of a "
+                     f"{'static' if key in _STATIC_KEYS else 'dynamic'} analysis")
             if key == "integrator":
                 if analysis.get("type") != "dynamic":
                     fail(f"{who}: mu.integrator", value, "the scene is not dynamic (no time integrator to change)")

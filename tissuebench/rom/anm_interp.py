@@ -47,7 +47,7 @@ from collections import OrderedDict
 import numpy as np
 
 from .anm_pod import AnmPod, AnmPodModel
-from .base import OnlineModel, RomMethod, StepResult, Training, register
+from .base import POLYNOMIAL_MATERIALS, Applies, OnlineModel, RomMethod, StepResult, Training, register
 from .online import parameter
 from .interp_outputs import InterpolatedOutputs
 from .interpolation import grassmann_interpolate, match_modes, principal_angles, procrustes_align
@@ -96,6 +96,8 @@ class AnmPodInterp(RomMethod):
     name = "anm_pod_interp"
     kind = "map"
     training_kinds = ("positions",)
+    applies = Applies(materials=POLYNOMIAL_MATERIALS, dead_loads=True, homogeneous_dirichlet=True,
+                      parameters={"positions": ("position",)})
     cache_size = 16  # interpolated models kept (LRU): a position that repeats costs one series
 
     def __init__(self, n_modes: int | None = None, order: int = 6, eps: float = 1e-4,
@@ -112,15 +114,15 @@ class AnmPodInterp(RomMethod):
     def build(self, training: Training) -> "AnmPodInterpModel":
         groups = training.groups
         if not isinstance(groups, dict) or len(groups) < 2:
-            raise ValueError("anm_pod_interp: training.groups must map >= 2 load positions to Trainings")
+            raise ValueError(f"{self.name}: training.groups must map >= 2 load positions to Trainings")
         s = np.array(sorted(float(k) for k in groups), float)
         if not np.all(np.isfinite(s)) or np.any(np.diff(s) <= 0):
-            raise ValueError(f"anm_pod_interp: positions must be distinct finite numbers, got {s}")
+            raise ValueError(f"{self.name}: positions must be distinct finite numbers, got {s}")
         t0 = time.perf_counter()
         trainings = [groups[k] for k in sorted(groups, key=float)]
         bases, lams, free, ndof = [], [], None, None
         for pos, tr in zip(s, trainings):
-            f, n = _check_group(tr, pos, free, ndof)
+            f, n = _check_group(tr, pos, free, ndof, self.name)
             free, ndof = f, n
             bases.append(pod_basis(tr.snapshots[free], n_modes=self.n_modes).modes)
             lams += [float(p["load_factor"]) for p in tr.parameters]
@@ -151,21 +153,21 @@ def _align_chain(bases, align):
     return aligned, rotations
 
 
-def _check_group(tr, pos, free, ndof):
+def _check_group(tr, pos, free, ndof, who="anm_pod_interp"):
     """(free dofs, ndof) of one stored position's training; the same mesh and supports everywhere."""
     if not isinstance(tr, Training) or tr.snapshots is None or tr.backend is None or not tr.parameters:
-        raise ValueError(f"anm_pod_interp: position {pos:g} needs a Training with snapshots, parameters "
+        raise ValueError(f"{who}: position {pos:g} needs a Training with snapshots, parameters "
                          "(load_factor) and a backend")
-    check_polynomial_problem(tr.backend.problem, "anm_pod_interp")
+    check_polynomial_problem(tr.backend.problem, who)
     f = np.asarray(tr.free_dofs)
     if tr.snapshots.shape[0] != tr.backend.ndof:
-        raise ValueError(f"anm_pod_interp: position {pos:g}: snapshots have {tr.snapshots.shape[0]} rows, "
+        raise ValueError(f"{who}: position {pos:g}: snapshots have {tr.snapshots.shape[0]} rows, "
                          f"the backend {tr.backend.ndof} dofs")
     if free is not None and (tr.backend.ndof != ndof or not np.array_equal(f, free)):
-        raise ValueError(f"anm_pod_interp: position {pos:g} has other dofs than the first position "
+        raise ValueError(f"{who}: position {pos:g} has other dofs than the first position "
                          "(the bases must live on one mesh with the same supports)")
     if any("load_factor" not in p for p in tr.parameters):
-        raise ValueError(f"anm_pod_interp: position {pos:g}: every parameter needs a 'load_factor'")
+        raise ValueError(f"{who}: position {pos:g}: every parameter needs a 'load_factor'")
     return f, tr.backend.ndof
 
 

@@ -14,7 +14,8 @@ import time
 import numpy as np
 
 from .anm import AnmPath, AnmSeries, reduced_path, reduced_series
-from .base import DeferredStepResult, LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, register
+from .base import (POLYNOMIAL_MATERIALS, Applies, DeferredStepResult, LinearReconstruction, OnlineModel, RomMethod,
+                   StepResult, Training, register)
 from .online import parameter
 from .pod import pod_basis
 from .polynomial import check_polynomial_problem, reduced_polynomial
@@ -63,6 +64,7 @@ class AnmPod(RomMethod):
     kind = "path"
     nested = ("n_modes", "order")
     training_kinds = ("path",)
+    applies = Applies(materials=POLYNOMIAL_MATERIALS, dead_loads=True, homogeneous_dirichlet=True)
 
     def __init__(self, n_modes: int | None = None, energy: float = 0.999, order: int = 6, eps: float = 1e-4,
                  tangent: str = "origin", max_segments: int = 100, lam_max: float | None = None,

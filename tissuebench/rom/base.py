@@ -45,10 +45,61 @@ from typing import Any, Callable, ClassVar, Mapping, Sequence
 import numpy as np
 
 __all__ = ["Training", "StepResult", "DeferredStepResult", "OnlineModel", "RomMethod", "METHODS", "register",
-           "make_method", "STEP_STATUSES", "MODEL_KINDS", "check_parameters", "LinearReconstruction", "method_class"]
+           "make_method", "STEP_STATUSES", "MODEL_KINDS", "check_parameters", "LinearReconstruction", "method_class",
+           "Applies", "POLYNOMIAL_MATERIALS"]
 
 STEP_STATUSES = ("ok", "extrapolation", "beyond_validity", "failed")
 MODEL_KINDS = ("map", "path", "trajectory")
+#: the materials whose equilibrium is a cubic polynomial of the displacement (ANM, the SVK tensors)
+POLYNOMIAL_MATERIALS = ("linear", "svk")
+
+
+@dataclass(frozen=True)
+class Applies:
+    """What a method needs of a scene, and the evaluation parameters its step reads.
+
+    Declared once on each method class (``applies = Applies(...)``; the default ``Applies()``
+    is: finite-element scenes, any material, mesh and loads, a step that reads only
+    ``load_factor`` and ``time``). ``tissuebench methods SCENE`` and the sweep's spec load
+    check it (:mod:`tissuebench.studies.applicability`) before any reference is computed, so
+    a user learns what applies without waiting for a build to refuse. The analysis (static
+    or dynamic) follows from the training kinds and the model kind. A need the fields cannot
+    say is checked by overriding :meth:`RomMethod.why_not` (calling ``super()``).
+
+    Attributes
+    ----------
+    models : tuple of str
+        Scene models it builds on: ``"fe"``, ``"poisson1d"``, ``"frame2dof"``, ``"hermite_beam"``.
+    materials : tuple of str, optional
+        ``[material] name`` values it needs (None: any; :data:`POLYNOMIAL_MATERIALS` for the
+        methods that need the SVK tensors).
+    dead_loads : bool
+        No follower pressure (the load may not depend on the displacement).
+    homogeneous_dirichlet : bool
+        No nonzero prescribed displacement.
+    point_load : bool
+        Exactly one ``[[load]]``, a point load on one node (a vademecum of its position).
+    needs_cut : bool
+        A ``[cut]`` table (an incision to follow).
+    mesh_builders : tuple of str, optional
+        The mesh builders whose meshes it needs (None: any mesh, a file's included).
+    parameters : dict
+        Per training kind, the ``mu`` keys its step reads besides ``load_factor`` and ``time``
+        (``{"positions": ("position",)}``): an evaluation that changes another scene
+        parameter is refused at spec load, never returned as ok.
+    linear_model : bool
+        A linear model (the stiffness at rest): on a nonlinear scene it applies, and says so.
+    """
+
+    models: tuple = ("fe",)
+    materials: tuple | None = None
+    dead_loads: bool = False
+    homogeneous_dirichlet: bool = False
+    point_load: bool = False
+    needs_cut: bool = False
+    mesh_builders: tuple | None = None
+    parameters: dict = field(default_factory=dict)
+    linear_model: bool = False
 
 
 @dataclass
@@ -390,13 +441,67 @@ class RomMethod(ABC):
     Class attributes: ``name`` (registry key), ``kind`` (of the online model), ``nested``
     (options a sweep may slice from one build of their largest value, e.g. ``n_modes``),
     ``training_kinds`` (the training sets it can learn from: "path", "positions",
-    "trajectory", "operators").
+    "trajectory", "operators"), ``applies`` (:class:`Applies`: what it needs of a scene and
+    the parameters its step reads; checked before any work).
     """
 
     name: ClassVar[str] = ""
     kind: ClassVar[str] = "map"
     nested: ClassVar[tuple] = ()
     training_kinds: ClassVar[tuple] = ("path",)
+    applies: ClassVar[Applies] = Applies()
+
+    @classmethod
+    def why_not(cls, scene, options: Mapping | None = None) -> str:
+        """Why this method does not apply to ``scene`` (a validated :class:`~tissuebench.cases.scene.Scene`)
+        with ``options`` (None: some option set), or ``""`` when it does: the checks of
+        :attr:`applies` that need only the scene. A method with a need the declaration cannot
+        say overrides it (and calls ``super()``)."""
+        a, model = cls.applies, getattr(scene, "model", "fe")
+        if model not in a.models:
+            return f"needs a {' or '.join(a.models)} scene; this one is a {model} model"
+        material = (getattr(scene, "material", None) or {}).get("name")
+        if a.materials is not None and material not in a.materials:
+            return (f"material {material!r} is not polynomial in the displacement; needs "
+                    f"{' or '.join(repr(m) for m in a.materials)} (the reduced SVK tensors)"
+                    if tuple(a.materials) == POLYNOMIAL_MATERIALS else
+                    f"material {material!r}; needs {' or '.join(repr(m) for m in a.materials)}")
+        loads = list(getattr(scene, "loads", []))
+        if a.dead_loads and any(ld["type"] == "follower_pressure" for ld in loads):
+            return "a follower pressure depends on the displacement; needs dead loads"
+        if a.point_load and (len(loads) != 1 or loads[0]["type"] != "point"):
+            return (f"needs exactly one point load (a vademecum of its position); the scene has "
+                    f"{[ld['type'] for ld in loads]}")
+        if a.point_load and model == "fe" and (loads[0].get("distribute") == "interpolate" or "nearest" not in
+                                               loads[0]["region"] or loads[0]["region"].get("count", 1) != 1):
+            return (f"needs its point load on one node (region nearest with count = 1, not interpolated); the "
+                    f"scene's acts on {loads[0]['region']}")
+        if a.homogeneous_dirichlet and any("motion" in d or any(v != 0.0 for v in d.get("value", []))
+                                           for d in getattr(scene, "dirichlet", [])):
+            return "a [[dirichlet]] entry prescribes a nonzero displacement; needs homogeneous (fixed) supports"
+        if a.needs_cut and getattr(scene, "cut", None) is None:
+            return "needs a [cut] table (an incision to follow); the scene has none"
+        if a.mesh_builders is not None and model == "fe":
+            builder = (getattr(scene, "mesh_spec", None) or {}).get("builder")
+            if builder not in a.mesh_builders:
+                where = f"the {builder!r} builder's" if builder else "a mesh file's"
+                return (f"needs a mesh of the {' or '.join(repr(b) for b in a.mesh_builders)} builder (its layered "
+                        f"anterior surface is the vademecum's parameter domain); the scene's mesh is {where}")
+        return ""
+
+    @classmethod
+    def reads(cls, scene, training_kind: str) -> tuple:
+        """The scene parameters (``Scene.at`` keys) its step reads when trained as ``training_kind``
+        on ``scene``, besides the load factor and the time (default: ``applies.parameters``)."""
+        return tuple(cls.applies.parameters.get(training_kind, ()))
+
+    @classmethod
+    def note(cls, scene) -> str:
+        """What a user should know when the method applies (a linear model on a nonlinear scene)."""
+        material = (getattr(scene, "material", None) or {}).get("name")
+        if cls.applies.linear_model and material not in (None, "linear"):
+            return f"a linear model (the stiffness at rest) of a {material} material"
+        return ""
 
     @classmethod
     def option_names(cls) -> list[str]:

@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import LinearNDInterpolator, RBFInterpolator
 
-from .base import DeferredStepResult, LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, register
+from .base import (Applies, DeferredStepResult, LinearReconstruction, OnlineModel, RomMethod, StepResult, Training,
+                   register)
 from .interpolants import Linear1D, LinearSimplex, RbfAtPoint
 from .online import parameter
 from .pod import pod_basis
@@ -79,6 +80,8 @@ class Nearest(RomMethod):
     name = "nearest"
     kind = "map"
     training_kinds = ("path", "positions", "trajectory")
+    # reads the numeric parameters of its training snapshots: the position when trained on positions
+    applies = Applies(models=("fe", "poisson1d", "frame2dof", "hermite_beam"), parameters={"positions": ("position",)})
 
     def build(self, training: Training) -> OnlineModel:
         keys, P, lo, span = _parameter_table(training, self.name)
@@ -156,6 +159,7 @@ class PodInterp(RomMethod):
     kind = "map"
     nested = ("n_modes",)
     training_kinds = ("path", "positions")
+    applies = Applies(models=("fe", "poisson1d", "frame2dof", "hermite_beam"), parameters={"positions": ("position",)})
 
     def __init__(self, n_modes: int | None = None, energy: float = 0.999, interpolation: str = "linear",
                  kernel: str = "thin_plate_spline"):

@@ -19,7 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from .base import LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, check_parameters, register
+from .base import (Applies, LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, check_parameters,
+                   register)
 from .online import parameter
 
 __all__ = ["PodBasis", "pod_basis", "PodLinear", "PodNewton"]
@@ -232,6 +233,7 @@ class PodLinear(_PodStatic):
 
     name = "pod_linear"
     kind = "map"
+    applies = Applies(dead_loads=True, linear_model=True)
 
     def build(self, training: Training) -> OnlineModel:
         basis, free = self._basis(training)

@@ -14,9 +14,11 @@ The case entry's ``evaluation`` table has a ``kind`` (default: the training's):
                 stored reference steps; ``t_end`` (e.g. 10x the paper's horizon) runs a
                 longer reference. Where the load ends constant, the long-run energy drift
                 of the reference and of the model (:mod:`.energy`).
-``map``         the reference at each parameter of ``mus = [{...}, ...]`` (any scene
-                parameters: ``position``, ``load_scale`` ...), one point per entry, each
-                reference run at the full path's last load factor.
+``map``         the reference at each parameter of ``mus = [{...}, ...]`` (scene parameters a
+                model represents: ``position``, ``load_scale``, ``max_load_factor``; see
+                :mod:`.applicability`), one point per entry, each reference run at the full
+                path's last load factor. ``load_scale`` and ``max_load_factor`` reach the
+                model as its load factor (``load_scale * last load factor``).
 ``contact_nodes`` (the surface vademecums, ``pgd`` and ``pgd_svk``, whose model knows its
                 contact nodes) ``count`` contact nodes of the model, evenly spaced through
                 its list; per node the intact scene (no ``[cut]``) with its point load moved
@@ -74,6 +76,7 @@ class Evaluation:
     reference_steps: dict = field(default_factory=dict)  # reference: for timing a full step in process
     info: dict = field(default_factory=dict)
     timing_mus: list | None = None  # the haptic sequence to time, when the evaluation defines one
+    history: object = None  # trajectory: the load factor the model is driven with, history(t) (load_scale folded in)
     reference_step_s: float | None = None  # the full step, when the evaluation timed it itself
     # trajectory: the reference's long-run energy drift over the constant-load window (its
     # window_start and scale are the model's too, :mod:`.energy`); None without such a window
@@ -117,20 +120,36 @@ def _positions(scene, case, spec, training_spec):
                       info={"lattice": lattice.tolist(), "spacing": float(np.diff(lattice).min())})
 
 
+def _scaled(history, scale: float):
+    """``history`` times ``scale`` (the load factor of a run whose loads ``load_scale`` scaled)."""
+    return history if scale == 1.0 else (lambda t: scale * history(t))
+
+
 def _trajectory(scene, case, spec):
     run = scene.at({k: v for k, v in spec.items() if k in ("load_scale", "t_end")})
     ref, _ = cached_solve(run, case["backend"])
     n = len(ref.steps)
     U = ref.displacement.reshape(n, -1)
-    hist = run.history
+    # the model is driven by the load factor: the run's loads are load_scale times the training's
+    # (exact: load_scale is refused at spec load where supports prescribe a displacement)
+    hist = _scaled(scene.history, float(spec.get("load_scale", 1.0)))
     points = [EvaluationPoint({"time": float(t), "load_factor": float(hist(t))}, U[k], ref.monitors_at("time", t),
                               float(t)) for k, t in enumerate(ref.steps)]
     state0 = {"u": U[0], "v": ref.velocity.reshape(n, -1)[0]}
     dt, t_end = float(run.analysis["dt"]), float(run.analysis["t_end"])
     t_c = conservative_window(hist, dt, t_end, float(ref.steps[0]))
     return Evaluation("trajectory", "time", points, dt=dt, state0=state0, reference_steps={"ref": ref, "scene": run},
-                      info={"reference_status": ref.status, "t_end": t_end},
+                      info={"reference_status": ref.status, "t_end": t_end}, history=hist,
                       reference_energy=None if t_c is None else reference_drift(ref.table, t_c, t_end))
+
+
+def model_mu(mu: dict, load_factor: float) -> dict:
+    """The parameters a model steps with for scene parameters ``mu`` whose reference ends at
+    ``load_factor``: ``load_scale`` folded into the load factor, ``max_load_factor`` already in it
+    (:mod:`.applicability` refuses, at spec load, any key a model does not read)."""
+    out = {k: v for k, v in mu.items() if k not in ("load_scale", "max_load_factor")}
+    out["load_factor"] = float(mu.get("load_scale", 1.0)) * float(load_factor)
+    return out
 
 
 def _map(scene, case, spec):
@@ -140,8 +159,8 @@ def _map(scene, case, spec):
         ref, _ = cached_solve(s, case["backend"])
         U, lams = reference_states(ref)
         first = first or {"ref": ref, "scene": s}
-        points.append(EvaluationPoint({**mu, "load_factor": float(lams[-1])}, U[:, -1],
-                                      ref.monitors_at("load_factor", lams[-1]), float(len(points))))
+        points.append(EvaluationPoint(model_mu(mu, lams[-1]), U[:, -1], ref.monitors_at("load_factor", lams[-1]),
+                                      float(len(points))))
     return Evaluation("map", "index", points, reference_steps=first or {})
 
 

@@ -382,7 +382,10 @@ _MANIFEST_KEYS = {"spec_name": (_is_str, "a string"), "spec_source": (_is_str, "
                   "machine": (lambda v: isinstance(v, dict), "a table"),
                   "computed": (_is_count, "a count"), "skipped": (_is_count, "a count"),
                   "recomputed": (_is_count, "a count"), "failed": (_is_count, "a count"),
-                  "wall_s": (_is_seconds, "a finite number of seconds >= 0")}
+                  "wall_s": (_is_seconds, "a finite number of seconds >= 0"),
+                  "not_applicable": (lambda v: isinstance(v, list) and all(
+                      isinstance(e, dict) and all(isinstance(x, str) for x in e.values()) for e in v),
+                      "a list of tables of strings {case, method, options, why}")}
 _CASE_KEYS = {"id": _is_str, "name": _is_str, "resolution": lambda v: v in ("ci", "paper"), "backend": _is_str,
               "variant": lambda v: v is None or isinstance(v, str), "training": lambda v: isinstance(v, dict),
               "evaluation": lambda v: isinstance(v, dict), "mu": lambda v: isinstance(v, dict),

@@ -47,12 +47,13 @@ import itertools
 import math
 import re
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..cases.scene import RESOLUTIONS, list_cases, resolve_toml
 from ..cases.schema import c_nonneg, c_pos, c_str, check_table, key_text, value_text
 from ..rom import METHODS, method_class
+from .applicability import evaluation_why_not, why_not
 from .evaluation import EVALUATION_KINDS
 from .limits import MAX_UNITS, check_evaluation, check_option_values, check_protocol, check_training
 from .training import TRAINING_KINDS, case_scene
@@ -100,6 +101,8 @@ class SweepSpec:
     methods: list
     text: str
     source: str
+    # (case, method, options) pairs left out because the method does not apply, each with why
+    skipped: list = field(default_factory=list)
 
     @property
     def hash(self) -> str:
@@ -165,7 +168,7 @@ def _check_case(i, c, resolution, default_resolution):
     scene = _named(path, case_scene, entry)  # the scene must load and take the mu (their errors name the key)
     check_training(f"{path}.training", training, scene)
     check_evaluation(f"{path}.evaluation", evaluation, scene)
-    return entry
+    return entry, scene
 
 
 def _is_file(name: str) -> bool:
@@ -222,7 +225,7 @@ def _option_sets(path, m, cls, max_sets):
     return list(out.values())
 
 
-def _check_method(i, m, cases, resolution, max_sets):
+def _check_method(i, m, cases, resolution, max_sets, scenes, skipped):
     path = f"method[{i}]"
     _table(path, m, _METHOD)
     name = m.get("name")
@@ -256,8 +259,39 @@ def _check_method(i, m, cases, resolution, max_sets):
             if c["training"]["kind"] not in cls.training_kinds:
                 _fail(f"{path}.cases", c["id"], f"its training kind {c['training']['kind']!r} is not one method "
                       f"{name!r} learns from ({list(cls.training_kinds)})")
+    chosen, excluded = _applicable(path, cls, chosen, wanted is not None, sets, scenes, skipped)
     protocol = _table(f"{path}.protocol", m.get("protocol", {}), set(DEFAULT_PROTOCOL))
-    return {"name": name, "cases": [c["id"] for c in chosen], "option_sets": sets, "protocol": protocol}
+    return {"name": name, "cases": [c["id"] for c in chosen], "option_sets": sets, "protocol": protocol,
+            "excluded": excluded}
+
+
+def _applicable(path, cls, chosen, explicit, sets, scenes, skipped):
+    """``(cases, excluded (case id, options text) pairs)`` of a method entry that apply
+    (:mod:`.applicability`), before any reference is computed: a pair the entry names
+    (``cases = [...]``) is refused, one chosen by default is skipped and recorded in
+    ``skipped`` (``{"case", "method", "options", "why"}``, one line each in the CLI)."""
+    keep, excluded, reasons = [], [], []
+    for c in chosen:
+        scene = scenes[c["id"]]
+        why = why_not(cls, scene, c["training"]["kind"]) or evaluation_why_not(cls, c, scene)
+        bad = {} if why else {options_text(o): r for o in sets if (r := cls.why_not(scene, o))}
+        if why or len(bad) == len(sets):
+            why = why or next(iter(bad.values()))
+            if explicit:
+                _fail(f"{path}.cases", c["id"], f"method {cls.name!r} does not apply to this case: {why}")
+            skipped.append({"case": c["id"], "method": cls.name, "options": "", "why": why})
+            reasons.append(f"{c['id']}: {why}")
+            continue
+        for text, r in bad.items():
+            if explicit:
+                _fail(f"{path}.cases", c["id"], f"method {cls.name!r} with options {text} does not apply to this "
+                      f"case: {r}")
+            skipped.append({"case": c["id"], "method": cls.name, "options": text, "why": r})
+            excluded.append((c["id"], text))
+        keep.append(c)
+    if not keep:
+        _fail(f"{path}.name", cls.name, "applies to no case of the spec: " + "; ".join(reasons))
+    return keep, excluded
 
 
 def _read(path: Path) -> tuple[str, dict]:
@@ -313,20 +347,24 @@ def load_spec(spec_or_preset, resolution: str | None = None, only: list | None =
     raw_cases = raw.get("case", [])
     if not isinstance(raw_cases, list) or not raw_cases:
         raise ValueError(f"case: a sweep needs at least one [[case]] ({path})")
-    cases = [_check_case(i, c, resolution, res) for i, c in enumerate(raw_cases)]
+    checked = [_check_case(i, c, resolution, res) for i, c in enumerate(raw_cases)]
+    cases, scenes = [c for c, _ in checked], {c["id"]: s for c, s in checked}
     ids = [c["id"] for c in cases]
     if len(set(ids)) != len(ids):
         _fail("case", ids, "case ids must be unique (give `id` to a case listed twice)")
     raw_methods = raw.get("method", [])
     if not isinstance(raw_methods, list) or not raw_methods:
         raise ValueError(f"method: a sweep needs at least one [[method]] ({path})")
-    methods = [_check_method(i, m, cases, res, max_units) for i, m in enumerate(raw_methods)]
+    skipped = []
+    methods = [_check_method(i, m, cases, res, max_units, scenes, skipped) for i, m in enumerate(raw_methods)]
     if only is not None:
         unknown = sorted(set(only) - set(ids)) if isinstance(only, (list, tuple, set)) and only else [only]
         if unknown:
             _fail("--cases", unknown[0], f"not a case id of {path.name}; valid: {ids}")
         cases = [c for c in cases if c["id"] in only]
-        methods = [{**m, "cases": [c for c in m["cases"] if c in only]} for m in methods]
+        skipped = [s for s in skipped if s["case"] in only]
+        methods = [{**m, "cases": [c for c in m["cases"] if c in only],
+                    "excluded": [e for e in m["excluded"] if e[0] in only]} for m in methods]
         methods = [m for m in methods if m["cases"]]
         if not methods:
             _fail("--cases", ",".join(only), "no method of the spec runs on these cases: the sweep would select no "
@@ -334,11 +372,11 @@ def load_spec(spec_or_preset, resolution: str | None = None, only: list | None =
     for i, m in enumerate(methods):
         m["protocol"] = {**protocol, **m["protocol"]}
         check_protocol(f"method[{i}].protocol", m["protocol"])
-    planned = sum(len(m["option_sets"]) * len(m["cases"]) for m in methods)
+    planned = sum(len(m["option_sets"]) * len(m["cases"]) - len(m["excluded"]) for m in methods)
     if planned > max_units:
         _fail("method", f"{planned} units", f"at most {max_units} units may be planned (--max-units raises the "
               "limit)")
-    return SweepSpec(name, description, res, metric, protocol, cases, methods, text, str(path))
+    return SweepSpec(name, description, res, metric, protocol, cases, methods, text, str(path), skipped)
 
 
 def expand_units(spec: SweepSpec) -> list[WorkUnit]:
@@ -358,8 +396,11 @@ def expand_units(spec: SweepSpec) -> list[WorkUnit]:
         for i, parent in enumerate(parents):
             groups.setdefault(i if parent is None else options_text(parent), []).append(i)
         order = [i for members in groups.values() for i in members]
+        excluded = set(m.get("excluded", ()))
         for cid in m["cases"]:
             for opts, parent in ((m["option_sets"][i], parents[i]) for i in order):
+                if (cid, options_text(opts)) in excluded:
+                    continue
                 case = by_id[cid]
                 key = unit_key(case, scene_hashes[cid], m["name"], opts, m["protocol"])
                 if key not in seen:

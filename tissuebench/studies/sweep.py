@@ -151,7 +151,7 @@ def _mark(store, spec, units, executor, state) -> None:
 def _manifest(spec, units, executor, state, summary=None) -> dict:
     data = provenance(spec_name=spec.name, spec_source=spec.source, spec_hash=spec.hash, spec_text=spec.text,
                       resolution=spec.resolution, error_metric=spec.error_metric, executor=executor, state=state,
-                      cases=spec.cases,
+                      cases=spec.cases, not_applicable=list(spec.skipped),
                       units=[{"key": u.key, "case": u.case["id"], "method": u.method, "label": u.label} for u in units])
     if summary is not None:
         data.update(computed=len(summary.computed), skipped=len(summary.skipped),

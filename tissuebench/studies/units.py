@@ -24,6 +24,7 @@ import pandas as pd
 from threadpoolctl import threadpool_limits
 
 from ..rom import make_method, method_class
+from .applicability import evaluation_why_not, why_not
 from .energy import EnergyDrift, model_drift
 from .evaluation import NEEDS_MODEL, build_evaluation
 from .metrics import output_rows, point_rows, summarise_points
@@ -147,6 +148,12 @@ def _where(exc) -> str:
 def _measure(unit: WorkUnit, row: dict) -> dict:
     p = unit.protocol
     scene = case_scene(unit.case)
+    # checked at spec load; again here, so that a unit built another way never returns a model's
+    # training answer at a parameter it does not read as an ok result
+    refusal = why_not(unit.method, scene, unit.case["training"]["kind"], unit.options) or evaluation_why_not(
+        unit.method, unit.case, scene)
+    if refusal:
+        raise ValueError(f"{unit.method} does not apply to case {unit.case['id']!r}: {refusal}")
     training = build_training(unit.case, scene)
     needs_model = unit.case["evaluation"].get("kind") in NEEDS_MODEL
     evaluation = None if needs_model else build_evaluation(unit.case, scene)
@@ -155,7 +162,7 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
         evaluation = build_evaluation(unit.case, scene, model)
     if training.outputs:
         model.attach_outputs(training.outputs)
-    history = training.history or (scene.history if evaluation.kind == "trajectory" else None)
+    history = evaluation.history or training.history or (scene.history if evaluation.kind == "trajectory" else None)
     driven = drive(model, evaluation, history)
     energy, histories = _energy_drift(evaluation, driven, unit.case["backend"])
     points = pd.DataFrame(point_rows(evaluation, driven)).assign(**histories)

@@ -13,13 +13,14 @@ import time
 
 import numpy as np
 
-from ..base import RomMethod, Training, register
+from ..base import POLYNOMIAL_MATERIALS, Applies, RomMethod, Training, register
 from .balance import rotate_fields
 from .meshes import ParameterMesh, parameter_domain
 from .model import DirectModel
 from .nonlinear import svk_internal_force_field
 from .offline import PgdSettings, build_vademecum
 from .operators import load_factors, state_bases, step_operators
+from ..polynomial import check_polynomial_problem
 from .schemes import SCHEMES
 
 __all__ = ["DirectIntegrator"]
@@ -40,6 +41,12 @@ def basis_floor_rmse(training, basis) -> float:
     Q, _ = np.linalg.qr(basis)
     den = float(np.sum(U ** 2))
     return float(np.sqrt(np.sum((U - Q @ (Q.T @ U)) ** 2) / den)) if den > 0 else float("nan")
+
+
+def _nonlinear(scene) -> bool:
+    """The scene's semi-discrete system is nonlinear (a finite-strain material, a follower load)."""
+    return scene.is_fe and (scene.material["name"] != "linear" or any(ld["type"] == "follower_pressure"
+                                                                      for ld in scene.loads))
 
 
 @register
@@ -89,6 +96,29 @@ class DirectIntegrator(RomMethod):
     kind = "trajectory"
     nested = ()
     training_kinds = ("trajectory",)
+    applies = Applies(models=("fe", "poisson1d", "frame2dof", "hermite_beam"), dead_loads=True)
+
+    @classmethod
+    def why_not(cls, scene, options=None) -> str:
+        """Besides the declaration: a nonlinear system needs the SVK tensors (a polynomial
+        material) and then an explicit scheme inside the step (§6.2)."""
+        why = super().why_not(scene, options)
+        if why or not _nonlinear(scene):
+            return why
+        material = scene.material["name"]
+        if material not in POLYNOMIAL_MATERIALS:
+            return (f"material {material!r} is not polynomial in the displacement; the nonlinear direct integrator "
+                    "needs Saint Venant-Kirchhoff (or linear) elasticity (the SVK internal force in separated form)")
+        integrator = (options or {}).get("integrator", "forward_euler")
+        if SCHEMES[integrator].implicit:
+            return (f"integrator {integrator!r} is implicit and the system is nonlinear; use forward_euler or "
+                    "central_difference (explicit treatment, §6.2)")
+        return ""
+
+    @classmethod
+    def note(cls, scene) -> str:
+        return "explicit integrators only (forward_euler, central_difference): nonlinear SVK system" \
+            if scene.is_fe and _nonlinear(scene) else ""
 
     def __init__(self, pod_modes: int = 8, integrator: str = "forward_euler", pgd_modes: int | None = None,
                  n_nodes: int = 100, margin: float = 0.25, symmetric: bool = True, balance: str = "field",
@@ -147,6 +177,10 @@ class DirectIntegrator(RomMethod):
         if dt is None:
             raise ValueError("pgd_direct: no time step (give dt or a training with dt)")
         ops = step_operators(training, self.mass)
+        if not ops.linear and training.backend is not None:
+            # the material first: no integrator helps a non-polynomial one (the advice below would
+            # lead to a second refusal)
+            check_polynomial_problem(training.backend.problem, "pgd_direct")
         if scheme.implicit and not ops.linear:
             raise ValueError(f"pgd_direct: integrator {self.integrator!r} is implicit and the system is "
                              "nonlinear; use forward_euler or central_difference (explicit treatment, §6.2)")

@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from ..base import OnlineModel, RomMethod, StepResult, Training, register
+from ..base import Applies, OnlineModel, RomMethod, StepResult, Training, register
 from .enrichment import Enrichment, condense, enrichment_operators, to_cut_mesh
 from .linear import check_pgd_options
 from .online import locate
@@ -252,6 +252,8 @@ class PgdCutting(RomMethod):
     kind = "map"
     nested = ("n_modes",)
     training_kinds = ("operators",)
+    applies = Applies(point_load=True, homogeneous_dirichlet=True, needs_cut=True, mesh_builders=("cornea_dome",),
+                      linear_model=True)  # mu: node and cut_length (evaluation cut_lengths), not Scene.at keys
 
     def __init__(self, n_modes: int = 6, projection: str = "srb", incision: int = 0, radii=None,
                  accessible: str = "strip", strip_rings: int = 1, F_cut: float | None = None, tol: float = 1e-8,

@@ -167,11 +167,14 @@ def surface_family(K, points, free_dofs, nodes, weights, force) -> PointLoadFami
     return fam
 
 
-def anterior_nodes(mesh, info, free_dofs) -> np.ndarray:
+def anterior_nodes(mesh, info, free_dofs, who: str = "anterior_nodes") -> np.ndarray:
     """Nodes of the anterior (outer) surface of a ``cornea_dome`` mesh whose three dofs are
-    free (the clamped base ring is not accessible), sorted by node id."""
+    free (the clamped base ring is not accessible), sorted by node id; ``who`` names the
+    method in the error of a mesh without layers."""
     if "layers" not in info or "nodes_per_layer" not in info:
-        raise ValueError("anterior_nodes: needs a layered cornea_dome mesh (info with layers, nodes_per_layer)")
+        raise ValueError(f"{who}: the parameter domain of the vademecum is the anterior surface of a layered shell "
+                         f"mesh (builder 'cornea_dome'); this scene's mesh ({info.get('builder', 'a mesh file')}) "
+                         "has no layers")
     start = info["layers"] * info["nodes_per_layer"]
     cand = np.arange(start, start + info["nodes_per_layer"])
     free = np.zeros(3 * mesh.n_vertices, bool)

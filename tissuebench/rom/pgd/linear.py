@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..base import LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, register
+from ..base import Applies, LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, register
 from .online import locate
 from .projections import make_projection
 from .training import family_from_training
@@ -54,6 +54,15 @@ class Pgd(RomMethod):
     kind = "map"
     nested = ("n_modes",)
     training_kinds = ("operators",)
+    # a 1D point source, or a point load on the anterior surface of a layered shell (cornea_dome)
+    applies = Applies(models=("fe", "poisson1d"), point_load=True, homogeneous_dirichlet=True,
+                      mesh_builders=("cornea_dome",), parameters={"operators": ("position",)}, linear_model=True)
+
+    @classmethod
+    def reads(cls, scene, training_kind):
+        """The position of the 1D source; on a surface, ``position`` is an index into the accessible
+        nodes (``node`` a mesh node), not the scene's ``[parameters.position]`` coordinate."""
+        return super().reads(scene, training_kind) if not scene.is_fe else ()
 
     def __init__(self, n_modes: int = 10, projection: str = "srb", tol: float = 1e-8, max_fixed_point: int = 50,
                  fixed_point_tol: float = 1e-8, seed: int = 0, update_last: bool = False, s_nodes=None):

@@ -18,7 +18,8 @@ import math
 import numpy as np
 import scipy.linalg as sla
 
-from ..base import LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, register
+from ..base import (POLYNOMIAL_MATERIALS, Applies, LinearReconstruction, OnlineModel, RomMethod, StepResult,
+                    Training, register)
 from ..polynomial import check_polynomial_problem, reduced_polynomial
 from .linear import check_pgd_options
 from .online import locate
@@ -44,6 +45,8 @@ class PgdSvk(RomMethod):
     kind = "map"
     nested = ("n_modes",)
     training_kinds = ("operators",)
+    applies = Applies(materials=POLYNOMIAL_MATERIALS, dead_loads=True, point_load=True, homogeneous_dirichlet=True,
+                      mesh_builders=("cornea_dome",))  # mu: node / accessible-node index, not a Scene.at key
 
     def __init__(self, n_modes: int = 6, tol: float = 1e-8, max_fixed_point: int = 50, fixed_point_tol: float = 1e-8,
                  seed: int = 0, rtol: float = 1e-10, max_iterations: int = 25, max_increments: int = 16):

@@ -105,7 +105,7 @@ def family_from_training(training: Training, who: str = "pgd", s_nodes=None) -> 
     nodes, w = info.get("accessible_nodes"), info.get("weights")
     minfo = dataclasses.replace(scene, cut=None).mesh_info
     if nodes is None:
-        nodes = anterior_nodes(mesh, minfo, pb.free_dofs)
+        nodes = anterior_nodes(mesh, minfo, pb.free_dofs, who)
     nodes = np.asarray(nodes, dtype=np.int64)
     if w is None and "nodes_per_layer" in minfo:
         # lumped areas over the whole anterior layer (clamped rim included), then the accessible ones
