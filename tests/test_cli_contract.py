@@ -19,7 +19,7 @@ from _report_store import build_store
 from tissuebench.cli import _parser, main
 
 ROOT = Path(__file__).resolve().parents[1]
-SUBCOMMANDS = ["run", "cases", "sweep", "study", "cache", "report", "check", "verify", "describe"]
+SUBCOMMANDS = ["run", "cases", "sweep", "study", "cache", "report", "check", "verify", "describe", "scene", "methods"]
 
 ONE = """
 [sweep]
@@ -116,6 +116,15 @@ BAD = [
     (["verify", "--cases", "nope"], "nope"),
     (["verify", "{d}/nope"], "nope"),
     (["verify", "--resolution", "fine"], "invalid choice"),
+    (["scene", "check", "nope"], "unknown case 'nope'"),
+    (["scene", "check", "{d}/garbage.toml"], "garbage.toml"),
+    (["scene", "nope", "cornea_pinch"], "invalid choice"),
+    (["methods", "nope"], "unknown case 'nope'"),
+    (["methods", "{d}/binary.toml"], "binary.toml"),
+    (["sweep", "--scene", "{d}/garbage.toml", "--all-methods"], "garbage.toml"),
+    (["sweep", "--scene", "cornea_pinch"], "--all-methods"),
+    (["sweep", "--all-methods"], "go with --scene"),
+    (["sweep", "{d}/spec.toml", "--scene", "cornea_pinch", "--all-methods"], "give either --scene"),
 ]
 
 
@@ -136,6 +145,8 @@ def test_one_real_call_of_every_subcommand(files, tmp_path, capsys, monkeypatch)
     monkeypatch.chdir(tmp_path)
     assert cli(["cases", "--no-mesh"], capsys)[0] == 0
     assert cli(["describe", "cornea_pinch"], capsys)[0] == 0
+    assert cli(["methods", "cornea_pinch"], capsys)[0] == 0
+    assert cli(["scene", "check", "cornea_pinch", "--out", "-"], capsys)[0] == 0
     assert cli(["run", "heat1d_source", "--quiet"], capsys)[0] == 0
     assert cli(["sweep", "--list"], capsys)[0] == 0
     assert cli(["sweep", str(files / "spec.toml"), "--quiet", "--out", str(tmp_path / "s")], capsys)[0] == 0

@@ -58,6 +58,10 @@ def _parser():
     sweep.add_argument("spec", nargs="?", help="a sweep spec (TOML file)")
     sweep.add_argument("--preset", default=None, help="a shipped spec (see --list)")
     sweep.add_argument("--list", action="store_true", help="list the shipped presets")
+    sweep.add_argument("--scene", default=None, help="a scene file: with --all-methods, write the spec of every "
+                       "method that applies (held-out evaluation) beside the results folder and run it")
+    sweep.add_argument("--all-methods", action="store_true", help="with --scene: every registered method that applies")
+    sweep.add_argument("--variant", default=None, help="with --scene: the scene's variant")
     _sweep_options(sweep)
     study = sub.add_parser("study", help="alias: sweep --preset NAME")
     study.add_argument("name", help="preset name (anm_pod, interpolation, ...)")
@@ -86,6 +90,17 @@ def _parser():
     desc.add_argument("case")
     desc.add_argument("--variant", default=None)
     desc.add_argument("--resolution", default="ci", choices=["ci", "paper"])
+    scene = sub.add_parser("scene", help="check a scene file: what it models, counted, and scene.png")
+    scene.add_argument("action", choices=["check"])
+    scene.add_argument("case", help="a scene file (or a catalogue case name)")
+    scene.add_argument("--variant", default=None)
+    scene.add_argument("--resolution", default="ci", choices=["ci", "paper"])
+    scene.add_argument("--out", type=Path, default=None,
+                       help="the picture (default: scene.png beside the scene file; '-' for none)")
+    methods = sub.add_parser("methods", help="every registered method: does it apply to SCENE, and why not")
+    methods.add_argument("case", help="a scene file or a catalogue case name")
+    methods.add_argument("--variant", default=None)
+    methods.add_argument("--resolution", default="ci", choices=["ci", "paper"])
     return p
 
 
@@ -193,9 +208,15 @@ def _sweep(args, preset=None) -> int:
             print(f"{name:16s} {desc}")
         return 0
     spec_arg, preset_arg = getattr(args, "spec", None), getattr(args, "preset", None)
+    if getattr(args, "scene", None) is not None:
+        if spec_arg or preset_arg:
+            raise ValueError("sweep: give either --scene FILE --all-methods, or SPEC.toml, or --preset NAME")
+        spec_arg, args.out = _scene_spec(args)
+    elif getattr(args, "all_methods", False) or getattr(args, "variant", None):
+        raise ValueError("sweep: --all-methods and --variant go with --scene FILE")
     source = preset or preset_arg or spec_arg
     if source is None or (spec_arg and preset_arg):
-        raise ValueError("sweep: give exactly one of SPEC.toml, --preset NAME or --list")
+        raise ValueError("sweep: give exactly one of SPEC.toml, --preset NAME, --scene FILE --all-methods or --list")
     spec = load_spec(source, resolution=args.resolution, only=_id_list(args.cases, "--cases"),
                      max_units=args.max_units)
     out = args.out or Path("out") / f"sweep-{safe_name(spec.name)}-{spec.resolution}"
@@ -221,6 +242,29 @@ def _sweep(args, preset=None) -> int:
     print(f"{summary.planned} units: {len(summary.computed)} computed ({len(summary.failed)} failed), "
           f"{len(summary.skipped)} kept from before, {len(summary.recomputed)} recomputed; results in {out}")
     return 1 if summary.failed else 0
+
+
+def _scene_spec(args):
+    """``(spec path, results folder)`` of ``sweep --scene FILE --all-methods``: the spec written
+    beside the folder (``<out>.toml``), the methods that do not apply said one line each."""
+    from .cases.scene import load
+    from .studies.run import safe_name
+    from .studies.scene_spec import write_scene_spec
+    from .studies.store import check_output_location
+
+    if not args.all_methods:
+        raise ValueError("sweep --scene FILE: add --all-methods (every registered method that applies to the scene; "
+                         "to choose methods, write a spec: see README 'Sweeps')")
+    resolution = args.resolution or "ci"
+    scene = load(args.scene, resolution=resolution, variant=args.variant)
+    out = args.out or Path("out") / f"sweep-{safe_name(scene.name)}-{resolution}"
+    check_output_location(out, overwrite=True)
+    spec, left_out = write_scene_spec(args.scene, out, args.variant, resolution)
+    if not args.quiet:
+        for name, why in left_out:
+            print(f"not applicable: {name}: {why}", file=sys.stderr)
+        print(f"spec: {spec} (edit it and run it again with: tissuebench sweep {spec} --out FOLDER)", file=sys.stderr)
+    return str(spec), out
 
 
 def _print_pareto(out) -> None:
@@ -391,6 +435,41 @@ def _verify_backends(results) -> int:
     return len(bad)
 
 
+def _scene_check(args) -> int:
+    from .cases.scene import load
+    from .studies.scene_check import scene_summary, summary_lines
+
+    scene = load(args.case, resolution=args.resolution, variant=args.variant)
+    summary = scene_summary(scene)
+    for line in summary_lines(summary, scene.units):
+        print(line)
+    if scene.is_fe and str(args.out) != "-":
+        from .reports.scene_figure import draw_scene
+
+        out = args.out or scene.path.parent / "scene.png"
+        how = draw_scene(scene, summary, out)
+        print(f"picture: {out} ({how})")
+    print(f"scene {scene.path}: valid")
+    return 0
+
+
+def _methods(args) -> int:
+    from .cases.scene import load
+    from .studies.applicability import method_rows
+
+    scene = load(args.case, resolution=args.resolution, variant=args.variant)
+    rows = method_rows(scene)
+    width = max(len(r["method"]) for r in rows)
+    print(f"{scene.name}" + (f" [{scene.variant}]" if scene.variant else "") + f": {scene.analysis['type']}, "
+          + (f"material {scene.material['name']}" if scene.material else f"{scene.model} model"))
+    for r in rows:
+        verdict = f"applies ({', '.join(r['learns_from'])} training)" if r["applies"] else "does not apply"
+        print(f"  {r['method']:{width}s}  {verdict}" + (f": {r['why']}" if r["why"] else ""))
+    n = sum(r["applies"] for r in rows)
+    print(f"{n} of {len(rows)} methods apply")
+    return 0
+
+
 def _pd_display():
     import pandas as pd
 
@@ -408,6 +487,10 @@ def _dispatch(args) -> int:
 
         print(describe(args.case, resolution=args.resolution, variant=args.variant))
         return 0
+    if args.command == "scene":
+        return _scene_check(args)
+    if args.command == "methods":
+        return _methods(args)
     if args.command == "sweep":
         return _sweep(args)
     if args.command == "study":

@@ -78,6 +78,7 @@ BUILDER_PARAMS = {  # builder: ({parameter: checker}, required parameters)
     "lv_ellipsoid": ({"endo": _vec(2, True), "epi": _vec(2, True), "z_base": c_num, "maxh": c_pos}, ()),
     "liver": ({"path": _mesh_file, "scale": c_pos, "maxh": c_pos, "grading": _grading, "fallback_maxh": c_pos,
                "allow_fallback": c_bool}, ()),
+    "file": ({"path": _mesh_file, "scale": c_pos}, ("path",)),
     "interval": ({"length": c_pos, "n_elements": c_int_range(1, 10_000_000)}, ()),
     "beam1d": ({"length": c_pos, "n_elements": c_int_range(1, 10_000_000)}, ()),
 }

@@ -14,6 +14,8 @@ Builders
 ``lv_ellipsoid`` truncated thick-walled ellipsoid of Land et al. 2015 problem 2 (netgen CSG)
 ``liver``        the SOFA liver shipped in tissuebench/data (VTU), any meshio volume mesh, an STL surface
                  tetrahedralised by netgen, or a built-in organ-like fallback shape
+``file``         a user's volume mesh file (any meshio format), coordinates scaled: what a scene's
+                 ``[mesh] file = "kidney.msh"`` builds (see :mod:`.scene`)
 ``interval``     1D interval [0, length] split into equal elements (Poisson 1D)
 ``beam1d``       1D beam/column axis [0, length] split into equal elements
 """
@@ -26,7 +28,7 @@ from ..refsolvers.mesh import hex_corner_jacobians as corner_jacobians
 from .builders_organs import cornea_dome, liver, lv_ellipsoid, truncated_spheroid_volume
 from .builtmesh import BuiltMesh, LineMesh
 
-__all__ = ["BuiltMesh", "LineMesh", "BUILDERS", "build_mesh", "box", "netgen_box", "cornea_dome",
+__all__ = ["BuiltMesh", "LineMesh", "BUILDERS", "build_mesh", "box", "netgen_box", "cornea_dome", "mesh_file",
            "lv_ellipsoid", "truncated_spheroid_volume", "liver", "interval", "beam1d",
            "hex_corner_jacobians"]
 
@@ -72,14 +74,31 @@ def beam1d(length=1.0, n_elements=10) -> BuiltMesh:
     return _line(length, n_elements, "beam1d")
 
 
+def mesh_file(path, scale: float = 1.0) -> BuiltMesh:
+    """The volume mesh in file ``path`` (tetrahedra or hexahedra, any format meshio reads),
+    coordinates multiplied by ``scale`` (the file's unit to the scene's length unit)."""
+    from pathlib import Path
+
+    from .builtmesh import scaled
+    from .io import read_mesh
+
+    p = Path(path)
+    mesh = read_mesh(p)
+    return BuiltMesh(scaled(mesh, scale), {"builder": "file", "source": str(p), "file": p.name, "scale": scale})
+
+
 BUILDERS = {"box": box, "netgen_box": netgen_box, "cornea_dome": cornea_dome, "lv_ellipsoid": lv_ellipsoid,
-            "liver": liver, "interval": interval, "beam1d": beam1d}
+            "liver": liver, "interval": interval, "beam1d": beam1d, "file": mesh_file}
 
 
 def mesh_sources(builder: str, params: dict) -> list:
     """The files a builder reads for ``params`` (their content is part of a scene's identity):
     the liver's VTU/STL (explicit ``path`` or the data folder's); none for meshes built from
     parameters alone."""
+    if builder == "file":
+        from pathlib import Path
+
+        return [Path(params["path"])]
     if builder != "liver":
         return []
     from pathlib import Path

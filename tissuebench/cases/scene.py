@@ -7,12 +7,19 @@ every key against a small schema table and returns a :class:`Scene`. Errors are
 
 Schema (see the README of the catalogue, and any scene file, for examples)
 ------------------------------------------------------------------------
-``[case]``       name, paper, description, model ("fe" default | "poisson1d" | "frame2dof" |
-                 "hermite_beam"), default_variant (optional)
+``[case]``       name, description, paper (optional: the publication a catalogue case reproduces),
+                 model ("fe" default | "poisson1d" | "frame2dof" | "hermite_beam"), default_variant
+                 (optional; without it the base scene is the default, whatever variants exist)
 ``[units]``      length (required), force, stress, mass, time (strings, documentation)
 ``[mesh]``       builder (see :mod:`.builders`), element ("P1" | "P2" | "Q1"; FE only),
                  ``[mesh.params]`` shared builder parameters, ``[mesh.ci]`` and
-                 ``[mesh.paper]`` per-resolution parameters (merged over params)
+                 ``[mesh.paper]`` per-resolution parameters (merged over params);
+                 or a mesh file: ``file = "kidney.msh"`` (any meshio volume mesh of tetrahedra
+                 or hexahedra, the path relative to the scene file), with the length unit of
+                 its coordinates ``unit = "mm"`` (m, cm, mm, um; converted to ``[units]
+                 length``) or ``scale = <factor>`` (one of the two is required), and
+                 ``element`` (P1, or P2 on tetrahedra; Q1 on hexahedra). One file serves both
+                 resolutions.
 ``[material]``   FE only: name (linear | svk | neo_hookean | mooney_rivlin | guccione), its
                  parameters, density (optional, > 0), fibres (Guccione, optional 3-vector)
 ``[model]``      non-FE only: the discrete model's parameters
@@ -67,7 +74,7 @@ import numpy as np
 
 from . import assembly
 from .assembly import LineModel
-from .builder_params import check_builder_params
+from .builder_params import MeshFileNotFound, check_builder_params
 from .cutting import check_cut
 from .histories import DEFAULT_HISTORY, History
 from .monitors import check_monitor, evaluate_monitors
@@ -150,8 +157,11 @@ class Scene:
 
         sources = {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for p in mesh_sources(
             self.mesh_spec["builder"], self.mesh_spec["params"])}
+        mesh = {k: v for k, v in self.mesh_spec.items() if k != "resolutions"}
+        if mesh["builder"] == "file":  # the file's content (mesh_sources) is its identity, not where it lies
+            mesh["params"] = {**mesh["params"], "path": Path(mesh["params"]["path"]).name}
         return {"name": self.name, "resolution": self.resolution, "variant": self.variant, "model": self.model,
-                "mesh": {k: v for k, v in self.mesh_spec.items() if k != "resolutions"},
+                "mesh": mesh,
                 "mesh_sources": sorted(sources.values()), "material": self.material, "model_params": self.model_params,
                 "dirichlet": self.dirichlet, "loads": self.loads, "analysis": self.analysis,
                 "monitors": self.monitors, "cut": self.cut, "mu": self.mu}
@@ -168,6 +178,17 @@ class Scene:
     @property
     def is_fe(self) -> bool:
         return self.model == "fe"
+
+    @property
+    def mesh_label(self) -> str:
+        """What the mesh is, for a reader: ``the mesh file kidney.msh (mm)`` or ``the cornea_dome mesh``."""
+        spec = self.mesh_spec
+        if spec["builder"] == "file":
+            how = f"{spec['unit']}" if spec.get("unit") else f"scaled by {spec['params']['scale']:g}"
+            return f"the mesh file {Path(spec['params']['path']).name} ({how})"
+        if spec["builder"] == "liver" and spec["params"].get("path"):
+            return f"the mesh file {Path(spec['params']['path']).name} (liver builder)"
+        return f"the {spec['builder']} mesh"
 
     @property
     def element(self) -> str | None:
@@ -266,6 +287,10 @@ _CASE_SCHEMA = {"name": c_name, "paper": c_str, "description": c_str, "model": c
 _UNITS_SCHEMA = {k: c_str for k in ("length", "force", "stress", "mass", "time", "note")}
 _MESH_SCHEMA = {"builder": c_str, "element": c_enum("P1", "P2", "Q1"), "params": c_table, "ci": c_table,
                 "paper": c_table, "note": c_str}
+_MESH_FILE_SCHEMA = {"file": c_str, "unit": c_str, "scale": c_pos, "element": c_enum("P1", "P2", "Q1"),
+                     "note": c_str}
+#: length units a mesh file's coordinates may be stated in, in metres
+LENGTH_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "µm": 1e-6}
 
 
 def list_cases() -> list[str]:
@@ -292,7 +317,48 @@ def _resolve_path(name_or_path) -> Path:
     return resolve_toml(name_or_path, CATALOGUE_DIR, "case", list_cases)
 
 
-def _check_mesh(raw, resolution, model):
+def _check_mesh_file(raw, model, path: Path, units: dict):
+    """``[mesh] file = ...``: the file (relative to the scene file), its length unit or scale
+    (stated, and converted to ``[units] length``), the element."""
+    mesh = check_table("mesh", raw, _MESH_FILE_SCHEMA, required=("file",) + (("element",) if model == "fe" else ()))
+    if model != "fe":
+        fail("mesh.file", mesh["file"], f"a {model} model builds its own 1D mesh (mesh.builder)")
+    try:
+        p = Path(mesh["file"]).expanduser()
+        p = p if p.is_absolute() else path.parent / p
+        exists = p.is_file()
+    except (OSError, ValueError, RuntimeError) as exc:  # NUL byte, name too long, unknown ~user
+        fail("mesh.file", mesh["file"], f"not a usable file path ({exc})")
+    if not exists:
+        raise MeshFileNotFound(f"mesh.file = {mesh['file']!r}: mesh file {p} does not exist (a relative path is "
+                               f"taken from the scene file's folder {path.parent})")
+    if "unit" in mesh and "scale" in mesh:
+        fail("mesh.scale", mesh["scale"], "give the file's unit or a scale, not both")
+    if "unit" in mesh:
+        unit, length = mesh["unit"], units.get("length")
+        if unit not in LENGTH_UNITS:
+            fail("mesh.unit", unit, f"unknown length unit; valid: {list(LENGTH_UNITS)} (or give mesh.scale)")
+        if length not in LENGTH_UNITS:
+            fail("mesh.unit", unit, f"cannot convert to the scene's [units] length = {length!r} (not one of "
+                 f"{list(LENGTH_UNITS)}); give mesh.scale instead")
+        scale = LENGTH_UNITS[unit] / LENGTH_UNITS[length]
+    elif "scale" in mesh:
+        scale = mesh["scale"]
+    else:
+        fail("mesh.file", mesh["file"], "state the length unit of the file's coordinates: mesh.unit = \"mm\" (or "
+             f"{', '.join(repr(u) for u in LENGTH_UNITS if u != 'mm')}), or mesh.scale = <factor to the scene's "
+             f"[units] length = {units.get('length')!r}>")
+    params = {"path": str(p.resolve()), "scale": float(scale)}
+    return {"builder": "file", "element": mesh.get("element"), "params": params,
+            "resolutions": {r: dict(params) for r in RESOLUTIONS}, "file": mesh["file"],
+            "unit": mesh.get("unit")}
+
+
+def _check_mesh(raw, resolution, model, path: Path | None = None, units: dict | None = None):
+    if isinstance(raw, dict) and "file" in raw:
+        if "builder" in raw:
+            fail("mesh.builder", raw["builder"], "give either a builder or a file, not both")
+        return _check_mesh_file(raw, model, path or Path("."), units or {})
     mesh = check_table("mesh", raw, _MESH_SCHEMA,
                        required=("builder", "ci", "paper") + (("element",) if model == "fe" else ()))
     from .builders import BUILDERS
@@ -382,12 +448,12 @@ def load(name_or_path, resolution: str = "ci", variant: str | None = None) -> Sc
     raw = _read_raw(path)
     all_variants = tuple(c_table("variants", raw.get("variants", {})))
     raw, variant = apply_variant(raw, variant, path)
-    case = check_table("case", raw.get("case", {}), _CASE_SCHEMA, required=("name", "paper", "description"))
+    case = check_table("case", raw.get("case", {}), _CASE_SCHEMA, required=("name", "description"))
     model = case.get("model", "fe")
     units = check_table("units", raw.get("units", {}), _UNITS_SCHEMA, required=("length",))
     for key in ("mesh", "analysis"):
         _require_table(raw, key, path)
-    mesh = _check_mesh(raw["mesh"], resolution, model)
+    mesh = _check_mesh(raw["mesh"], resolution, model, path, units)
     material = model_params = None
     if model == "fe":
         material = check_material("material", _require_table(raw, "material", path))

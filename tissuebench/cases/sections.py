@@ -48,7 +48,7 @@ INTEGRATOR_NAMES = ("hht", "bathe", "newmark", "backward_euler", "central_differ
 
 _MOTION_SCHEMA = {"type": c_enum("rotation"), "axis": c_vec3, "center": c_vec3, "angle_deg": c_num}
 _STATIC = {"type": c_str, "load_steps": c_int_range(1, MAX_LOAD_STEPS), "max_load_factor": c_pos,
-           "stop_at_divergence": c_bool, "solver": c_str, "formulation": c_enum("displacement", "mixed"),
+           "stop_at_divergence": c_bool, "formulation": c_enum("displacement", "mixed"),
            "note": c_str}
 _DYNAMIC = {"type": c_str, "dt": c_pos, "t_end": c_pos, "integrator": c_str, "integrator_options": c_table,
             "lumped": c_bool, "dt_sweep": c_numlist, "store_every": c_int_range(1, MAX_TIME_STEPS), "note": c_str}

@@ -18,8 +18,9 @@ VARIANT_KEYS = {"description", "material", "model", "mesh", "analysis", "dirichl
 
 
 def apply_variant(raw, variant, path):
-    """``(merged raw scene, variant name)``; ``variant=None`` picks ``case.default_variant``
-    or else the first variant, and a scene without variants is returned as is.
+    """``(merged raw scene, variant name)``; ``variant=None`` picks ``case.default_variant``,
+    else the base scene as written (a ``[variants.*]`` table added to a scene never silently
+    becomes its default: a static scene stays static until a variant is asked for).
 
     ValueError names the offending key (``variants.<name>.<key>``, ``case.default_variant``)
     or the ``variant`` argument, with the value and the valid choices."""
@@ -29,7 +30,7 @@ def apply_variant(raw, variant, path):
         default = case.get("default_variant") if isinstance(case, dict) else None
         if default is not None and (not isinstance(default, str) or default not in variants):
             fail("case.default_variant", default, f"not a variant of the scene; valid: {sorted(variants)}")
-        variant = default or (next(iter(variants)) if variants else None)
+        variant = default
     if variant is None:
         return raw, None
     if not isinstance(variant, str) or variant not in variants:

@@ -14,6 +14,12 @@ when the clause holds with room to spare: ``achieved rate / required rate``, ``a
 latency / p99``, ``allowed error / error``. Units that meet every clause are ranked by it
 (largest first); when none does, the closest is the unit with the largest margin, and what
 it misses by is each failed clause's ratio.
+
+A unit evaluated only where it was trained (``seen``: every evaluation point's reference is one
+of its training snapshots, :func:`tissuebench.studies.metrics.seen_points`) is never
+recommended, nor the closest: its error says what it stored, not what it predicts (a nearest
+snapshot replaying its trajectory "met" 500 Hz / 2 % with 0 % error, issue 27). It is ranked
+last with the reason; a unit with some points seen carries their count.
 """
 from __future__ import annotations
 
@@ -26,7 +32,11 @@ import pandas as pd
 
 from .format import hz as _hz, percent as _percent, seconds as _seconds, times as _times
 
-__all__ = ["DEFAULT_REQUIREMENT", "Clause", "Requirement", "parse_requirement", "rank_units", "LATENCY_STATISTIC"]
+__all__ = ["DEFAULT_REQUIREMENT", "Clause", "Requirement", "parse_requirement", "rank_units", "LATENCY_STATISTIC",
+           "SEEN_REASON"]
+
+SEEN_REASON = ("not recommended: evaluated only on its training data (every evaluation point is a training snapshot: "
+               "seen); give its case a held-out evaluation")
 
 DEFAULT_REQUIREMENT = "rate>=1kHz, error<=1%"
 LATENCY_STATISTIC = "haptic_p99_s"
@@ -140,6 +150,9 @@ def rank_units(units: pd.DataFrame, requirement: Requirement, error_metric: str)
     with np.errstate(divide="ignore"):
         out["rate_hz"] = 1.0 / out["p99_s"]
     ok = (out["unit_status"] == "ok") & np.isfinite(out["p99_s"]) & (out["p99_s"] > 0) & ~out["error"].isna()
+    seen = out["seen"].fillna(False).astype(bool) if "seen" in out else pd.Series(False, index=out.index)
+    out["seen"] = seen
+    ok = ok & ~seen  # a unit evaluated on its training data is not a candidate (module docstring)
     out["measurable"] = ok
     meets = ok.to_numpy().copy()
     ratios = []
@@ -159,6 +172,8 @@ def rank_units(units: pd.DataFrame, requirement: Requirement, error_metric: str)
 def _unmeasurable(row) -> str:
     if row["unit_status"] != "ok":
         return f"unit failed: {row.get('message', '')}"
+    if row["seen"]:
+        return SEEN_REASON
     return "no error (no evaluation point with a reference)" if pd.isna(row["error"]) else "no latency measured"
 
 

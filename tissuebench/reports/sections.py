@@ -45,7 +45,8 @@ def recommendation(units: pd.DataFrame, requirement, error_metric: str) -> dict:
     ranked = rank_units(units, requirement, error_metric)
     meets = ranked[ranked["meets"]]
     items = [f"{r.label}: p99 {seconds(r.p99_s)} ({hz(r.rate_hz)}), median {seconds(r.haptic_median_s)}, "
-             f"error {percent(r.error)}, margin {r.margin:.3g}x" for r in meets.itertuples()]
+             f"error {percent(r.error)}, margin {r.margin:.3g}x" + _seen_note(r)
+             + (f"; {v}" if (v := validity_text(r)) else "") for r in meets.itertuples()]
     measurable = ranked[ranked["measurable"]]
     if len(meets):
         verdict = f"{len(meets)} of {len(ranked)} units meet it, ranked by margin (the smallest headroom of the " \
@@ -54,22 +55,41 @@ def recommendation(units: pd.DataFrame, requirement, error_metric: str) -> dict:
         c = measurable.iloc[0]
         verdict = f"None meets it. Closest: {c['label']} (margin {c['margin']:.3g}x): {c['misses']}."
     else:
-        verdict = "None meets it: no finished unit has a finite error and latency."
-    return {"verdict": verdict, "lines": items, "meets": len(meets), "ranked": ranked}
+        verdict = "None meets it: no finished unit has a finite error and latency" + (
+            " that was measured away from its training data." if ranked["seen"].any() else ".")
+    seen = ranked[ranked["seen"]]
+    excluded = "" if seen.empty else (
+        f"Not considered: {len(seen)} unit(s) evaluated only on their training data (seen; shown greyed in the "
+        f"table): {', '.join(seen['label'].head(6))}" + (" ..." if len(seen) > 6 else "") + ".")
+    return {"verdict": verdict, "lines": items, "meets": len(meets), "ranked": ranked, "excluded": excluded}
+
+
+def _seen_note(r) -> str:
+    """The share of a unit's evaluation points it was trained on, when there is one."""
+    n_seen, n = getattr(r, "n_seen", 0), getattr(r, "n_reference_points", 0)
+    return f" ({int(n_seen)} of {int(n)} evaluation points seen in training)" if n_seen and n_seen > 0 else ""
 
 
 def ranking_table(name: str, ranked: pd.DataFrame) -> dict:
     # floor_s / efficiency: the step's arithmetic floor timed beside it (NaN in a store written before them)
     floor = ranked["floor_s"] if "floor_s" in ranked else pd.Series(np.nan, index=ranked.index)
     eff = ranked["efficiency"] if "efficiency" in ranked else pd.Series(np.nan, index=ranked.index)
-    rows = [[r.label, {"text": "meets" if r.meets else "no", "cls": "pass" if r.meets else "fail"},
-             number(r.margin, 3), seconds(r.p99_s), hz(r.rate_hz), seconds(r.haptic_median_s), seconds(f),
-             number(e, 2), percent(r.error), r.misses] for r, f, e in zip(ranked.itertuples(), floor, eff)]
+    n_seen = ranked["n_seen"] if "n_seen" in ranked else pd.Series(0, index=ranked.index)
+    n_ref = ranked["n_reference_points"] if "n_reference_points" in ranked else pd.Series(0, index=ranked.index)
+    rows = []
+    for r, f, e, k, n in zip(ranked.itertuples(), floor, eff, n_seen, n_ref):
+        meets = {"text": "seen", "cls": "seen"} if r.seen else \
+            {"text": "meets" if r.meets else "no", "cls": "pass" if r.meets else "fail"}
+        cells = [r.label, meets, number(r.margin, 3), seconds(r.p99_s), hz(r.rate_hz), seconds(r.haptic_median_s),
+                 seconds(f), number(e, 2), percent(r.error), f"{int(k)} / {int(n)}" if k >= 0 and n >= 0 else "",
+                 r.misses]
+        # a unit evaluated on its training data: greyed, with the reason (recommend.SEEN_REASON)
+        rows.append([c if isinstance(c, dict) else {"text": c, "cls": "seen"} for c in cells] if r.seen else cells)
     cols = ["unit", "meets", "margin", "haptic p99", "rate on p99", "haptic median", "arithmetic floor",
-            "efficiency (floor / median)", "error", "misses by"]
-    keep = ["case", "label", "options", "unit_key", "meets", "margin", "p99_s", "rate_hz", "haptic_median_s", "error",
-            "misses"] + [c for c in ranked.columns if c.startswith("headroom_")]
-    return Table(name, cols, rows, ranked[keep].assign(floor_s=floor, efficiency=eff))
+            "efficiency (floor / median)", "error", "points seen in training", "misses by"]
+    keep = ["case", "label", "options", "unit_key", "meets", "seen", "margin", "p99_s", "rate_hz", "haptic_median_s",
+            "error", "misses"] + [c for c in ranked.columns if c.startswith("headroom_")]
+    return Table(name, cols, rows, ranked[keep].assign(floor_s=floor, efficiency=eff, n_seen=n_seen))
 
 
 def extremes_table_view(name: str, ext: pd.DataFrame) -> dict:
@@ -110,11 +130,31 @@ def offline_table(name: str, units: pd.DataFrame) -> dict:
     return Table(name, cols, rows, units[keep])
 
 
+def validity_text(r) -> str:
+    """``valid to 1.2 N at 1 % / 2.3 N at 5 %``: the validity radii in the scene's units (the abscissa
+    times ``x_scale`` ``x_unit``: load factor 1 is the scene's net force ...), "" where unknown."""
+    scale, unit = getattr(r, "x_scale", np.nan), getattr(r, "x_unit", "")
+    if not isinstance(unit, str) or not unit or not np.isfinite(scale) or getattr(r, "unit_status", "ok") != "ok":
+        return ""
+    parts = [(f"{number(v * scale)} {unit} at {p} %" if v > 0 else f"over {p} % from the first point")
+             for v, p in ((r.validity_1pct, 1), (r.validity_5pct, 5)) if np.isfinite(v)]
+    limit = getattr(r, "reference_limit", np.nan)
+    text = "valid to " + " / ".join(parts) if parts else ""
+    if text and np.isfinite(limit) and max(r.validity_1pct, r.validity_5pct) >= limit * (1 - 1e-9):
+        text += f" (the reference itself stops converging at {number(limit * scale)} {unit})"
+    return text
+
+
 def radius_table(name: str, units: pd.DataFrame) -> dict:
+    units = units.assign(**{c: units[c] if c in units else np.nan for c in ("x_scale", "reference_limit")},
+                         x_unit=units["x_unit"] if "x_unit" in units else "")
     rows = [[r.label, number(r.validity_1pct) if r.unit_status == "ok" else "-",
-             number(r.validity_5pct) if r.unit_status == "ok" else "-", r.x_name] for r in units.itertuples()]
-    return Table(name, ["unit", "validity radius, error <= 1 %", "validity radius, error <= 5 %", "abscissa"],
-                 rows, units[["case", "label", "unit_key", "x_name", "validity_1pct", "validity_5pct"]])
+             number(r.validity_5pct) if r.unit_status == "ok" else "-", r.x_name, validity_text(r)]
+            for r in units.itertuples()]
+    return Table(name, ["unit", "validity radius, error <= 1 %", "validity radius, error <= 5 %", "abscissa",
+                        "in the scene's units"],
+                 rows, units[["case", "label", "unit_key", "x_name", "validity_1pct", "validity_5pct", "x_scale",
+                              "x_unit", "reference_limit"]])
 
 
 def paper_table(name: str, rows: pd.DataFrame) -> dict:

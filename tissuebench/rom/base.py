@@ -459,7 +459,8 @@ class RomMethod(ABC):
         say overrides it (and calls ``super()``)."""
         a, model = cls.applies, getattr(scene, "model", "fe")
         if model not in a.models:
-            return f"needs a {' or '.join(a.models)} scene; this one is a {model} model"
+            names = {"fe": "finite-element"}
+            return f"needs a {' or '.join(names.get(m, m) for m in a.models)} scene; this one is a {model} model"
         material = (getattr(scene, "material", None) or {}).get("name")
         if a.materials is not None and material not in a.materials:
             return (f"material {material!r} is not polynomial in the displacement; needs "
@@ -484,7 +485,7 @@ class RomMethod(ABC):
         if a.mesh_builders is not None and model == "fe":
             builder = (getattr(scene, "mesh_spec", None) or {}).get("builder")
             if builder not in a.mesh_builders:
-                where = f"the {builder!r} builder's" if builder else "a mesh file's"
+                where = f"the {builder!r} builder's" if builder not in (None, "file") else "a mesh file's"
                 return (f"needs a mesh of the {' or '.join(repr(b) for b in a.mesh_builders)} builder (its layered "
                         f"anterior surface is the vademecum's parameter domain); the scene's mesh is {where}")
         return ""

@@ -44,9 +44,7 @@ def training_why_not(scene, kind: str, cls=None) -> str:
     if kind == "operators" and cls is not None:
         want = "dynamic" if cls.kind == "trajectory" else "static"
     if want is not None and analysis != want:
-        what = {"path": "learns from a static load path", "positions": "learns from static load paths",
-                "trajectory": "learns from a time integration"}.get(kind, f"builds a {want} model")
-        return f"{kind!r} training {what}; the scene is {analysis}"
+        return f"needs a {want} scene; this one is {analysis}"
     if kind == "positions" and "position" not in scene.parameters:
         return ("'positions' training needs a [parameters.position] table (a load moved along a line); the scene has "
                 "none")

@@ -49,7 +49,7 @@ def catalogue_table(build_meshes: bool = True, paper: bool = False) -> pd.DataFr
             a = s.analysis
             analysis = (f"static, {a.get('load_steps', 1)} steps" if a["type"] == "static"
                         else f"dynamic {a.get('integrator', 'hht')}, dt {a['dt']:g}, T {a['t_end']:g}")
-            rows.append({"case": name, "variant": variant or "", "paper": s.case["paper"], "analysis": analysis,
+            rows.append({"case": name, "variant": variant or "", "paper": s.case.get("paper", ""), "analysis": analysis,
                          "model": s.model if not s.is_fe else f"{s.element} {s.material['name']}",
                          **{f"{r} vertices / cells": _size(s, r, build_meshes and (r == "ci" or paper))
                             for r in RESOLUTIONS}})
@@ -66,10 +66,12 @@ def describe(case, resolution: str = "ci", variant: str | None = None) -> str:
 
     s = load(case, resolution=resolution, variant=variant)
     plan = plan_for(s)
-    lines = [f"{s.name}" + (f" [{s.variant}]" if s.variant else "") + f" ({s.case['paper']})",
+    paper = f" ({s.case['paper']})" if s.case.get("paper") else ""
+    where = (f"mesh: {s.mesh_label} -> " if s.mesh_spec["builder"] == "file" else
+             f"mesh: builder {s.mesh_spec['builder']} {s.mesh_spec['params']} -> ")
+    lines = [f"{s.name}" + (f" [{s.variant}]" if s.variant else "") + paper,
              f"  {s.case['description']}", "",
-             f"mesh: builder {s.mesh_spec['builder']} {s.mesh_spec['params']} -> "
-             f"{s.mesh.n_vertices} vertices, {s.mesh.n_cells} cells ({resolution})"]
+             where + f"{s.mesh.n_vertices} vertices, {s.mesh.n_cells} cells ({resolution})"]
     if s.mesh_info.get("fallback"):
         lines.append(f"  NOTE: {s.mesh_info.get('reason', 'built-in fallback shape used')}")
     if s.is_fe:

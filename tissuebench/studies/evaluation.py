@@ -2,17 +2,28 @@
 
 The case entry's ``evaluation`` table has a ``kind`` (default: the training's):
 
-``path``        the reference load path's load factors (``every`` thins them), driven in
-                increasing order; ``beyond = [2, 10, 100]`` adds load factors that many
-                times the top of the path, where no reference exists: only the step
-                status is measured (extrapolation must be flagged, not hidden).
+``path``        the reference load path's load factors (``every`` thins them; ``held_out =
+                true`` keeps only the states the training left out: every other state with
+                ``training.every = 2``), driven in increasing order. ``beyond = [1.5, 2]``
+                measures past the path, up to those multiples of its top: the reference is
+                continued with the path's increment (:func:`beyond_scene`: at most
+                :data:`BEYOND_MAX_INCREMENTS` times the path's increments past it, cut where
+                Newton does not converge, until it stalls; its last converged load factor is
+                ``info["reference_limit"]``) and every converged state past the top is a point
+                with its reference, so the validity radius reaches past the training range;
+                a factor past where the reference stopped is a point without one (only its
+                step status is measured: extrapolation must be flagged, not hidden).
 ``positions``   held-out load positions (``held_out = n`` points at the midpoints and
                 quarter points of the training lattice, or a list), each with its own
                 reference path: every (position, load factor) is a point.
 ``trajectory``  the scene's reference time integration, the model stepped from rest (or
                 the reference's initial state) with the load of each step; errors at the
                 stored reference steps; ``t_end`` (e.g. 10x the paper's horizon) runs a
-                longer reference. Where the load ends constant, the long-run energy drift
+                longer reference; ``from_time`` keeps only the steps from that time on (a
+                later window than the training's: the model steps from the start, its error is
+                measured where it has not seen the answer); ``load_scale`` scales the loads
+                (another amplitude, reaching the model as its load factor). Where the load
+                ends constant, the long-run energy drift
                 of the reference and of the model (:mod:`.energy`).
 ``map``         the reference at each parameter of ``mus = [{...}, ...]`` (scene parameters a
                 model represents: ``position``, ``load_scale``, ``max_load_factor``; see
@@ -47,7 +58,7 @@ import numpy as np
 
 from .energy import EnergyDrift, conservative_window, reference_drift
 from .reference import cached_solve
-from .training import lattice_positions, positional_scene, reference_states
+from .training import lattice_positions, positional_scene, reference_states, training_indices
 
 __all__ = ["EVALUATION_KINDS", "EvaluationPoint", "Evaluation", "build_evaluation"]
 
@@ -88,12 +99,64 @@ def _path(scene, case, spec):
     U, lams = reference_states(ref)
     every = int(spec.get("every", 1))
     idx = np.arange(len(lams))[::-1][::every][::-1]
+    if spec.get("held_out"):  # the states the path training did not keep (training._path's choice)
+        trained = set(training_indices(len(lams) + 1, case["training"].get("every", 1)) - 1)
+        idx = np.array([k for k in idx if k not in trained], dtype=int)
     points = [EvaluationPoint({"load_factor": float(lams[k])}, U[:, k], ref.monitors_at("load_factor", lams[k]),
                               float(lams[k])) for k in idx]
     top = float(lams[-1]) if len(lams) else float(scene.analysis.get("max_load_factor", 1.0))
-    points += [EvaluationPoint({"load_factor": f * top}, None, {}, f * top) for f in spec.get("beyond", [])]
-    return Evaluation("path", "load_factor", points, reference_steps={"ref": ref, "scene": scene},
-                      info={"reference_status": ref.status, "reference_top": top})
+    info = {"reference_status": ref.status, "reference_top": top, **load_measure(scene, ref, case["backend"])}
+    factors = sorted(float(f) for f in spec.get("beyond", []))
+    reached = top
+    if factors and factors[-1] > 1.0 and ref.status == "success":
+        ext, _ = cached_solve(beyond_scene(scene, factors[-1] * top), case["backend"])
+        Ue, lams_e = reference_states(ext) if len(ext.steps) > 1 else (np.zeros((U.shape[0], 0)), np.zeros(0))
+        past = [k for k, lam in enumerate(lams_e) if top * (1 + 1e-12) < lam <= factors[-1] * top * (1 + 1e-9)]
+        points += [EvaluationPoint({"load_factor": float(lams_e[k])}, Ue[:, k],
+                                   ext.monitors_at("load_factor", lams_e[k]), float(lams_e[k])) for k in past]
+        reached = float(lams_e[-1]) if len(lams_e) else top
+        info.update(reference_limit=reached, reference_beyond_status=ext.status,
+                    reference_beyond_message=ext.message[:300])
+    points += [EvaluationPoint({"load_factor": f * top}, None, {}, f * top) for f in factors
+               if f * top > reached * (1 + 1e-9)]
+    return Evaluation("path", "load_factor", points, reference_steps={"ref": ref, "scene": scene}, info=info)
+
+
+#: the continuation of a path past its top takes at most this many times the path's increments
+BEYOND_MAX_INCREMENTS = 4
+
+
+def beyond_scene(scene, load_factor: float):
+    """``scene`` run past its path's top to ``load_factor`` with the path's own increment (at
+    most :data:`BEYOND_MAX_INCREMENTS` x its increments past the top), cut where Newton does not
+    converge, as the path's own run, until it stalls: its last converged load factor is where the
+    reference stops (``status = "stalled"``, the message says at which load factor)."""
+    a = scene.analysis
+    n, top = int(a.get("load_steps", 1)), float(a.get("max_load_factor", 1.0))
+    h = top / n
+    steps = min(int(np.ceil(load_factor / h - 1e-9)), n * (1 + BEYOND_MAX_INCREMENTS))
+    return scene.at({"max_load_factor": steps * h, "load_steps": steps})
+
+
+def load_measure(scene, ref, backend: str) -> dict:
+    """What load factor 1 is in the scene's units (``x_scale``, ``x_unit``): the magnitude of the
+    net force of its point, traction and body loads (force unit), else its pressure (stress
+    unit), else the largest prescribed displacement (length unit); ``{}`` for the 1D models."""
+    if not scene.is_fe or ref.problem is None:
+        return {}
+    units = scene.units
+    kinds = {ld["type"] for ld in scene.loads}
+    if kinds & {"point", "traction", "body"}:
+        from ..refsolvers.backends import make_backend
+
+        be = make_backend(backend, ref.problem)
+        f = be.external_force(np.zeros(be.ndof), 1.0).reshape(-1, 3).sum(axis=0)
+        return {"x_scale": float(np.linalg.norm(f)), "x_unit": units.get("force", "")}
+    if kinds & {"pressure", "follower_pressure"}:
+        return {"x_scale": max(abs(float(ld["value"])) for ld in scene.loads if "pressure" in ld["type"]),
+                "x_unit": units.get("stress", "")}
+    u = np.abs(ref.problem.prescribed_values(1.0))
+    return {"x_scale": float(u.max()), "x_unit": units.get("length", "")} if u.size and u.max() > 0 else {}
 
 
 def _held_out(lattice, spec):
@@ -133,10 +196,13 @@ def _trajectory(scene, case, spec):
     # the model is driven by the load factor: the run's loads are load_scale times the training's
     # (exact: load_scale is refused at spec load where supports prescribe a displacement)
     hist = _scaled(scene.history, float(spec.get("load_scale", 1.0)))
+    dt = float(run.analysis["dt"])
+    start = float(spec.get("from_time", -np.inf)) - 1e-9 * dt
+    # the initial state stays the first point (the model starts from it); the window's steps follow
     points = [EvaluationPoint({"time": float(t), "load_factor": float(hist(t))}, U[k], ref.monitors_at("time", t),
-                              float(t)) for k, t in enumerate(ref.steps)]
+                              float(t)) for k, t in enumerate(ref.steps) if k == 0 or t >= start]
     state0 = {"u": U[0], "v": ref.velocity.reshape(n, -1)[0]}
-    dt, t_end = float(run.analysis["dt"]), float(run.analysis["t_end"])
+    t_end = float(run.analysis["t_end"])
     t_c = conservative_window(hist, dt, t_end, float(ref.steps[0]))
     return Evaluation("trajectory", "time", points, dt=dt, state0=state0, reference_steps={"ref": ref, "scene": run},
                       info={"reference_status": ref.status, "t_end": t_end}, history=hist,
@@ -259,6 +325,13 @@ def build_evaluation(case: dict, scene, model=None) -> Evaluation:
         ev = _map(scene, case, spec)
     else:
         raise ValueError(f"evaluation.kind = {kind!r}; valid: {list(EVALUATION_KINDS)}")
+    if "x_unit" not in ev.info:  # what one unit of the abscissa is, in the scene's units
+        if kind == "positions":
+            pos = scene.parameters["position"]
+            ev.info.update(x_scale=1.0, x_unit=pos.get("unit") or (scene.units.get("length", "") if pos.get(
+                "frame") != "bbox" else "fraction of the bounding box"))
+        elif kind == "trajectory":
+            ev.info.update(x_scale=1.0, x_unit=scene.units.get("time", "s"))
     ref = ev.reference_steps.get("ref")
     if ref is not None:  # what the full model did there: a failure of the reference is data too
         ev.info.update(reference_status=ref.status, reference_message=ref.message[:300],

@@ -121,11 +121,18 @@ def check_training(path, training: dict, scene) -> None:
             _mu_tables(f"{path}.runs", training["runs"], "runs", scene, lo=0)
 
 
-def check_evaluation(path, evaluation: dict, scene) -> None:
+def check_evaluation(path, evaluation: dict, scene, training: dict | None = None) -> None:
     """The values of a case's ``evaluation`` table (its keys are already known to the kind)."""
     kind = evaluation["kind"]
     if "every" in evaluation:
         check_count(f"{path}.every", evaluation["every"], "every")
+    if kind == "path" and "held_out" in evaluation:
+        if not isinstance(evaluation["held_out"], bool):
+            _fail(f"{path}.held_out", evaluation["held_out"], "expected true or false")
+        t = training or {}
+        if evaluation["held_out"] and (t.get("kind") != "path" or t.get("every", 1) < 2):
+            _fail(f"{path}.held_out", evaluation["held_out"], "the states a path training left out: needs "
+                  "training = { kind = \"path\", every = 2 } (or more)")
     if "beyond" in evaluation:
         _numbers(f"{path}.beyond", evaluation["beyond"], "beyond", lo=0, positive=True)
     if kind == "positions":
@@ -145,6 +152,11 @@ def check_evaluation(path, evaluation: dict, scene) -> None:
         if not steps <= LIMITS["trajectory_steps"]:
             _fail(f"{path}.t_end", run.analysis["t_end"], f"{steps:.3g} time steps of dt = {run.analysis['dt']:g}; "
                   f"at most {LIMITS['trajectory_steps']} (LIMITS['trajectory_steps'])")
+        if "from_time" in evaluation:
+            start = evaluation["from_time"]
+            if not is_num(start) or not 0 <= start < run.analysis["t_end"]:
+                _fail(f"{path}.from_time", start, f"expected a time in [0, t_end = {run.analysis['t_end']:g}) (the "
+                      "window of the evaluation)")
     if kind == "map":
         _mu_tables(f"{path}.mus", evaluation.get("mus"), "mus", scene)
     if "steps_per_length" in evaluation:

@@ -17,14 +17,42 @@ import pandas as pd
 
 from .timing import max_displacement
 
-__all__ = ["point_rows", "output_rows", "summarise_points", "validity_radius", "pareto_front", "TOLERANCES"]
+__all__ = ["point_rows", "output_rows", "summarise_points", "validity_radius", "pareto_front", "TOLERANCES",
+           "seen_points", "SEEN_RTOL"]
 
 TOLERANCES = (0.01, 0.05)
+#: a reference field within this relative distance of a training snapshot is the snapshot
+SEEN_RTOL = 1e-6
 
 
-def point_rows(evaluation, driven) -> list[dict]:
-    """One row per evaluation point: mu, abscissa, step status, errors."""
+def seen_points(evaluation, snapshots) -> list[bool]:
+    """Per evaluation point, whether its reference field coincides with a column of the training
+    ``snapshots`` (n_dof, n_snap) to :data:`SEEN_RTOL`: the model was trained on the answer (a
+    path state learnt from, a trajectory replayed, a stored position). Points without a
+    reference, or a zero one, are never seen; nor is anything without snapshots (operators)."""
+    out = [False] * len(evaluation.points)
+    if snapshots is None or not np.size(snapshots):
+        return out
+    S = np.asarray(snapshots, float)
+    idx = [k for k, p in enumerate(evaluation.points) if p.reference is not None and p.reference.size == S.shape[0]]
+    if not idx:
+        return out
+    s2 = np.einsum("ij,ij->j", S, S)
+    for chunk in range(0, len(idx), 256):  # (n_dof, 256) at a time: a long trajectory stays small
+        ks = idx[chunk:chunk + 256]
+        R = np.column_stack([evaluation.points[k].reference for k in ks])
+        r2 = np.einsum("ij,ij->j", R, R)
+        d2 = r2[:, None] + s2[None, :] - 2.0 * (R.T @ S)  # squared distances (n_eval, n_snap)
+        hit = (d2.min(axis=1) <= (SEEN_RTOL ** 2) * r2) & (r2 > 0)
+        for k, h in zip(ks, hit):
+            out[k] = bool(h)
+    return out
+
+
+def point_rows(evaluation, driven, seen=None) -> list[dict]:
+    """One row per evaluation point: mu, abscissa, step status, errors, ``seen`` (:func:`seen_points`)."""
     rows = []
+    seen = seen or [False] * len(evaluation.points)
     for k, (p, res, u) in enumerate(zip(evaluation.points, driven.results, driven.fields)):
         status = "initial" if res is None and k == 0 and evaluation.kind == "trajectory" else (
             "not_reached" if res is None else res.status)
@@ -43,7 +71,8 @@ def point_rows(evaluation, driven) -> list[dict]:
             dmax = abs(um - rm) / rm if rm > 0 else abs(um)
         rows.append({"point": k, "x": p.x, "group": np.nan if p.group is None else p.group,
                      "mu": _mu_text(p.mu), "status": status, "message": "" if res is None else res.message[:300],
-                     "rel_l2": rel, "rel_max_displacement": dmax, "has_reference": ref is not None})
+                     "rel_l2": rel, "rel_max_displacement": dmax, "has_reference": ref is not None,
+                     "seen": bool(seen[k]) and status != "initial"})
     return rows
 
 
@@ -93,7 +122,9 @@ def summarise_points(points: pd.DataFrame, outputs: pd.DataFrame, evaluation, fi
             num += np.inf if u is None or not np.all(np.isfinite(u)) else float(np.sum((u - p.reference) ** 2))
         den += float(np.sum(p.reference ** 2))
     counts = points["status"].value_counts()
+    n_seen = int((points["seen"] & has_ref).sum()) if "seen" in points else 0
     row = {"n_points": int(len(points)), "n_reference_points": int(has_ref.sum()),
+           "n_seen": n_seen, "seen": bool(has_ref.sum()) and n_seen == int(has_ref.sum()),
            "max_rel_l2": float(rel.max()) if rel.size else np.nan,
            "mean_rel_l2": float(rel.mean()) if rel.size else np.nan,
            "max_rel_l2_in_envelope": float(rel[ok].max()) if ok.any() else np.nan,

@@ -37,6 +37,13 @@ UNIT_COLUMNS = {
     # errors (relative; inf where a step failed against a reference)
     "max_rel_l2": _F, "mean_rel_l2": _F, "max_rel_l2_in_envelope": _F, "rmse_rel": _F, "max_monitor_rel_error": _F,
     "x_name": _S, "validity_1pct": _F, "validity_5pct": _F,
+    # the abscissa in the scene's units: x = 1 is x_scale x_unit (load factor 1: the net force, in N ...);
+    # reference_limit: where the reference continued past the path stopped converging (evaluation beyond)
+    "x_scale": _F, "x_unit": _S, "reference_limit": _F,
+    # evaluation points whose reference coincides with a training snapshot (the model has seen
+    # the answer: studies/metrics.seen_points); seen: every reference point was (nothing held
+    # out), and the report never recommends such a unit
+    "n_seen": _I, "seen": _B,
     # latency [s] and the same-process references
     "haptic_median_s": _F, "haptic_p99_s": _F, "haptic_n": _I, "reconstruct_median_s": _F, "reconstruct_p99_s": _F,
     "reference_step_s": _F, "speedup": _F, "calibration_s": _F, "haptic_per_calibration": _F,
@@ -52,6 +59,8 @@ UNIT_COLUMNS = {
 }
 POINT_COLUMNS = {"unit_key": _S, "point": _I, "x": _F, "group": _F, "mu": _S, "status": _S, "message": _S,
                  "rel_l2": _F, "rel_max_displacement": _F, "has_reference": _B,
+                 # the reference field equals a training snapshot (the model was trained on it)
+                 "seen": _B,
                  # trajectory points in the constant-load window: E / scale of the model and the
                  # reference (studies/energy.py), NaN elsewhere
                  "energy_rel": _F, "reference_energy_rel": _F}

@@ -72,7 +72,8 @@ _PAPER_POINT = {"label": c_str, "step_ms": c_pos, "error": c_nonneg}
 _METHOD = {"name", "cases", "options", "grid", "list", "paper", "protocol"}
 _TRAINING_KEYS = {"path": {"every", "repeat"}, "positions": {"positions", "max_load_factor", "load_steps"},
                   "trajectory": {"runs"}, "operators": set()}
-_EVALUATION_KEYS = {"path": {"every", "beyond"}, "positions": {"held_out"}, "trajectory": {"t_end", "load_scale"},
+_EVALUATION_KEYS = {"path": {"every", "beyond", "held_out"}, "positions": {"held_out"},
+                    "trajectory": {"t_end", "load_scale", "from_time"},
                     "map": {"mus"}, "cut_lengths": {"steps_per_length"}, "contact_nodes": {"count"}}
 BACKENDS = ("skfem", "ngsolve")
 
@@ -122,12 +123,15 @@ def _resolve(spec_or_preset) -> Path:
     return resolve_toml(spec_or_preset, PRESETS_DIR, "preset", lambda: [n for n, _ in list_presets()])
 
 
-def _check_case(i, c, resolution, default_resolution):
+def _check_case(i, c, resolution, default_resolution, folder: Path | None = None):
     path = f"case[{i}]"
     _table(path, c, _CASE)
     if "name" not in c:
         raise ValueError(f"{path}.name: missing required key")
     name = c["name"]
+    if isinstance(name, str) and folder is not None and name not in list_cases() and not _is_file(name) \
+            and _is_file(str(folder / name)):
+        name = str((folder / name).resolve())  # a scene file beside the spec (a spec written by sweep --scene)
     if not isinstance(name, str) or (name not in list_cases() and not _is_file(name)):
         _fail(f"{path}.name", name, f"unknown case; valid: {list_cases()}")
     backend = c.get("backend", "skfem")
@@ -167,7 +171,7 @@ def _check_case(i, c, resolution, default_resolution):
                                              _PAPER_POINT, required=tuple(_PAPER_POINT)) for j, p in enumerate(points)]
     scene = _named(path, case_scene, entry)  # the scene must load and take the mu (their errors name the key)
     check_training(f"{path}.training", training, scene)
-    check_evaluation(f"{path}.evaluation", evaluation, scene)
+    check_evaluation(f"{path}.evaluation", evaluation, scene, training)
     return entry, scene
 
 
@@ -347,7 +351,7 @@ def load_spec(spec_or_preset, resolution: str | None = None, only: list | None =
     raw_cases = raw.get("case", [])
     if not isinstance(raw_cases, list) or not raw_cases:
         raise ValueError(f"case: a sweep needs at least one [[case]] ({path})")
-    checked = [_check_case(i, c, resolution, res) for i, c in enumerate(raw_cases)]
+    checked = [_check_case(i, c, resolution, res, path.parent) for i, c in enumerate(raw_cases)]
     cases, scenes = [c for c, _ in checked], {c["id"]: s for c, s in checked}
     ids = [c["id"] for c in cases]
     if len(set(ids)) != len(ids):

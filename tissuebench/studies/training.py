@@ -34,7 +34,8 @@ from ..refsolvers.line_models import assemble_line_model
 from ..rom import Training
 from .reference import cached_solve, dynamics_system
 
-__all__ = ["TRAINING_KINDS", "case_scene", "build_training", "lattice_positions", "reference_states"]
+__all__ = ["TRAINING_KINDS", "case_scene", "build_training", "lattice_positions", "reference_states",
+           "training_indices"]
 
 TRAINING_KINDS = ("path", "positions", "trajectory", "operators")
 
@@ -76,12 +77,17 @@ def _path(scene, case, spec, info):
     # it anchors interpolation between the origin and the first converged state
     U = ref.displacement.reshape(len(ref.displacement), -1).T
     lams = np.asarray(ref.steps, float)
-    every = int(spec.get("every", 1))
-    keep = np.arange(len(lams))[::-1][::every][::-1]  # always keep the last state
+    keep = training_indices(len(lams), spec.get("every", 1))
     keep = np.tile(keep, int(spec.get("repeat", 1)))  # a duplicated snapshot set (extremes)
     be = make_backend(case["backend"], ref.problem)
     return Training(U[:, keep], [{"load_factor": float(lams[k])} for k in keep], be,
                     outputs=_outputs(scene, ref.problem), info={**info, "reference_status": ref.status})
+
+
+def training_indices(n: int, every) -> np.ndarray:
+    """The states a path training keeps of a path of ``n`` states (the initial one included):
+    every ``every``-th, counted back from the last (always kept)."""
+    return np.arange(n)[::-1][::int(every)][::-1]
 
 
 def positional_scene(scene, s, spec):

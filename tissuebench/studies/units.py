@@ -27,7 +27,7 @@ from ..rom import make_method, method_class
 from .applicability import evaluation_why_not, why_not
 from .energy import EnergyDrift, model_drift
 from .evaluation import NEEDS_MODEL, build_evaluation
-from .metrics import output_rows, point_rows, summarise_points
+from .metrics import output_rows, point_rows, seen_points, summarise_points
 from .protocol import (_timing_sequence, blas_info, cached_dynamics_system, calibration_seconds, drive,
                        reference_step_seconds, time_latency)
 from .store import code_hash, git_commit, package_versions
@@ -165,7 +165,8 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
     history = evaluation.history or training.history or (scene.history if evaluation.kind == "trajectory" else None)
     driven = drive(model, evaluation, history)
     energy, histories = _energy_drift(evaluation, driven, unit.case["backend"])
-    points = pd.DataFrame(point_rows(evaluation, driven)).assign(**histories)
+    points = pd.DataFrame(point_rows(evaluation, driven, seen_points(evaluation, training.snapshots))).assign(
+        **histories)
     outputs = pd.DataFrame(output_rows(evaluation, driven), columns=["point", "x", "monitor", "reference", "rom",
                                                                        "rel_error"])
     lat = time_latency(model, evaluation, history, int(p["latency_steps"]), int(p["warmup"]), int(p["seed"]))
@@ -186,7 +187,8 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
             "offline_s": offline, "build_peak_bytes": int(peak), "model_bytes": _nbytes(model),
             "scene_hash": scene.content_hash(),
             **{k: evaluation.info.get(k) for k in ("reference_status", "reference_message",
-                                                     "reference_energy_growth")}, **energy,
+                                                     "reference_energy_growth", "reference_limit", "x_scale",
+                                                     "x_unit")}, **energy,
             "model_info": json.dumps(_jsonable(getattr(model, "info", {}))), "label": label,
             "_points": points.to_dict("records"), "_outputs": outputs.to_dict("records"), "_latency": lat["samples"],
             "_notes": notes + _blas_note(unit)}

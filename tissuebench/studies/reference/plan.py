@@ -110,7 +110,7 @@ def plan_for(scene) -> ModelPlan:
     reasons = []
     if scene.is_fe:
         causes = _nonlinear_causes(scene)
-        reasons.append(("finite elements", f"{scene.element} on the {scene.mesh_spec['builder']} mesh, "
+        reasons.append(("finite elements", f"{scene.element} on {scene.mesh_label}, "
                         f"material {scene.material['name']}"))
     else:
         causes = []
