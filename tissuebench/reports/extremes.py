@@ -35,7 +35,9 @@ _COUNTS = ["n_points", "n_reference_points", "n_ok", "n_extrapolation", "n_beyon
 
 def _point_checks(pts: pd.DataFrame) -> dict:
     pts = pts[pts["status"] != "initial"]
-    ref = pts["has_reference"].astype(bool)
+    # past the training path (evaluation.beyond), with or without the continued reference: flagged, never ok
+    past_path = pts["beyond"].astype(bool) if "beyond" in pts else pd.Series(False, index=pts.index)
+    ref = pts["has_reference"].astype(bool) & ~past_path
     past = pts[~ref]
     inside = pts[ref]
     x_ref = inside["x"].to_numpy(float)
@@ -63,7 +65,7 @@ def _verdict(row: dict) -> tuple[str, str]:
     else:
         if row["unflagged_without_reference"]:
             reasons.append(f"{row['unflagged_without_reference']} of {row['n_without_reference']} points without a "
-                           "reference reported ok (extrapolation not flagged)")
+                           "reference (or past the training path) reported ok (extrapolation not flagged)")
         if row["failed_with_reference"]:
             reasons.append(f"{row['failed_with_reference']} steps failed or not reached where a reference exists "
                            f"(the first at {row['x_name'] or 'x'} = {number(row['first_failed_x'])}, flagged from "

@@ -102,7 +102,7 @@ def extremes_table_view(name: str, ext: pd.DataFrame) -> dict:
                      f"{number(r.x_max_reference)} / {number(r.x_max_evaluated)}", str(r.failed_with_reference),
                      _drift(r), number(getattr(r, "nu", np.nan)), r.reasons])
     cols = ["unit", "verdict", "unit status", "steps ok / extrapolation / beyond validity / failed / not reached",
-            "points without reference: statuses", "largest x with reference / evaluated",
+            "points past the path or without reference: statuses", "largest x with reference / evaluated",
             "failed steps where a reference exists",
             f"long-run energy drift: model / reference (fail above +{ENERGY_DRIFT_TOL:g})",
             "scene nu", "why it fails"]

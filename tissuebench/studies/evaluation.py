@@ -10,7 +10,8 @@ The case entry's ``evaluation`` table has a ``kind`` (default: the training's):
                 :data:`BEYOND_MAX_INCREMENTS` times the path's increments past it, cut where
                 Newton does not converge, until it stalls; its last converged load factor is
                 ``info["reference_limit"]``) and every converged state past the top is a point
-                with its reference, so the validity radius reaches past the training range;
+                with its reference (``beyond``: it enters the validity radius, which so reaches
+                past the training range, not the unit's error columns, which stay the path's);
                 a factor past where the reference stopped is a point without one (only its
                 step status is measured: extrapolation must be flagged, not hidden).
 ``positions``   held-out load positions (``held_out = n`` points at the midpoints and
@@ -58,7 +59,7 @@ import numpy as np
 
 from .energy import EnergyDrift, conservative_window, reference_drift
 from .reference import cached_solve
-from .training import lattice_positions, positional_scene, reference_states, training_indices
+from .training import lattice_positions, positional_reference, positional_scene, reference_states, training_indices
 
 __all__ = ["EVALUATION_KINDS", "EvaluationPoint", "Evaluation", "build_evaluation"]
 
@@ -73,6 +74,7 @@ class EvaluationPoint:
     monitors: dict
     x: float
     group: float | None = None  # held-out position (positions kind)
+    beyond: bool = False  # past the training path's top (evaluation.beyond): in the validity radius only
 
 
 @dataclass
@@ -113,11 +115,12 @@ def _path(scene, case, spec):
         Ue, lams_e = reference_states(ext) if len(ext.steps) > 1 else (np.zeros((U.shape[0], 0)), np.zeros(0))
         past = [k for k, lam in enumerate(lams_e) if top * (1 + 1e-12) < lam <= factors[-1] * top * (1 + 1e-9)]
         points += [EvaluationPoint({"load_factor": float(lams_e[k])}, Ue[:, k],
-                                   ext.monitors_at("load_factor", lams_e[k]), float(lams_e[k])) for k in past]
+                                   ext.monitors_at("load_factor", lams_e[k]), float(lams_e[k]), beyond=True)
+                   for k in past]
         reached = float(lams_e[-1]) if len(lams_e) else top
         info.update(reference_limit=reached, reference_beyond_status=ext.status,
                     reference_beyond_message=ext.message[:300])
-    points += [EvaluationPoint({"load_factor": f * top}, None, {}, f * top) for f in factors
+    points += [EvaluationPoint({"load_factor": f * top}, None, {}, f * top, beyond=True) for f in factors
                if f * top > reached * (1 + 1e-9)]
     return Evaluation("path", "load_factor", points, reference_steps={"ref": ref, "scene": scene}, info=info)
 
@@ -172,7 +175,7 @@ def _positions(scene, case, spec, training_spec):
     lattice = lattice_positions(scene, training_spec.get("positions", 5))
     points, first = [], None
     for s in _held_out(lattice, spec.get("held_out")):
-        ref, _ = cached_solve(positional_scene(scene, s, training_spec), case["backend"])
+        ref, _ = positional_reference(scene, s, training_spec, case["backend"])
         U, lams = reference_states(ref)
         d = float(np.min(np.abs(lattice - s)))
         first = first or {"ref": ref, "scene": positional_scene(scene, s, training_spec)}

@@ -72,7 +72,7 @@ def point_rows(evaluation, driven, seen=None) -> list[dict]:
         rows.append({"point": k, "x": p.x, "group": np.nan if p.group is None else p.group,
                      "mu": _mu_text(p.mu), "status": status, "message": "" if res is None else res.message[:300],
                      "rel_l2": rel, "rel_max_displacement": dmax, "has_reference": ref is not None,
-                     "seen": bool(seen[k]) and status != "initial"})
+                     "seen": bool(seen[k]) and status != "initial", "beyond": bool(getattr(p, "beyond", False))})
     return rows
 
 
@@ -110,12 +110,14 @@ def validity_radius(x, errors, tol: float) -> float:
 
 
 def summarise_points(points: pd.DataFrame, outputs: pd.DataFrame, evaluation, fields) -> dict:
-    """The unit-level error columns from its point rows."""
-    has_ref = points["has_reference"] & (points["status"] != "initial")
+    """The unit-level error columns from its point rows: over the points with a reference, but
+    those past the training path (``beyond``), which enter the validity radius only."""
+    past = points["beyond"].astype(bool) if "beyond" in points else pd.Series(False, index=points.index)
+    has_ref = points["has_reference"] & (points["status"] != "initial") & ~past
     rel = points.loc[has_ref, "rel_l2"].to_numpy(float)
     ok = points.loc[has_ref, "status"].isin(["ok"]).to_numpy()
     num = den = 0.0
-    for p, u, use in zip(evaluation.points, fields, has_ref):
+    for p, u, use in zip(evaluation.points, fields, has_ref.to_numpy()):
         if not use:
             continue
         with np.errstate(over="ignore", invalid="ignore"):  # a blown-up step counts as inf, said once
@@ -125,6 +127,7 @@ def summarise_points(points: pd.DataFrame, outputs: pd.DataFrame, evaluation, fi
     n_seen = int((points["seen"] & has_ref).sum()) if "seen" in points else 0
     row = {"n_points": int(len(points)), "n_reference_points": int(has_ref.sum()),
            "n_seen": n_seen, "seen": bool(has_ref.sum()) and n_seen == int(has_ref.sum()),
+           "n_beyond_reference": int((points["has_reference"] & past).sum()),
            "max_rel_l2": float(rel.max()) if rel.size else np.nan,
            "mean_rel_l2": float(rel.mean()) if rel.size else np.nan,
            "max_rel_l2_in_envelope": float(rel[ok].max()) if ok.any() else np.nan,

@@ -39,7 +39,7 @@ UNIT_COLUMNS = {
     "x_name": _S, "validity_1pct": _F, "validity_5pct": _F,
     # the abscissa in the scene's units: x = 1 is x_scale x_unit (load factor 1: the net force, in N ...);
     # reference_limit: where the reference continued past the path stopped converging (evaluation beyond)
-    "x_scale": _F, "x_unit": _S, "reference_limit": _F,
+    "x_scale": _F, "x_unit": _S, "reference_limit": _F, "n_beyond_reference": _I,
     # evaluation points whose reference coincides with a training snapshot (the model has seen
     # the answer: studies/metrics.seen_points); seen: every reference point was (nothing held
     # out), and the report never recommends such a unit
@@ -61,6 +61,9 @@ POINT_COLUMNS = {"unit_key": _S, "point": _I, "x": _F, "group": _F, "mu": _S, "s
                  "rel_l2": _F, "rel_max_displacement": _F, "has_reference": _B,
                  # the reference field equals a training snapshot (the model was trained on it)
                  "seen": _B,
+                 # past the training path's top (evaluation.beyond; the continued reference where
+                 # it converged): in the validity radius, not in the unit's error columns
+                 "beyond": _B,
                  # trajectory points in the constant-load window: E / scale of the model and the
                  # reference (studies/energy.py), NaN elsewhere
                  "energy_rel": _F, "reference_energy_rel": _F}

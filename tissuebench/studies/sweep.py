@@ -10,6 +10,7 @@ sweep goes on. Ctrl-C stops after releasing the lock, saying how to resume.
 """
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 import time
@@ -19,6 +20,7 @@ from pathlib import Path
 import pandas as pd
 
 from .executors import check_executor, execute
+from .reference.cache import PROGRESS_ENV
 from .metrics import TOLERANCES, pareto_front
 from .results import (ResultsStore, SweepManifestError, read_latency, read_outputs, read_points, read_sweep_manifest,
                       read_units)
@@ -97,6 +99,11 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
     store = ResultsStore(out)
     store.acquire()
     state = "running"
+    # the reference runs a unit computes show their own bar (which one, load factor or time, ETA);
+    # an environment variable, so that the worker processes of an executor see it too
+    previous = os.environ.get(PROGRESS_ENV)
+    if progress:
+        os.environ[PROGRESS_ENV] = "1"
     try:
         store.clean_temporaries()
         if resume:
@@ -115,6 +122,10 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
         state = "interrupted"
         raise
     finally:
+        if progress and previous is None:
+            os.environ.pop(PROGRESS_ENV, None)
+        elif progress:
+            os.environ[PROGRESS_ENV] = previous
         if state in ("failed", "interrupted"):
             _mark(store, spec, units, executor, state)
         store.release()

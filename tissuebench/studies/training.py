@@ -97,20 +97,49 @@ def positional_scene(scene, s, spec):
     return scene.at(mu)
 
 
+#: a stored position whose reference stalls is solved again with 2x, then 4x the load steps
+POSITION_RETRIES = (2, 4)
+
+
+def positional_reference(scene, s, spec, backend):
+    """``(reference, retried load steps or None)`` at stored position ``s``: where Newton stalls
+    (a point load on one element can need a finer path: issue 27, 0.952 of the load with 25
+    iterations), the path is solved again with :data:`POSITION_RETRIES` times its increments."""
+    ref, _ = cached_solve(positional_scene(scene, s, spec), backend)
+    steps = int(spec.get("load_steps", scene.analysis.get("load_steps", 1)))
+    for factor in POSITION_RETRIES:
+        if ref.status == "success":
+            break
+        finer = {**spec, "load_steps": steps * factor}
+        ref, _ = cached_solve(positional_scene(scene, s, finer), backend)
+        if ref.status == "success":
+            return ref, steps * factor
+    return ref, None
+
+
 def _positions(scene, case, spec, info):
-    groups, cols, params = {}, [], []
+    groups, cols, params, failed, retried = {}, [], [], [], {}
     for s in lattice_positions(scene, spec.get("positions", 5)):
-        ref, _ = cached_solve(positional_scene(scene, s, spec), case["backend"])
-        if ref.status != "success":
-            raise RuntimeError(f"{scene.name}: the reference at position {s:g} did not converge: {ref.message}")
+        ref, finer = positional_reference(scene, s, spec, case["backend"])
+        if finer is not None:
+            retried[float(s)] = finer
+        if ref.status != "success":  # the other positions still run (and are cached): all failures named
+            failed.append(f"position {s:g}: {ref.message}")
+            continue
         U, lams = reference_states(ref)
         be = make_backend(case["backend"], ref.problem)
         groups[float(s)] = Training(U, [{"load_factor": float(x)} for x in lams], be)
         cols.append(U)
         params += [{"position": float(s), "load_factor": float(x)} for x in lams]
+    if failed:
+        tried = f"with {int(spec.get('load_steps', scene.analysis.get('load_steps', 1)))} load steps and " \
+                f"{' and '.join(str(f) + 'x' for f in POSITION_RETRIES)} as many"
+        raise RuntimeError(f"{scene.name}: the reference did not converge at {len(failed)} stored position(s) "
+                           f"({tried}): " + "; ".join(failed))
     first = next(iter(groups.values()))
     return Training(np.hstack(cols), params, first.backend, groups=groups,
-                    outputs=_outputs(scene, first.backend.problem), info=info)
+                    outputs=_outputs(scene, first.backend.problem),
+                    info={**info, "retried_positions": retried} if retried else info)
 
 
 def _trajectory(scene, case, spec, info):

@@ -170,7 +170,7 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
     outputs = pd.DataFrame(output_rows(evaluation, driven), columns=["point", "x", "monitor", "reference", "rom",
                                                                        "rel_error"])
     lat = time_latency(model, evaluation, history, int(p["latency_steps"]), int(p["warmup"]), int(p["seed"]))
-    notes, label = _asked_versus_done(unit, model, evaluation, history)
+    notes, label = _asked_versus_done(unit, model, evaluation, history, training.info)
     ref_step = reference_step_seconds(evaluation, unit.case["backend"], int(p["reference_samples"]))
     calib = calibration_seconds()
     h, r = lat["haptic"], lat["reconstruct"]
@@ -194,11 +194,15 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
             "_notes": notes + _blas_note(unit)}
 
 
-def _asked_versus_done(unit: WorkUnit, model, evaluation, history) -> tuple[list, str]:
+def _asked_versus_done(unit: WorkUnit, model, evaluation, history, training_info=None) -> tuple[list, str]:
     """What the unit asked for and did not get, said (notes for the row's message) rather than
     capped silently: fewer modes than ``n_modes`` (the training set spans fewer; the label says
     ``(N built)``), a ``warmup`` longer than the timing sequence (one pass of it is run)."""
     notes, label = [], unit.label
+    retried = (training_info or {}).get("retried_positions")
+    if retried:
+        notes.append("stored positions solved again with more load steps (Newton stalled): " + ", ".join(
+            f"{s:g} ({n} steps)" for s, n in retried.items()))
     asked, built = unit.options.get("n_modes"), int(model.n_reduced)
     if isinstance(asked, int) and not isinstance(asked, bool) and built < asked:
         notes.append(f"n_modes = {asked} asked, the model has {built} reduced coordinates (the training set or the "

@@ -246,9 +246,31 @@ def cached_solve(scene, backend: str = "skfem", linear_solver: str = "auto", pro
                 why = f"its data do not read back ({type(exc).__name__}: {exc})"
         warnings.warn(f"reference cache entry {entry} is corrupted ({why}): recomputed", stacklevel=2)
         _remove(entry)
-    result = solve(scene, backend=backend, progress=progress, linear_solver=linear_solver)
+    bar = None
+    if progress is None and os.environ.get(PROGRESS_ENV, "").strip() == "1":
+        bar, progress = _reference_bar(scene, backend)
+    try:
+        result = solve(scene, backend=backend, progress=progress, linear_solver=linear_solver)
+    finally:
+        if bar is not None:
+            bar.close()
     _write(entry, result, scene, key)
     return result, False
+
+
+#: set to "1" (the sweep does, when it shows progress): a reference computed for a unit shows a bar
+PROGRESS_ENV = "TISSUEBENCH_REFERENCE_PROGRESS"
+
+
+def _reference_bar(scene, backend):
+    """A bar naming the reference being computed: its case, variant, parameters and backend
+    (``reference kidney [load_steps=20] skfem: 45%|... load factor 0.9/2 [00:41<00:50]``)."""
+    from ..run import progress_bar
+
+    mu = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in sorted(scene.mu.items()))
+    label = f"reference {scene.name}" + (f" [{scene.variant}]" if scene.variant else "") + (f" ({mu})" if mu else "")
+    return progress_bar(f"{label} {backend if scene.is_fe else 'line'}", scene.analysis["type"],
+                        scene.units.get("time", "s"), leave=False)
 
 
 def cached_table(scene, backend: str = "skfem", linear_solver: str = "auto", cache: Path | None = None):
