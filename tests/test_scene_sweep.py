@@ -146,5 +146,25 @@ def test_a_new_users_organ_from_mesh_file_to_report(tmp_path, capsys, monkeypatc
     assert (points.loc[points["x"] > 1.0 + 1e-9, "has_reference"]).any()  # the continued reference
     assert main(["report", str(tmp_path / "kidney"), "--require", "rate>=500Hz, error<=5%"]) == 0
     html = (tmp_path / "kidney" / "_report" / "report.html").read_text()
-    assert "valid to" in html and "N at 1 %" in html
+    assert "valid to" in html and " N at 5 %" in html
     assert '<td class="seen">' not in html and "Not considered" not in html
+
+
+def test_a_scene_named_in_a_spec_is_found_from_the_spec_folder(tmp_path, monkeypatch):
+    """A relative scene path in a spec is the one beside the spec, not one at the same relative path
+    from the working folder (the kidney measured for issue 27 first ran another folder's kidney)."""
+    spec_dir, work = tmp_path / "study" / "out", tmp_path / "elsewhere" / "sub"
+    for d in (spec_dir, work):
+        d.mkdir(parents=True)
+    mine = tmp_path / "study"
+    write_block(mine)
+    scene_file(mine)
+    other = tmp_path / "elsewhere"
+    write_block(other, size_mm=(80.0, 20.0, 20.0))
+    scene_file(other)
+    spec = spec_dir / "s.toml"
+    spec.write_text('[[case]]\nname = "../scene.toml"\ntraining = { kind = "path", every = 2 }\n'
+                    '[[method]]\nname = "nearest"\n')
+    monkeypatch.chdir(work)  # ../scene.toml from here is the other block
+    name = load_spec(spec).cases[0]["name"]
+    assert Path(name) == (mine / "scene.toml").resolve()

@@ -10,7 +10,9 @@ component) or motion (``{type = "rotation", axis, center, angle_deg}``), scaled 
 value, distribute ("total" | "per_node" | "interpolate", point loads: "interpolate" puts one
 point force at the region's ``nearest`` point, spread on the nodes of its cell by the shape
 functions, so the load moves continuously with the point), history.
-``[analysis]``: type static (load_steps, max_load_factor, stop_at_divergence, formulation:
+``[analysis]``: type static (load_steps, max_load_factor, stop_at_divergence, max_cuts (halvings of
+an increment Newton does not converge before the run stalls; default: down to 1/4096 of the
+target), formulation:
 "displacement" (default) | "mixed": incompressible u-p Taylor-Hood P2-P1, J = 1 imposed by a
 pressure field, the material's volumetric penalty unused, see :mod:`tissuebench.refsolvers.mixed`)
 or dynamic (dt, t_end, integrator, integrator_options, lumped, dt_sweep).
@@ -49,6 +51,7 @@ INTEGRATOR_NAMES = ("hht", "bathe", "newmark", "backward_euler", "central_differ
 _MOTION_SCHEMA = {"type": c_enum("rotation"), "axis": c_vec3, "center": c_vec3, "angle_deg": c_num}
 _STATIC = {"type": c_str, "load_steps": c_int_range(1, MAX_LOAD_STEPS), "max_load_factor": c_pos,
            "stop_at_divergence": c_bool, "formulation": c_enum("displacement", "mixed"),
+           "max_cuts": c_int_range(0, 20),
            "note": c_str}
 _DYNAMIC = {"type": c_str, "dt": c_pos, "t_end": c_pos, "integrator": c_str, "integrator_options": c_table,
             "lumped": c_bool, "dt_sweep": c_numlist, "store_every": c_int_range(1, MAX_TIME_STEPS), "note": c_str}

@@ -95,6 +95,9 @@ def load_results(results_dir, case: str | None = None) -> ReportData:
     notes: list = []
     manifest = _manifest(root, notes)
     metric = manifest.get("error_metric", "max_rel_l2")
+    for s in manifest.get("not_applicable", []):  # left out before any work (studies.applicability)
+        notes.append(f"not applicable, not run: {s.get('method', '?')} on {s.get('case', '?')}"
+                     + (f" ({s['options']})" if s.get("options") else "") + f": {s.get('why', '')}")
     units = _select_cases(units, case).reset_index(drop=True)
     keys = set(units["unit_key"])
     pareto = _derived(root, "pareto.parquet", notes)

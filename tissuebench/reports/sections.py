@@ -136,10 +136,12 @@ def validity_text(r) -> str:
     scale, unit = getattr(r, "x_scale", np.nan), getattr(r, "x_unit", "")
     if not isinstance(unit, str) or not unit or not np.isfinite(scale) or getattr(r, "unit_status", "ok") != "ok":
         return ""
-    parts = [(f"{number(v * scale)} {unit} at {p} %" if v > 0 else f"over {p} % from the first point")
-             for v, p in ((r.validity_1pct, 1), (r.validity_5pct, 5)) if np.isfinite(v)]
+    radii = [(v, p) for v, p in ((r.validity_1pct, 1), (r.validity_5pct, 5)) if np.isfinite(v)]
+    valid = [f"{number(v * scale)} {unit} at {p} %" for v, p in radii if v > 0]
+    over = [f"{p} %" for v, p in radii if v <= 0]
+    text = "; ".join((["valid to " + " / ".join(valid)] if valid else [])
+                     + ([f"over {' and '.join(over)} from the first point"] if over else []))
     limit = getattr(r, "reference_limit", np.nan)
-    text = "valid to " + " / ".join(parts) if parts else ""
     if text and np.isfinite(limit) and max(r.validity_1pct, r.validity_5pct) >= limit * (1 - 1e-9):
         text += f" (the reference itself stops converging at {number(limit * scale)} {unit})"
     return text

@@ -7,8 +7,9 @@ The case entry's ``evaluation`` table has a ``kind`` (default: the training's):
                 ``training.every = 2``), driven in increasing order. ``beyond = [1.5, 2]``
                 measures past the path, up to those multiples of its top: the reference is
                 continued with the path's increment (:func:`beyond_scene`: at most
-                :data:`BEYOND_MAX_INCREMENTS` times the path's increments past it, cut where
-                Newton does not converge, until it stalls; its last converged load factor is
+                :data:`BEYOND_MAX_INCREMENTS` times the path's increments past it, halved at most
+                :data:`BEYOND_MAX_CUTS` times where Newton does not converge, until it stalls;
+                its last converged load factor is
                 ``info["reference_limit"]``) and every converged state past the top is a point
                 with its reference (``beyond``: it enters the validity radius, which so reaches
                 past the training range, not the unit's error columns, which stay the path's);
@@ -125,20 +126,27 @@ def _path(scene, case, spec):
     return Evaluation("path", "load_factor", points, reference_steps={"ref": ref, "scene": scene}, info=info)
 
 
-#: the continuation of a path past its top takes at most this many times the path's increments
-BEYOND_MAX_INCREMENTS = 4
+#: the continuation of a path past its top takes at most this many times the path's increments,
+#: each halved at most BEYOND_MAX_CUTS times where Newton does not converge
+BEYOND_MAX_INCREMENTS, BEYOND_MAX_CUTS = 4, 2
 
 
 def beyond_scene(scene, load_factor: float):
     """``scene`` run past its path's top to ``load_factor`` with the path's own increment (at
-    most :data:`BEYOND_MAX_INCREMENTS` x its increments past the top), cut where Newton does not
-    converge, as the path's own run, until it stalls: its last converged load factor is where the
-    reference stops (``status = "stalled"``, the message says at which load factor)."""
+    most :data:`BEYOND_MAX_INCREMENTS` x its increments past the top), an increment Newton does
+    not converge halved at most :data:`BEYOND_MAX_CUTS` times, until it stalls: its last converged
+    load factor is where the reference stops (``status = "stalled"``, the message says at which)."""
     a = scene.analysis
     n, top = int(a.get("load_steps", 1)), float(a.get("max_load_factor", 1.0))
     h = top / n
     steps = min(int(np.ceil(load_factor / h - 1e-9)), n * (1 + BEYOND_MAX_INCREMENTS))
-    return scene.at({"max_load_factor": steps * h, "load_steps": steps})
+    ext = scene.at({"max_load_factor": steps * h, "load_steps": steps})
+    # two halvings of an increment before it stalls: where the reference stops, without crawling
+    # towards it in ever smaller steps (a kidney took > 4 min there with the path's 1/4096)
+    new = dataclasses.replace(ext, analysis={**ext.analysis, "max_cuts": BEYOND_MAX_CUTS})
+    if "built" in scene.__dict__:  # the same mesh: not built again
+        new.__dict__["built"] = scene.__dict__["built"]
+    return new
 
 
 def load_measure(scene, ref, backend: str) -> dict:

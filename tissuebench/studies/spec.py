@@ -129,9 +129,11 @@ def _check_case(i, c, resolution, default_resolution, folder: Path | None = None
     if "name" not in c:
         raise ValueError(f"{path}.name: missing required key")
     name = c["name"]
-    if isinstance(name, str) and folder is not None and name not in list_cases() and not _is_file(name) \
-            and _is_file(str(folder / name)):
-        name = str((folder / name).resolve())  # a scene file beside the spec (a spec written by sweep --scene)
+    if isinstance(name, str) and folder is not None and name not in list_cases() and _is_file(str(folder / name)) \
+            and not Path(name).is_absolute():
+        # a scene file named relative to the spec's folder (a spec written by sweep --scene) is that
+        # one, whatever lies at the same relative path from the working folder
+        name = str((folder / name).resolve())
     if not isinstance(name, str) or (name not in list_cases() and not _is_file(name)):
         _fail(f"{path}.name", name, f"unknown case; valid: {list_cases()}")
     backend = c.get("backend", "skfem")

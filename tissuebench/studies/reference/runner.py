@@ -94,7 +94,7 @@ def _static(scene, plan, be, progress, linear_solver):
         states, rows, status, message = _linear_static(be, n_steps, target, monitors, progress)
     else:
         states, rows, status, message = _newton_static(be, n_steps, target, monitors, progress, linear_solver,
-                                                       bool(a.get("stop_at_divergence")))
+                                                       bool(a.get("stop_at_divergence")), a.get("max_cuts"))
     disp = np.array(states).reshape(len(states), -1, 3)
     steps = np.array([0.0] + [r["load_factor"] for r in rows if r["converged"]])
     return dict(status=status, message=message, table=pd.DataFrame(rows), steps=steps, displacement=disp,
@@ -136,11 +136,13 @@ def _linear_static(be, n_steps, target, monitors, progress):
     return states, rows, "success", f"linear static solution at {n_steps} load factors up to {target:g}"
 
 
-def _newton_static(be, n_steps, target, monitors, progress, linear_solver, to_divergence):
+def _newton_static(be, n_steps, target, monitors, progress, linear_solver, to_divergence, max_cuts=None):
     # run to divergence: the first increment that fails ends the run (no cutting), so
-    # the reported radius is that of the scene's fixed increment
+    # the reported radius is that of the scene's fixed increment; max_cuts halvings of an
+    # increment before the run stalls (a path continued past its top: where it stops, cheaply)
+    smallest = 1.0 / 4096 if max_cuts is None else 1.0 / (n_steps * 2 ** int(max_cuts))
     opts = NewtonOptions(n_increments=n_steps, max_increment=1.0 / n_steps, linear_solver=linear_solver,
-                         min_increment=1.0 / n_steps if to_divergence else 1.0 / 4096)
+                         min_increment=1.0 / n_steps if to_divergence else smallest)
     res = newton_solve(be, target, opts, progress=progress)
     stored, rows = res.increment_rows(lambda u: (u, monitors(u)))
     states = [np.zeros(be.ndof)] + stored
