@@ -269,7 +269,7 @@ def _single_copies(found: list, root: Path, stray: list) -> list:
     return sorted(keep, key=lambda it: str(it[0]))
 
 
-def _read_dataset(root: Path, dataset: str, foreign) -> pd.DataFrame:
+def _read_dataset(root: Path, dataset: str, foreign, as_frame: bool = True) -> pd.DataFrame | None:
     files, stray = _scan(root, dataset)
     columns = _DATASETS[dataset]
     found = []
@@ -285,12 +285,15 @@ def _read_dataset(root: Path, dataset: str, foreign) -> pd.DataFrame:
             continue
         # partition values as pyarrow's hive partitioning reads them (URI-decoded)
         found.append((path, unquote(path.parent.parent.name[5:]), unquote(path.parent.name[7:]), table))
+    kept = _single_copies(found, root, stray)
+    _report_foreign(stray, foreign)
+    if not as_frame:
+        return None
     tables = []
-    for _, case, method, table in _single_copies(found, root, stray):
+    for _, case, method, table in kept:
         n = table.num_rows
         table = table.append_column("case", pa.array([case] * n, pa.string()))
         tables.append(table.append_column("method", pa.array([method] * n, pa.string())))
-    _report_foreign(stray, foreign)
     if not tables:
         return pd.DataFrame()
     df = pa.concat_tables(tables, promote_options="default").to_pandas()
@@ -320,7 +323,7 @@ def foreign_files(root) -> list:
     """``(path, why)`` of every file in a results folder's datasets that the readers ignore."""
     out: list = []
     for dataset in _DATASETS:
-        _read_dataset(Path(root), dataset, out)
+        _read_dataset(Path(root), dataset, out, as_frame=False)
     return out
 
 
