@@ -154,6 +154,12 @@ def test_4_resume_into_the_folder_of_another_spec_is_refused_naming_both_hashes(
     both = one(tmp_path, extra='[[method]]\nname = "pod_interp"\n', file="both.toml")
     summary = run_sweep(load_spec(both), out, resume=True, progress=False)
     assert len(summary.skipped) == 1 and len(summary.computed) == 1
+    # one spec's cases run one --cases selection at a time into one folder: the same spec
+    two = spec_file(tmp_path, ONE.format(name="two", method="nearest") + '[[case]]\nid = "again"\n'
+                    'name = "cornea_pinch"\ntraining = { kind = "path", every = 2 }\n', "two.toml")
+    run_sweep(load_spec(two, only=["cornea_pinch"]), tmp_path / "by_case", progress=False)
+    summary = run_sweep(load_spec(two, only=["again"]), tmp_path / "by_case", resume=True, progress=False)
+    assert len(summary.computed) == 1 and len(read_units(tmp_path / "by_case")) == 2
 
 
 # ------------------------------------------------------------------------ 5: values checked at spec load
