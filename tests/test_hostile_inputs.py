@@ -267,6 +267,7 @@ def test_12_a_damaged_unit_file_is_named_and_the_report_still_reads(handmade, tm
     ('{"units": [{"key": "../x", "case": "a", "method": "m", "label": "l"}]}', r"units\[0\].key = '../x'"),
     ('{"state": 3}', r"state = 3: expected one of"),
     ('{"wall_s": NaN}', r"wall_s = nan"),
+    ('{"wall_s": 1' + "0" * 400 + "}", r"wall_s = 1000"),  # an integer beyond the float range (10k-example fuzz)
     ("[" * 100_000, r"not valid JSON"),
     ('"\udcff"', r"not"),
 ])
@@ -351,7 +352,7 @@ def test_minor_modes_warmup_and_threads_beyond_what_runs_are_said_in_the_row(tmp
     assert big["unit_status"] == small["unit_status"] == "ok"
     n = int(big["n_reduced"])
     assert n < 40 and big["label"] == f"pod_interp n_modes=40 ({n} built)" and small["label"] == "pod_interp n_modes=2"
-    assert f"n_modes = 40 asked, the model has {n} reduced coordinates" in big["message"]
+    assert f"n_modes = 40 asked, the built model has {n} reduced coordinates" in big["message"]
     assert "n_modes" not in small["message"]
     for row in (big, small):
         assert "warmup = 1000 asked" in row["message"] and "untimed steps run" in row["message"]

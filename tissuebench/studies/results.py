@@ -26,7 +26,6 @@ checks ``_sweep.json`` (:class:`SweepManifestError` names the file and the key).
 from __future__ import annotations
 
 import json
-import math
 import os
 import platform
 import re
@@ -38,6 +37,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from ..cases.schema import is_num
 from .schema import LATENCY_COLUMNS, OUTPUT_COLUMNS, POINT_COLUMNS, UNIT_COLUMNS, conform
 from .store import write_json_atomic
 
@@ -368,7 +368,7 @@ def _is_count(v):
 
 
 def _is_seconds(v):
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+    return is_num(v) and v >= 0  # is_num: not a bool, finite, no integer beyond the float range
 
 
 def _is_hash(v):
