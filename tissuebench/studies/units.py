@@ -236,6 +236,11 @@ def _energy_drift(evaluation, driven, backend) -> tuple[dict, dict]:
                 "reference_energy_spread": np.nan}, {}
     system = cached_dynamics_system(evaluation.reference_steps["scene"], backend)
     drift = model_drift(system, evaluation.dt, ref.window_start, evaluation.info["t_end"], driven.neighbours, ref.scale)
+    failed = [r.mu["time"] for r in driven.results if r is not None and r.status == "failed" and r.mu]
+    if failed and np.isfinite(drift.drift):  # a blow-up inside the window: its steps before the failure fit no drift
+        drift = EnergyDrift(float("inf"), float("inf"), ref.window_start, ref.scale,
+                            f"the model failed at t = {min(failed):.6g} (in or before the window)",
+                            drift.times, drift.history)
     steps = [round(p.mu["time"] / evaluation.dt) for p in evaluation.points]
     model_at, ref_at = drift.at_steps(evaluation.dt), ref.at_steps(evaluation.dt)
     histories = {"energy_rel": [model_at.get(k, np.nan) for k in steps],
