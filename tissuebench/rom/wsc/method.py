@@ -1,8 +1,8 @@
 """``"wsc"``: the weighted-skinning + cubature ROM as a registered trajectory method.
 
 Offline (:meth:`Wsc.build`): handles by furthest-point sampling, skinning weights, the
-subspace and its Dirichlet part, the cubature rule (``bgbc`` without snapshots, ``nnls``
-from training trajectories, ``full``), the reduced mass ``U^T M U`` and the reduced loads.
+subspace and its Dirichlet part, the cubature rule (``bgbc``, the paper's, and ``rbf``, ours,
+without snapshots; ``nnls`` from training trajectories; ``full``), the reduced mass ``U^T M U`` and the reduced loads.
 Online (:class:`WscModel`): ``start`` projects the initial state and factorises the step
 matrix for ``dt``; ``step({"time", "load_factor"})`` advances one implicit step in the
 subspace; the step result carries the full reduced vector ``q`` (``u = U q``, prescribed
@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from ..base import RomMethod, Training, register
-from .cubature import bgbc_cubature, cell_centroids, full_cubature
+from .cubature import bgbc_cubature, cell_centroids, full_cubature, rbf_cubature
 from .handles import furthest_point_sampling, resolve_count
 from .loads import ReducedLoads
 from .nnls import nnls_cubature
@@ -27,7 +27,7 @@ from .weights import skinning_weights
 
 __all__ = ["Wsc", "WscModel", "CUBATURES"]
 
-CUBATURES = ("bgbc", "nnls", "full")
+CUBATURES = ("bgbc", "rbf", "nnls", "full")
 
 
 def _positive(name, value, integer=False):
@@ -54,12 +54,14 @@ class Wsc(RomMethod):
         handle -- 3 free dofs on a planar face -- dominates the layers next to the face
         and the subspace cannot follow the deformation there: projection error of the ci
         tension history with 10 handles 2.5 % against 0.5 %).
-    cubature : {"bgbc", "nnls", "full"}
-        Cubature rule (see :mod:`.cubature`, :mod:`.nnls`).
+    cubature : {"bgbc", "rbf", "nnls", "full"}
+        Cubature rule (see :mod:`.cubature`, :mod:`.nnls`): ``bgbc`` the paper's (biharmonic
+        coordinates, libigl; at least 4 sample elements), ``rbf`` ours (normalised radial basis
+        functions), ``nnls`` fitted to training forces, ``full`` every element.
     cubature_elements : int or float
         Sample elements (budget), or a fraction of the elements (paper: 5-7.5 %).
     cubature_support : float
-        BGBC weight-function radius in units of the samples' covering radius (> 1).
+        ``rbf`` weight-function radius in units of the samples' covering radius (> 1).
     nnls_tol : float or None
         Largest accepted relative fit error of the NNLS rule on held-out snapshots (None:
         any, reported only).
@@ -186,9 +188,17 @@ class Wsc(RomMethod):
         if o["cubature"] == "full":
             return full_cubature(pb.mesh.n_cells)
         volumes = be.cell_kernel().volumes
-        centroids = cell_centroids(pb.mesh.points, pb.mesh.cells)
         if o["cubature"] == "bgbc":
-            return bgbc_cubature(centroids, volumes, budget, o["seed"], o["cubature_support"])
+            if pb.mesh.cell_type != "tetra":
+                raise ValueError(f"wsc cubature = 'bgbc' needs a tetrahedral mesh (libigl's biharmonic coordinates), "
+                                 f"got {pb.mesh.cell_type!r}; use cubature = 'rbf'")
+            if budget < 4:
+                raise ValueError(f"wsc cubature = 'bgbc' needs cubature_elements >= 4 (affine functions must be "
+                                 f"pinned), got {o['cubature_elements']!r} ({budget} elements)")
+            return bgbc_cubature(pb.mesh.points, pb.mesh.cells, volumes, budget, o["seed"])
+        centroids = cell_centroids(pb.mesh.points, pb.mesh.cells)
+        if o["cubature"] == "rbf":
+            return rbf_cubature(centroids, volumes, budget, o["seed"], o["cubature_support"])
         return nnls_cubature(sub, be, training, budget, centroids, o["nnls_tol"], o["seed"])
 
 
