@@ -8,7 +8,10 @@ Kinds (``H`` symmetric positive definite, dense, n = free reduced dofs):
 * ``"cholesky"``: the Cholesky factor, two triangular solves a solve (potrs).
 * ``"sparse"``: SuperLU of the sparse ``H`` (its fill decides).
 
-A solve reads the whole operator, so its cost is memory traffic (paper cube, 364 handles,
+The dense kinds factor the Jacobi-scaled ``D H D`` (``D = diag(H)^-1/2``; the affine
+coordinates of a handle -- translation, and gradients multiplied by coordinates -- differ in
+scale by the body's size), so the rounding of a single-precision operator acts on the
+scaled matrix. A solve reads the whole operator, so its cost is memory traffic (paper cube, 364 handles,
 n = 4374, one core: stored full inverse 16 ms (gemv), symmetric inverse 8 ms, the same in
 single precision 3.7 ms, potrs 32 ms: the triangular solves do not stream). ``"auto"``
 builds every kind and keeps the fastest by the median of timed solves (``info`` keeps the
@@ -42,27 +45,29 @@ SINGLE_TOL = 1e-2
 
 
 class _Dense:
-    def __init__(self, c, dtype):
+    """``H^-1 = D Hs^-1 D`` applied with symv, ``Hs`` the factored matrix (see :class:`StepMatrix`)."""
+
+    def __init__(self, c, d, dtype):
         inv, info = lapack.dpotri(c, lower=0)
         if info != 0:
             raise np.linalg.LinAlgError(f"potri failed (info {info})")
-        self.a = np.asfortranarray(np.triu(inv).astype(dtype))
+        self.a, self.d = np.asfortranarray(np.triu(inv).astype(dtype)), d
         self.symv = blas.ssymv if dtype == np.float32 else blas.dsymv
         self.dtype = dtype
 
     def solve(self, b):
-        return self.symv(1.0, self.a, np.asarray(b, dtype=self.dtype), lower=0).astype(float, copy=False)
+        return self.d * self.symv(1.0, self.a, (self.d * b).astype(self.dtype, copy=False), lower=0)
 
 
 class _Cholesky:
-    def __init__(self, c, dtype):
-        self.c = np.asfortranarray(np.triu(c).astype(dtype))
+    def __init__(self, c, d, dtype):
+        self.c, self.d = np.asfortranarray(np.triu(c).astype(dtype)), d
         self.potrs = lapack.spotrs if dtype == np.float32 else lapack.dpotrs
         self.dtype = dtype
 
     def solve(self, b):
-        x, info = self.potrs(self.c, np.asarray(b, dtype=self.dtype), lower=0)
-        return x.astype(float, copy=False)
+        x, info = self.potrs(self.c, (self.d * b).astype(self.dtype, copy=False), lower=0)
+        return self.d * x
 
 
 class _Sparse:
@@ -111,14 +116,15 @@ class StepMatrix:
             raise ValueError(f"step-matrix precision = {precision!r}: expected one of {PRECISIONS}")
         tic = time.perf_counter()
         H = np.asarray(H, dtype=float)
-        c, low = sla.cho_factor(H, lower=False, check_finite=False)
+        d = 1.0 / np.sqrt(np.diag(H))  # Jacobi scaling: the affine coordinates' scales differ by the body size
+        c = sla.cho_factor(d[:, None] * H * d[None, :], lower=False, check_finite=False)[0]
         rng = np.random.default_rng(0)
         rhs = rng.standard_normal((max(3, int(timing_solves)), len(H)))
         exact = rng.standard_normal((3, len(H)))  # solutions with every eigendirection present
         self.info = {}
         dtype = np.float64
         if precision == "single":
-            trial = _Dense(c, np.float32)
+            trial = _Dense(c, d, np.float32)
             err = max(np.linalg.norm(trial.solve(H @ x) - x) / np.linalg.norm(x) for x in exact)
             self.info["single_error"] = float(err)
             if err <= SINGLE_TOL:
@@ -126,7 +132,7 @@ class StepMatrix:
             else:
                 self.info["single_refused"] = f"single-precision solutions off by {err:.1e} (> {SINGLE_TOL:g})"
         self.precision = "single" if dtype == np.float32 else "double"
-        build = {"dense": lambda: _Dense(c, dtype), "cholesky": lambda: _Cholesky(c, dtype),
+        build = {"dense": lambda: _Dense(c, d, dtype), "cholesky": lambda: _Cholesky(c, d, dtype),
                  "sparse": lambda: _Sparse(H)}
         if kind == "auto":
             ops = {name: make() for name, make in build.items()}
