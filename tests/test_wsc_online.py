@@ -36,9 +36,12 @@ def test_every_kind_solves_the_system(kind, precision):
 
 
 def test_auto_keeps_the_fastest_measured_and_bad_options_are_refused():
-    op = StepMatrix(_spd(120, 1e2), "auto", "single")
+    op = StepMatrix(_spd(120, 1e2), "auto", "single")  # a dense matrix: SuperLU not tried
     cost = op.info["solve_ms"]
-    assert set(cost) == {"dense", "cholesky", "sparse"} and op.kind == min(cost, key=cost.get)
+    assert set(cost) == {"dense", "cholesky"} and op.kind == min(cost, key=cost.get) and "sparse_skipped" in op.info
+    banded = np.diag(np.full(300, 4.0)) + np.diag(np.full(299, -1.0), 1) + np.diag(np.full(299, -1.0), -1)
+    cost = StepMatrix(banded, "auto").info["solve_ms"]
+    assert set(cost) == {"dense", "cholesky", "sparse"}
     with pytest.raises(ValueError, match="kind = 'lu'"):
         StepMatrix(np.eye(3), "lu")
     with pytest.raises(ValueError, match="precision = 'half'"):

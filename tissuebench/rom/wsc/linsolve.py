@@ -15,7 +15,8 @@ scaled matrix. A solve reads the whole operator, so its cost is memory traffic (
 n = 4374, one core: stored full inverse 16 ms (gemv), symmetric inverse 8 ms, the same in
 single precision 3.7 ms, potrs 32 ms: the triangular solves do not stream). ``"auto"``
 builds every kind and keeps the fastest by the median of timed solves (``info`` keeps the
-measured costs), instead of a fixed size threshold.
+measured costs), instead of a fixed size threshold; SuperLU is tried only for a matrix at
+most ``SPARSE_MAX_DENSITY`` dense.
 
 Precision ``"single"`` stores the operator in float32 (half the traffic). It is accepted
 when it recovers seeded solutions ``x`` from ``H x`` to ``SINGLE_TOL`` (relative; every
@@ -34,10 +35,14 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.linalg import blas, lapack
 
-__all__ = ["KINDS", "PRECISIONS", "SINGLE_TOL", "StepMatrix"]
+__all__ = ["KINDS", "PRECISIONS", "SINGLE_TOL", "SPARSE_MAX_DENSITY", "StepMatrix"]
 
 KINDS = ("auto", "dense", "cholesky", "sparse")
 PRECISIONS = ("single", "double")
+#: ``auto`` times SuperLU only for a step matrix at most this dense (paper cube, 364 handles:
+#: 24 % dense, SuperLU 24-31 ms a solve against 2.7 ms for the single-precision inverse, and
+#: its factorisation takes longer than the dense one)
+SPARSE_MAX_DENSITY = 0.1
 #: largest relative error of single-precision solutions that is accepted: the operator is a
 #: preconditioner, a 1 % error changes the L-BFGS path, not the converged state; the check is
 #: there for a stiff direction lost to rounding (errors of order 1; condition numbers past ~1e6)
@@ -134,7 +139,11 @@ class StepMatrix:
         self.precision = "single" if dtype == np.float32 else "double"
         build = {"dense": lambda: _Dense(c, d, dtype), "cholesky": lambda: _Cholesky(c, d, dtype),
                  "sparse": lambda: _Sparse(H)}
+        density = np.count_nonzero(H) / H.size
         if kind == "auto":
+            if density > SPARSE_MAX_DENSITY:  # not worth its factorisation time (module docstring)
+                build.pop("sparse")
+                self.info["sparse_skipped"] = f"density {density:.2f} > {SPARSE_MAX_DENSITY}"
             ops = {name: make() for name, make in build.items()}
             cost = {name: _median_solve_s(op, rhs) for name, op in ops.items()}
             kind = min(cost, key=cost.get)
