@@ -1,11 +1,14 @@
 """Table 1 of the wsc paper against ours, per row, from a ``wsc_table1`` sweep (issue 31).
 
     tissuebench sweep --preset wsc_table1 --resolution paper --cases cube-tension --out OUT
-    python docs/studies/wsc_table1_table.py OUT docs/studies/wsc_table1_paper
+    python docs/studies/wsc_table1_cputime.py CPU.csv bgbc        # optional: CPU time per step
+    python docs/studies/wsc_table1_table.py OUT docs/studies/wsc_table1_paper [CPU.csv ...]
 
 writes ``<stem>.csv``, ``<stem>.md`` (paper RMSE and ms per step beside ours for the BGBC and
-RBF cubatures: RMSE, median and p99 step, the speed-up over our FE step measured in the same
-process, whether the median is within the paper's time) and ``<stem>_vs_paper.png``.
+RBF cubatures: RMSE, median and p99 step (wall), the speed-up over our FE step measured in the
+same process, whether the median is within the paper's time; with CPU.csv files the
+stepping thread's CPU time per step and its RMSE where the sweep has no row) and
+``<stem>_vs_paper.png``.
 """
 from __future__ import annotations
 
@@ -50,20 +53,33 @@ def ours(sweep: Path) -> pd.DataFrame:
     return out[out["cubature"].isin(["bgbc", "rbf"])]
 
 
-def table(sweep: Path) -> pd.DataFrame:
+def table(sweep: Path, cpu_files=()) -> pd.DataFrame:
     paper, mine = paper_rows(), ours(sweep)
+    cpu = pd.concat([pd.read_csv(f) for f in cpu_files]) if cpu_files else pd.DataFrame(
+        columns=["handles", "elements", "cubature", "cpu_ms_median", "rmse_rel"])
+    cpu = cpu.drop_duplicates(["handles", "elements", "cubature"], keep="last")
     for cub in ("bgbc", "rbf"):
         part = mine[mine["cubature"] == cub].drop(columns="cubature")
         part = part.rename(columns={c: f"{cub}_{c}" for c in part.columns if c not in ("handles", "elements")})
         paper = paper.merge(part, on=["handles", "elements"], how="left")
-        paper[f"{cub}_within_paper_ms"] = paper[f"{cub}_ms_median"] <= paper["paper_ms"]
+        paper[f"{cub}_within_paper_ms"] = _within(paper[f"{cub}_ms_median"], paper["paper_ms"])
+        c = cpu[cpu["cubature"] == cub][["handles", "elements", "cpu_ms_median", "rmse_rel"]]
+        c = c.rename(columns={"cpu_ms_median": f"{cub}_cpu_ms", "rmse_rel": f"{cub}_cpu_run_rmse_%"})
+        c[f"{cub}_cpu_run_rmse_%"] *= 100
+        paper = paper.merge(c, on=["handles", "elements"], how="left")
+        paper[f"{cub}_cpu_within_paper_ms"] = _within(paper[f"{cub}_cpu_ms"], paper["paper_ms"])
     return paper
+
+
+def _within(ours_ms, paper_ms):
+    """yes / no, or blank where ours was not measured."""
+    return np.where(ours_ms.isna(), "", np.where(ours_ms <= paper_ms, "yes", "no"))
 
 
 def markdown(t: pd.DataFrame) -> str:
     """A pipe table (pandas' to_markdown needs tabulate, not a project dependency)."""
     def cell(v):
-        return f"{v:.3g}" if isinstance(v, float) else str(v)
+        return ("" if np.isnan(v) else f"{v:.3g}") if isinstance(v, float) else str(v)
     lines = ["| " + " | ".join(t.columns) + " |", "|" + "---|" * len(t.columns)]
     lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in t.itertuples(index=False)]
     return "\n".join(lines)
@@ -86,13 +102,16 @@ def figure(t: pd.DataFrame, path: Path):
     plt.close(fig)
 
 
-def main(sweep, stem):
+def main(sweep, stem, *cpu_files):
     sweep, stem = Path(sweep), Path(stem)
-    t = table(sweep)
+    t = table(sweep, cpu_files)
     t.to_csv(stem.with_suffix(".csv"), index=False, float_format="%.4g")
     cols = ["handles", "elements", "paper_rmse_%", "paper_ms"]
     for cub in ("bgbc", "rbf"):
-        cols += [f"{cub}_rmse_%", f"{cub}_ms_median", f"{cub}_ms_p99", f"{cub}_speedup", f"{cub}_within_paper_ms"]
+        cols += [f"{cub}_rmse_%", f"{cub}_ms_median", f"{cub}_ms_p99", f"{cub}_speedup", f"{cub}_cpu_ms",
+                 f"{cub}_cpu_within_paper_ms"]
+        if cub == "rbf":
+            cols.append("rbf_cpu_run_rmse_%")
     md = markdown(t[[c for c in cols if c in t]])
     fe = np.nanmedian(t.get("bgbc_fe_ms", pd.Series([np.nan])))
     stem.with_suffix(".md").write_text(f"Our FE step (same processes, median): {fe:.4g} ms\n\n{md}\n")
@@ -101,4 +120,4 @@ def main(sweep, stem):
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:3])
+    main(*sys.argv[1:])
