@@ -1,6 +1,7 @@
 """Table 1's step times as CPU time of the stepping thread, beside the wall time (issue 31).
 
     PYTHONPATH=$PWD python docs/studies/wsc_table1_cputime.py OUT.csv [bgbc|rbf] [h/c ...]
+    WSC_SCENE=left_ventricle:mooney_rivlin_dynamic ... OUT.csv bgbc 300/3600   # the ventricle
 
 On a shared machine (2 cores, load 9-14 while we measured) the wall time of a step counts the
 time the process waits for a core; the CPU time of the stepping thread
@@ -38,7 +39,8 @@ def main(out, cubature="bgbc", *rows):
     rows = [tuple(int(x) for x in r.split("/")) for r in rows] or ROWS
     for name in ("bgbc_cubature", "rbf_cubature"):  # one rule per element budget (one mesh here)
         setattr(wsc_method, name, _per_budget(getattr(wsc_method, name)))
-    scene = load("cube_tension_twist", resolution="paper", variant="tension_dynamic")
+    name, variant = os.environ.get("WSC_SCENE", "cube_tension_twist:tension_dynamic").split(":")
+    scene = load(name, resolution="paper", variant=variant)
     be = make_backend("skfem", scene.to_problem())
     dt = float(scene.analysis["dt"])
     n = int(round(scene.analysis["t_end"] / dt))
