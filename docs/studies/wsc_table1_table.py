@@ -112,7 +112,8 @@ def main(sweep, stem, *cpu_files):
                  f"{cub}_cpu_within_paper_ms"]
         if cub == "rbf":
             cols.append("rbf_cpu_run_rmse_%")
-    md = markdown(t[[c for c in cols if c in t]])
+    shown = t[[c for c in cols if c in t]]
+    md = markdown(shown.loc[:, [not (shown[c].isna() | (shown[c] == "")).all() for c in shown]])  # measured columns
     fe = np.nanmedian(t.get("bgbc_fe_ms", pd.Series([np.nan])))
     stem.with_suffix(".md").write_text(f"Our FE step (same processes, median): {fe:.4g} ms\n\n{md}\n")
     figure(t, stem.parent / f"{stem.name}_vs_paper.png")
