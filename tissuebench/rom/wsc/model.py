@@ -69,6 +69,8 @@ class WscModel(OnlineModel):
             z0, qb0 = self.project(state0["u"])
             v0, vb0 = self.project(state0.get("v", np.zeros(self.sub.ndof)))
         self.stepper.start(z0, v0, qb0, vb0, lam0, self._dt)
+        if self.stepper.H is not None:  # what the measured choice built (linsolve)
+            self.info["step_matrix"], self.info["linear_solver"] = self.stepper.H.info, self.stepper.H.kind
         self.reaction_work, self._support0 = 0.0, None
         if self.track_energy:
             self._support0 = self.stepper.support_force()
