@@ -100,6 +100,20 @@ class WscModel(OnlineModel):
         note = "" if info.get("converged", True) else f"kept unconverged (on_max_iter='accept'): {info['message']}"
         return StepResult(self.stepper.q.copy(), status, note, info, mu)
 
+    def floor_ops(self):
+        """The arithmetic an implicit reduced step cannot avoid (wsc paper §2.3): one cubature
+        evaluation of the reduced force at the current state and one solve with the step
+        matrix the measured choice built; the default floor (:meth:`OnlineModel.floor_ops`)
+        before a start or with the Newton solver (no stored step matrix)."""
+        st = self.stepper
+        if not self.started or st.H is None:
+            return super().floor_ops()
+        q = st.q.copy()
+
+        def floor():
+            return st.H.solve(st.f_z(q)[2])
+        return floor
+
     # ------------------------------------------------------------------ outputs
     def output_map(self):
         return np.arange(self.sub.ndof), self.sub.U
