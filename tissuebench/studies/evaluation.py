@@ -200,7 +200,7 @@ def contact_scene(scene, node: int):
 def _contact_nodes(scene, case, spec, model):
     """Per contact node of the model: the reference path of the intact scene loaded there."""
     family = getattr(getattr(model, "vademecum", None), "family", None)
-    nodes = None if family is None else family.nodes
+    nodes = getattr(model, "contact_nodes", None) if family is None else family.nodes  # or a baseline's
     if nodes is None:
         raise ValueError(f"evaluation.kind = 'contact_nodes' needs a surface vademecum (pgd, pgd_svk on a 3D "
                          f"scene); {model.name!r} has no contact nodes")

@@ -1,0 +1,71 @@
+"""``"corotational_fe"``: corotational linear FEM on the scene's mesh (SOFA's ``TetrahedronFEMForceField``
+method "polar", Vega FEM's corotational linear material).
+
+Per element, the rotation ``R`` of the polar decomposition of F (by SVD) and the linear
+stiffness in the rotated frame, ``f_e = R K_e (R^T x_e - X_e)``: the material
+:class:`~tissuebench.refsolvers.corotational.Corotational` with the scene material's
+small-strain moduli, consumed through the scikit-fem backend's interface (NGSolve's backend
+needs a symbolic energy, which the polar decomposition has not: the reason is in
+:mod:`tissuebench.refsolvers.corotational`; the operators are built on scikit-fem whatever
+the case's backend, on the same mesh and dof numbering, so the field compares as is).
+
+* Statics (``kind = "path"``): Newton load stepping along the path, warm-started, with the
+  consistent tangent (:class:`~.stepping.NewtonPathModel`); the scene's dead loads and
+  Dirichlet data. A follower pressure is kept as the scene's own.
+* Dynamics (``kind = "trajectory"``): the scene's integrator (or ``integrator``; SOFA's
+  default is backward Euler) with Newton iterations per step on the corotational forces.
+
+Options: ``rtol``, ``max_iterations``, ``min_increment`` (the Newton of a static step,
+:func:`~tissuebench.refsolvers.newton.newton_solve`), ``linear_solver`` ("auto": NGSolve's
+sparse Cholesky from 1000 unknowns, SuperLU below; "amg-cg"), ``integrator``.
+"""
+from __future__ import annotations
+
+from ...refsolvers.backends import make_backend
+from ...refsolvers.corotational import Corotational, small_strain_moduli
+from ..base import RomMethod, Training, register
+from .common import FieldMap, contact_nodes_of, intact_backend, replace_material, scene_of
+from .linear import _contact_of, is_dynamic
+from .stepping import NewtonPathModel, TrajectoryModel, dynamic_system, integrator_choice, newton_options
+
+__all__ = ["CorotationalFe", "corotational_backend"]
+
+
+def corotational_backend(backend):
+    """A scikit-fem backend of ``backend.problem`` with the corotational material of its small-strain moduli."""
+    E, nu = small_strain_moduli(backend.problem.material)
+    return make_backend("skfem", replace_material(backend.problem, Corotational(E, nu)))
+
+
+@register
+class CorotationalFe(RomMethod):
+    """Corotational linear elasticity on the scene's mesh (module docstring)."""
+
+    name = "corotational_fe"
+    kind = "path"  # statics; on a dynamic scene the online model is a "trajectory"
+    training_kinds = ("path", "operators", "trajectory")
+
+    def __init__(self, rtol: float = 1e-9, max_iterations: int = 25, min_increment: float = 1.0 / 64,
+                 linear_solver: str = "auto", integrator: str | None = None):
+        newton_options(self.name, rtol, max_iterations, min_increment, linear_solver, 0)  # checks the values
+        self.rtol, self.max_iterations, self.min_increment = rtol, max_iterations, min_increment
+        self.linear_solver, self.integrator = linear_solver, integrator
+
+    def build(self, training: Training):
+        scene = scene_of(training, self.name)
+        be = corotational_backend(intact_backend(training, scene, self.name))
+        E, nu = small_strain_moduli(be.problem.material)
+        fmap = FieldMap(be.problem)
+        info = {"physics": "corotational", "coarsening": 1.0, "n_dof": int(be.ndof), "E": E, "nu": nu,
+                "backend": "skfem"}
+        if is_dynamic(training, scene):
+            integ = integrator_choice(self.name, self.integrator, scene)
+            system = dynamic_system(be, training, integ[0], linear=False)
+            return TrajectoryModel(self.name, system, integ, fmap, info, training.history)
+        opts = newton_options(self.name, self.rtol, self.max_iterations, self.min_increment, self.linear_solver,
+                              len(fmap.free))
+        info["linear_solver"] = opts["linear_solver"]
+        contact = _contact_of(be.problem)
+        model = NewtonPathModel(self.name, be, fmap, info, opts, contact)
+        model.contact_nodes = contact_nodes_of(scene, be.problem) if contact else None
+        return model
