@@ -43,7 +43,8 @@ from ..base import RomMethod, Training, register
 from .common import DeadLoads, FieldMap, check_choice, contact_load, contact_nodes_of, intact_backend, scene_of
 from .corotational import corotational_backend
 from .linear import is_dynamic, linear_static_model
-from .stepping import NewtonPathModel, TrajectoryModel, dynamic_system, integrator_choice, newton_options
+from .stepping import (NewtonPathModel, TrajectoryModel, dynamic_system, integrator_choice, load_history,
+                       newton_options)
 
 __all__ = ["CoarseFe", "coarse_scene", "coarse_problem", "nodal_map"]
 
@@ -191,8 +192,9 @@ class CoarseFe(RomMethod):
         if is_dynamic(training, scene):
             integ = integrator_choice(self.name, self.integrator, scene)
             linear = self.model == "linear" or (self.model == "full" and cpb.material.is_linear)
-            system = dynamic_system(loaded, training, integ[0], linear=linear)
-            return TrajectoryModel(self.name, system, integ, fmap, info, training.history)
+            history = load_history(training, scene)
+            system = dynamic_system(loaded, training, integ[0], linear, history)
+            return TrajectoryModel(self.name, system, integ, fmap, info, history)
         if self.model == "linear" or cpb.material.is_linear:
             model = linear_static_model(self.name, loaded, fmap, info, contact=contact)
         else:

@@ -26,7 +26,8 @@ from ...refsolvers.corotational import Corotational, small_strain_moduli
 from ..base import RomMethod, Training, register
 from .common import FieldMap, contact_nodes_of, intact_backend, replace_material, scene_of
 from .linear import _contact_of, is_dynamic
-from .stepping import NewtonPathModel, TrajectoryModel, dynamic_system, integrator_choice, newton_options
+from .stepping import (NewtonPathModel, TrajectoryModel, dynamic_system, integrator_choice, load_history,
+                       newton_options)
 
 __all__ = ["CorotationalFe", "corotational_backend"]
 
@@ -60,8 +61,9 @@ class CorotationalFe(RomMethod):
                 "backend": "skfem"}
         if is_dynamic(training, scene):
             integ = integrator_choice(self.name, self.integrator, scene)
-            system = dynamic_system(be, training, integ[0], linear=False)
-            return TrajectoryModel(self.name, system, integ, fmap, info, training.history)
+            history = load_history(training, scene)
+            system = dynamic_system(be, training, integ[0], False, history)
+            return TrajectoryModel(self.name, system, integ, fmap, info, history)
         opts = newton_options(self.name, self.rtol, self.max_iterations, self.min_increment, self.linear_solver,
                               len(fmap.free))
         info["linear_solver"] = opts["linear_solver"]

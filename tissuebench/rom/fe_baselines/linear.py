@@ -30,7 +30,7 @@ import scipy.sparse as sp
 from ...refsolvers.sparse_direct import factorized
 from ..base import RomMethod, StepResult, Training, check_parameters, register
 from .common import FeModel, FieldMap, contact_load, contact_nodes_of, intact_backend, scene_of
-from .stepping import TrajectoryModel, dynamic_system, integrator_choice
+from .stepping import TrajectoryModel, dynamic_system, integrator_choice, load_history
 
 __all__ = ["LinearFe", "LinearStaticModel", "CondensedLinearModel", "linear_static_model", "is_dynamic"]
 
@@ -197,8 +197,9 @@ class LinearFe(RomMethod):
             if self.condensed:
                 raise ValueError("linear_fe: condensed = true is for statics (a dynamic step needs the mass)")
             integ = integrator_choice(self.name, self.integrator, scene)
-            system = dynamic_system(be, training, integ[0], linear=True)
-            return TrajectoryModel(self.name, system, integ, fmap, info, training.history)
+            history = load_history(training, scene)
+            system = dynamic_system(be, training, integ[0], True, history)
+            return TrajectoryModel(self.name, system, integ, fmap, info, history)
         contact = _contact_of(be.problem)
         model = linear_static_model(self.name, be, fmap, info, self.condensed, contact)
         model.contact_nodes = contact_nodes_of(scene, be.problem) if contact and not self.condensed else None

@@ -24,7 +24,8 @@ from ...refsolvers.sparse_direct import NGSOLVE_MIN_DOFS
 from ..base import StepResult, check_parameters
 from .common import DeadLoads, FeModel
 
-__all__ = ["NewtonPathModel", "TrajectoryModel", "newton_options", "dynamic_system", "integrator_choice"]
+__all__ = ["NewtonPathModel", "TrajectoryModel", "newton_options", "dynamic_system", "integrator_choice",
+           "load_history"]
 
 
 def newton_options(who, rtol, max_iterations, min_increment, linear_solver, n_free) -> dict:
@@ -111,15 +112,20 @@ def integrator_choice(who, integrator, scene) -> tuple[str, dict]:
     return integrator, (own_opts if integrator == own else {})
 
 
-def dynamic_system(backend, training, name: str, linear: bool, mass_backend=None) -> SecondOrderSystem:
+def load_history(training, scene):
+    """The load factor versus time of a dynamic case: the training's, else the scene's."""
+    history = training.history if training.history is not None else getattr(scene, "history", None)
+    if history is None:
+        raise ValueError("a trajectory baseline needs the load history (training.history or the scene's)")
+    return history
+
+
+def dynamic_system(backend, training, name: str, linear: bool, history) -> SecondOrderSystem:
     """The baseline's semi-discrete system on ``backend`` (its loads and Dirichlet data), with the
     training system's mass kind (lumped when its M is diagonal) and Rayleigh coefficients, and
-    the training's load history. Without a training system: lumped mass only for an explicit
-    ``name`` of integrator."""
+    the load ``history``. Without a training system (operators): lumped mass only for an
+    explicit ``name`` of integrator."""
     ref = training.system
-    history = training.history
-    if history is None:
-        raise ValueError("a trajectory baseline needs the load history (training.history)")
     if ref is not None:
         lumped = ref.M.nnz == ref.M.shape[0]
         alpha_m, beta_k = ref.alpha_m, ref.beta_k
