@@ -35,7 +35,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ...cases.builtmesh import BuiltMesh
-from ...cases.probes import make_probe
+from ...cases.probes import hex_shape_functions, make_probe
 from ...refsolvers.backends import make_backend
 from ...refsolvers.mesh import node_layout
 from ...refsolvers.remesh import mean_edge_length, remesh
@@ -54,7 +54,7 @@ _SIZES = {"netgen_box": "maxh", "lv_ellipsoid": "maxh"}
 
 
 def _coarser_count(n, c) -> int:
-    return max(1, int(round(n / c)))
+    return max(1, int(n / c + 0.5))
 
 
 def _by_parameters(scene, c):
@@ -118,13 +118,80 @@ def coarse_problem(problem, coarsening: float):
     return dataclasses.replace(problem, mesh=mesh), f"mesh remeshed by gmsh at element size {coarsening * h:.4g}"
 
 
+def _inside_tets(mesh, points, k=12):
+    """``(cell, barycentric (n, 4))`` of the points in a tetrahedral mesh: each point tried in the ``k``
+    cells with the nearest centroids (a KD-tree); cell -1 where none of them contains it."""
+    from scipy.spatial import cKDTree
+
+    X = mesh.points[mesh.cells]  # (c, 4, 3)
+    _, cand = cKDTree(X.mean(axis=1)).query(points, k=min(k, mesh.n_cells))
+    cand = cand.reshape(len(points), -1)
+    T = np.transpose(X[:, 1:] - X[:, :1], (0, 2, 1))  # (c, 3, 3): columns x_i - x_0
+    Tinv = np.linalg.inv(T)
+    l123 = np.einsum("pkij,pkj->pki", Tinv[cand], points[:, None, :] - X[cand, 0])
+    lam = np.concatenate([1.0 - l123.sum(axis=2, keepdims=True), l123], axis=2)  # (p, k, 4)
+    score = lam.min(axis=2)
+    best = np.argmax(score, axis=1)
+    rows = np.arange(len(points))
+    found = score[rows, best] >= -1e-10
+    return np.where(found, cand[rows, best], -1), lam[rows, best]
+
+
+def _inside_hexes(mesh, points, k=8, iterations=12):
+    """``(cell, reference coordinates (n, 3))`` of the points in a trilinear hexahedral mesh: Newton's
+    inversion of the map of the ``k`` cells with the nearest centroids, batched; cell -1 where none
+    of them holds the point in [-1, 1]^3."""
+    from scipy.spatial import cKDTree
+
+    X = mesh.points[mesh.cells]  # (c, 8, 3)
+    _, cand = cKDTree(X.mean(axis=1)).query(points, k=min(k, mesh.n_cells))
+    cand = cand.reshape(len(points), -1)
+    Xc = X[cand].reshape(-1, 8, 3)
+    p = np.repeat(points, cand.shape[1], axis=0)
+    xi = np.zeros((len(p), 3))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        for _ in range(iterations):
+            N, dN = hex_shape_functions(xi)
+            r = p - np.einsum("ma,mai->mi", N, Xc)
+            J = np.einsum("mai,maj->mij", Xc, dN)
+            xi = np.clip(xi + np.linalg.solve(J, r[..., None])[..., 0], -2.0, 2.0)  # far cells stay bounded
+        N, _ = hex_shape_functions(xi)
+        miss = np.linalg.norm(p - np.einsum("ma,mai->mi", N, Xc), axis=1)
+    score = np.where(miss <= 1e-10 * np.abs(points).max(), -np.abs(xi).max(axis=1), -np.inf).reshape(cand.shape)
+    best = np.argmax(score, axis=1)
+    rows = np.arange(len(points))
+    found = score[rows, best] >= -1.0 - 1e-10
+    return np.where(found, cand[rows, best], -1), xi.reshape(len(points), -1, 3)[rows, best]
+
+
 def nodal_map(coarse_problem, points, max_distance: float = 1.0):
-    """``(T (n_points, n_coarse_nodes) sparse, largest clip distance)``: the coarse shape functions at ``points``."""
+    """``(T (n_points, n_coarse_nodes) sparse, largest clip distance)``: the coarse shape functions at
+    ``points``. Points inside a P1 tetrahedron or a Q1 hexahedron, batched (barycentric coordinates;
+    Newton's inversion of the trilinear map); the others (P2, points outside the coarse mesh) by
+    :func:`~tissuebench.cases.probes.make_probe`."""
     mesh, element = coarse_problem.mesh, coarse_problem.element
     nodes, cells = node_layout(mesh, element)
+    points = np.asarray(points, float)
     rows, cols, vals, far = [], [], [], 0.0
-    for i, p in enumerate(np.asarray(points, float)):
-        pr = make_probe(mesh, nodes, element, p, cell_nodes=cells, label=f"fine node {i}", max_distance=max_distance)
+    todo = np.arange(len(points))
+    if element == "P1":
+        cell, lam = _inside_tets(mesh, points)
+        inside = cell >= 0
+        lam = np.clip(lam[inside], 0.0, None)
+        rows.append(np.repeat(np.flatnonzero(inside), 4))
+        cols.append(cells[cell[inside]].ravel())
+        vals.append((lam / lam.sum(axis=1, keepdims=True)).ravel())
+        todo = np.flatnonzero(~inside)
+    elif element == "Q1":
+        cell, xi = _inside_hexes(mesh, points)
+        inside = cell >= 0
+        rows.append(np.repeat(np.flatnonzero(inside), 8))
+        cols.append(cells[cell[inside]].ravel())
+        vals.append(hex_shape_functions(np.clip(xi[inside], -1.0, 1.0))[0].ravel())
+        todo = np.flatnonzero(~inside)
+    for i in todo:
+        pr = make_probe(mesh, nodes, element, points[i], cell_nodes=cells, label=f"fine node {i}",
+                        max_distance=max_distance)
         rows.append(np.full(len(pr.nodes), i))
         cols.append(pr.nodes)
         vals.append(pr.weights)
