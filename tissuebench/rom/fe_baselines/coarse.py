@@ -221,8 +221,8 @@ class CoarseFe(RomMethod):
     kind = "path"  # statics (linear: a map); on a dynamic scene the online model is a "trajectory"
     training_kinds = ("path", "operators", "trajectory")
 
-    def __init__(self, coarsening: float = 2.0, model: str = "full", rtol: float = 1e-9, max_iterations: int = 25,
-                 min_increment: float = 1.0 / 64, linear_solver: str = "auto", integrator: str | None = None):
+    def __init__(self, coarsening: float = 2.0, model: str = "full", rtol: float = 1e-9, max_iterations: int = 15,
+                 min_increment: float = 1.0 / 16, linear_solver: str = "auto", integrator: str | None = None):
         if isinstance(coarsening, bool) or not isinstance(coarsening, (int, float)) or not (
                 math.isfinite(coarsening) and coarsening >= 1):
             raise ValueError(f"coarse_fe: coarsening must be a number >= 1 (ratio of element sizes), "

@@ -16,7 +16,9 @@ the case's backend, on the same mesh and dof numbering, so the field compares as
   default is backward Euler) with Newton iterations per step on the corotational forces.
 
 Options: ``rtol``, ``max_iterations``, ``min_increment`` (the Newton of a static step,
-:func:`~tissuebench.refsolvers.newton.newton_solve`), ``linear_solver`` ("auto": NGSolve's
+:func:`~tissuebench.refsolvers.newton.newton_solve`; a step is one increment from the last state,
+cut at most 4 times: past the path's end, where Newton stalls, a failed step costs at most ~75
+iterations instead of 175), ``linear_solver`` ("auto": NGSolve's
 sparse Cholesky from 1000 unknowns, SuperLU below; "amg-cg"), ``integrator``.
 """
 from __future__ import annotations
@@ -46,7 +48,7 @@ class CorotationalFe(RomMethod):
     kind = "path"  # statics; on a dynamic scene the online model is a "trajectory"
     training_kinds = ("path", "operators", "trajectory")
 
-    def __init__(self, rtol: float = 1e-9, max_iterations: int = 25, min_increment: float = 1.0 / 64,
+    def __init__(self, rtol: float = 1e-9, max_iterations: int = 15, min_increment: float = 1.0 / 16,
                  linear_solver: str = "auto", integrator: str | None = None):
         newton_options(self.name, rtol, max_iterations, min_increment, linear_solver, 0)  # checks the values
         self.rtol, self.max_iterations, self.min_increment = rtol, max_iterations, min_increment
