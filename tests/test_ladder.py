@@ -125,3 +125,23 @@ def test_the_report_has_the_ladder_section(sweep, tmp_path):
     assert 'id="ladder"' in page and "Fidelity ladder: what each scene requires" in page
     assert "Linear elasticity is within 1 % over the whole run" in page
     assert (tmp_path / "r_data" / "ladder_00_cube.csv").is_file()
+
+
+def _ranked(rows):
+    from tissuebench.reports.recommend import parse_requirement, rank_units
+
+    units = pd.DataFrame([{"case": "c", "method": m, "label": m, "unit_status": "ok", "max_rel_l2": e,
+                           "haptic_p99_s": p99, "speedup": 100.0} for m, e, p99 in rows])
+    return rank_units(units, parse_requirement("rate>=500Hz, error<=2%"), "max_rel_l2")
+
+
+def test_versus_baselines_says_whether_a_rom_beats_the_best_practitioner_baseline():
+    from tissuebench.reports.ladder import versus_baselines
+
+    text = versus_baselines(_ranked([("anm_pod", 0.001, 1e-5), ("linear_fe", 0.015, 1e-5)]))
+    assert text.startswith("A ROM beats every practitioner baseline here: anm_pod") and "less margin" in text
+    text = versus_baselines(_ranked([("anm_pod", 0.03, 1e-5), ("linear_fe", 0.015, 1e-5)]))
+    assert text.startswith("No ROM beats the practitioner baseline linear_fe") and "misses it: error" in text
+    text = versus_baselines(_ranked([("anm_pod", 0.03, 1e-5), ("corotational_fe", 0.001, 0.5)]))
+    assert text.startswith("Neither a ROM nor a practitioner baseline meets it")
+    assert versus_baselines(_ranked([("anm_pod", 0.001, 1e-5)])) is None

@@ -33,7 +33,7 @@ import pandas as pd
 from ..studies.store import git_commit, package_versions
 from .extremes import extremes_table
 from .format import seconds
-from .ladder import ladder_section
+from .ladder import ladder_section, versus_baselines
 from .paper import paper_rows
 from .plotly_figures import error_figure, pareto_figure
 from .recommend import LATENCY_STATISTIC, parse_requirement
@@ -74,6 +74,7 @@ def _case_section(data, case, index, requirement, figures, tables):
                "n_units": len(units), "n_plotted": len(pareto_data),
                "n_failed": int((units["unit_status"] != "ok").sum()),
                "pareto_csv": f"pareto_{part}.csv", "error_csv": f"error_{part}.csv", "recommendation": rec,
+               "versus": versus_baselines(rec["ranked"]),
                "ranking": ranking_table(f"ranking_{part}", rec["ranked"]),
                "extremes": extremes_table_view(f"extremes_{part}", ext),
                "offline": offline_table(f"offline_{part}", units), "radius": radius_table(f"radius_{part}", units),

@@ -13,11 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..studies.ladder import ladder_statements, ladder_table
+from ..studies.ladder import RUNG_METHODS, ladder_statements, ladder_table
 from .figures import pyplot
-from .format import number, percent, seconds
+from .format import hz, number, percent, seconds
 
-__all__ = ["plot_ladder", "ladder_section"]
+__all__ = ["plot_ladder", "ladder_section", "versus_baselines"]
 
 
 def _file_part(name: str) -> str:
@@ -84,5 +84,36 @@ def ladder_section(data, Table) -> dict | None:
         notes = [n for n in grp["note"].dropna() if n]
         scenes.append({"case": case, "sentences": ladder_statements(table, case) or notes,
                        "table": t if rows else None})
-        tables.append(t)
+        if rows:  # every CSV beside the page is linked from it
+            tables.append(t)
     return {"scenes": scenes, "tables": tables}
+
+
+def _unit_text(r) -> str:
+    return (f"{r['label']} (error {percent(r['error'])}, p99 {seconds(r['p99_s'])} = {hz(r['rate_hz'])}, "
+            f"speed-up {number(r['speedup'], 3)}x on the median)")
+
+
+def versus_baselines(ranked) -> str | None:
+    """One sentence for a case's recommendation: does a ROM beat the best practitioner baseline
+    (``linear_fe``, ``corotational_fe``, ``coarse_fe``) for the requirement? ``ranked`` is the
+    case's :func:`~tissuebench.reports.recommend.rank_units` table; "beats" = meets the
+    requirement with a larger margin (the smallest headroom of its clauses). None without
+    baselines or without ROMs among the units."""
+    ranked = ranked[ranked["measurable"]]
+    is_base = ranked["method"].isin(RUNG_METHODS)
+    base, roms = ranked[is_base], ranked[~is_base]
+    if base.empty or roms.empty:
+        return None
+    b, r = base.iloc[0], roms.iloc[0]  # ranked: meeting units first, then by margin
+    if r["meets"] and (not b["meets"] or r["margin"] > b["margin"]):
+        tail = (f"the best practitioner baseline {_unit_text(b)} " +
+                (f"meets it with less margin ({b['margin']:.3g}x against {r['margin']:.3g}x)." if b["meets"]
+                 else f"misses it: {b['misses']}."))
+        return f"A ROM beats every practitioner baseline here: {_unit_text(r)}; {tail}"
+    if b["meets"]:
+        return (f"No ROM beats the practitioner baseline {_unit_text(b)}, margin {b['margin']:.3g}x; the best ROM "
+                + (f"{_unit_text(r)} meets it with margin {r['margin']:.3g}x." if r["meets"]
+                   else f"{_unit_text(r)} misses it: {r['misses']}."))
+    return (f"Neither a ROM nor a practitioner baseline meets it: closest ROM {_unit_text(r)} misses it by "
+            f"{r['misses']}; closest baseline {_unit_text(b)} by {b['misses']}.")
