@@ -18,7 +18,8 @@ The case entry's ``evaluation`` table has a ``kind`` (default: the training's):
                 parameters: ``position``, ``load_scale`` ...), one point per entry, each
                 reference run at the full path's last load factor.
 ``contact_nodes`` (the surface vademecums, ``pgd`` and ``pgd_svk``, whose model knows its
-                contact nodes) ``count`` contact nodes of the model, evenly spaced through
+                contact nodes, and the practitioner baselines, whose ``contact_nodes`` are the
+                same anterior-surface list) ``count`` contact nodes of the model, evenly spaced through
                 its list; per node the intact scene (no ``[cut]``) with its point load moved
                 onto that node, the full reference path (SVK Newton where the scene is SVK):
                 one point per (node, load factor), ``mu = {node, load_factor}``.
