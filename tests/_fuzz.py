@@ -224,3 +224,37 @@ class Tally:
         if target:
             with open(target, "a") as fh:
                 fh.write(text + "\n")
+
+
+# ------------------------------------------------------------------------------ files read back
+def damage_bytes(data, raw: bytes) -> tuple[bytes, str]:
+    """``raw`` damaged as a disk fault or a careless edit would: truncated, a byte flipped, junk
+    inserted or appended, emptied, or replaced by random bytes."""
+    kind = data.draw(st.sampled_from(["truncate", "flip", "insert", "append", "empty", "random"]), label="damage")
+    if kind == "empty" or not raw:
+        return b"", "empty"
+    at = data.draw(st.integers(0, len(raw) - 1), label="at")
+    if kind == "truncate":
+        return raw[:at], f"truncate at {at}"
+    if kind == "flip":
+        return raw[:at] + bytes([raw[at] ^ data.draw(st.integers(1, 255), label="xor")]) + raw[at + 1:], f"flip {at}"
+    junk = data.draw(st.binary(min_size=1, max_size=64), label="junk")
+    if kind == "insert":
+        return raw[:at] + junk + raw[at:], f"insert at {at}"
+    if kind == "append":
+        return raw + junk, "append"
+    return data.draw(st.binary(max_size=256), label="random"), "random"
+
+
+def hostile_json(data, doc: dict, words) -> tuple[str, str]:
+    """A JSON text derived from ``doc``: mutated as a document (:func:`mutate`), a document of
+    another type, or the text damaged byte-wise (as UTF-8, invalid sequences included)."""
+    how = data.draw(st.sampled_from(["mutate", "mutate", "mutate", "other_type", "bytes"]), label="how")
+    if how == "mutate":
+        mutated, done = mutate(data, doc, words)
+        return json.dumps(mutated), "; ".join(done)
+    if how == "other_type":
+        value = data.draw(values(words), label="document")
+        return json.dumps(value), f"document {type(value).__name__}"
+    raw, done = damage_bytes(data, json.dumps(doc).encode())
+    return raw.decode("utf-8", "surrogateescape"), done

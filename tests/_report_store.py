@@ -45,7 +45,8 @@ def unit_row(case, method, options, error, median, p99, evil, info=None):
             "x_name": "load_factor", "validity_1pct": min(1.0, 0.01 / error), "validity_5pct": min(1.0, 0.05 / error),
             "haptic_median_s": median, "haptic_p99_s": p99, "haptic_n": 200, "reconstruct_median_s": 1e-4,
             "reconstruct_p99_s": 2e-4, "reference_step_s": 10e-3, "speedup": 10e-3 / median, "calibration_s": 1e-3,
-            "haptic_per_calibration": median / 1e-3, "blas": "openblas", "blas_threads": 1, "offline_s": 0.5,
+            "haptic_per_calibration": median / 1e-3, "floor_s": median / 4, "efficiency": 0.25,
+            "blas": "openblas", "blas_threads": 1, "offline_s": 0.5,
             "build_peak_bytes": 2_000_000, "model_bytes": 10_000, "model_info": json.dumps(info or {}),
             "git_commit": "abc", "code_hash": "def", "tissuebench": "0.1.0", "numpy": "2", "scipy": "1",
             "machine": "test", "python": "3.11", "date": "2025-01-01T00:00:00+00:00"}

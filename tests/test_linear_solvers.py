@@ -248,3 +248,39 @@ def test_factorized_refuses_a_singular_matrix(n):
     K = sp.diags(np.r_[np.ones(n - 1), 0.0]).tocsr()
     with pytest.raises(LinearSolverError, match="factorized|cholesky"):
         factorized(K)(np.ones(n))
+
+
+@pytest.mark.parametrize("n, chosen", [(60, "DirectSolver"), (1500, "NgsolveSparseSolver")])
+def test_auto_takes_ngsolve_from_1000_dofs_and_solves_to_round_off(n, chosen):
+    """The statics' default: SuperLU below NGSOLVE_MIN_DOFS, NGSolve's LDL^T from it on (a user's
+    13k-dof kidney: 12 min 46 s with SuperLU MMD, 1 min 10 s with LDL^T)."""
+    from tissuebench.refsolvers.linear_solvers import AutoDirectSolver
+
+    lap = sp.diags([-np.ones(n - 1), 4 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1]).tocsr()
+    b = _rhs(n)
+    solver = make_linear_solver()
+    assert isinstance(solver, AutoDirectSolver)
+    x, info = solver.solve(lap, b)
+    assert type(solver.chosen).__name__ == chosen and "fallback" not in info
+    assert _relres(lap, x, b) <= 1e-13
+
+
+def test_auto_falls_back_to_superlu_when_ldlt_is_inaccurate(monkeypatch):
+    """LDL^T does not pivot: a solution whose residual is not small is solved again by SuperLU."""
+    from tissuebench.refsolvers.linear_solvers import AutoDirectSolver, NgsolveSparseSolver
+
+    n = 1200
+    rng = np.random.default_rng(1)
+    K = (sp.diags(4 * np.ones(n)) + sp.random(n, n, density=3 / n, random_state=2)).tocsr()
+    K = (K + K.T).tocsr()
+    b = rng.standard_normal(n)
+    original = NgsolveSparseSolver.solve
+
+    def damaged(self, K, b, rtol=None):
+        x, info = original(self, K, b, rtol)
+        return x * (1 + 1e-4), info  # what an unpivoted factorisation of an indefinite matrix can give
+    monkeypatch.setattr(NgsolveSparseSolver, "solve", damaged)
+    solver = AutoDirectSolver()
+    x, info = solver.solve(K, b)
+    assert "residual" in info["fallback"] and isinstance(solver.chosen, DirectSolver)
+    assert _relres(K, x, b) <= 1e-12

@@ -174,6 +174,10 @@ def test_report_writes_page_and_every_table_data(store, tmp_path):
     assert len(pareto) == 5 and pareto["pareto"].sum() == 4  # "slow" is dominated, "broken" not drawn
     assert "1 of 6 units meet it" in page and "fast_rough n_modes=4: p99 1.5 ms (667 Hz)" in page
     assert "haptic rate &gt;= 500 Hz on the p99 step" in page and "max_rel_l2" in page
+    # every unit's arithmetic floor and efficiency beside its haptic median
+    ranking = pd.read_csv(next(folder.glob("ranking_*.csv")))
+    assert {"floor_s", "efficiency"} <= set(ranking.columns)
+    assert "arithmetic floor" in page and "efficiency (floor / median)" in page
     # no anchors: the command that produces them, runnable as printed (the results folder positional)
     assert f"<code>tissuebench verify {store}</code>" in page
     assert _external_resources(page) == []  # works offline: every script inline, nothing fetched

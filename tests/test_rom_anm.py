@@ -234,3 +234,27 @@ def test_anm_pod_options_are_validated():
             AnmPod(**bad)
     with pytest.raises(ValueError, match="snapshots and a backend"):
         AnmPod().build(Training())
+
+
+# ---------------------------------------------------------------- the haptic root of lam(a)
+def test_tabulated_root_is_the_searched_root(series10):
+    """The fast root (a table of lam(a) on the search's bracket, Newton from the interpolant)
+    finds the root the search from a = 0 finds, within the limit a_max and without limit; the
+    bound on lam' that skips the companion roots gives the same bracket."""
+    s = series10.truncated(6)
+    s.a_end = s.a_max(1e-6)
+    assert s.prepare_roots()
+    L = s._table[0]
+    for lam in np.linspace(L[0], L[-1], 97)[1:-1]:
+        assert s.root(lam) == pytest.approx(s.load_factor_to_a(lam), rel=1e-14, abs=1e-300)
+    L_far = s._table_far[0]
+    for lam in np.linspace(L_far[0], L_far[-1], 97)[1:-1]:
+        assert s.root(lam, math.inf) == pytest.approx(s.load_factor_to_a(lam, a_limit=math.inf), rel=1e-14)
+    fresh = series10.truncated(6)
+    fresh.a_end = s.a_end
+    lo, hi = fresh._monotone_within(fresh.a_end)
+    assert fresh._mono is None and (lo, hi) == (-fresh.a_end, fresh.a_end)  # no eigenvalue problem
+    true_lo, true_hi = fresh.monotone_interval()
+    assert true_lo < -fresh.a_end and true_hi > fresh.a_end
+    one = series10.truncated(1)  # order 1: lam0 + lam1 a in closed form
+    assert one.root(0.4) == pytest.approx(one.load_factor_to_a(0.4), rel=1e-15)

@@ -64,3 +64,24 @@ def test_training_data_is_validated():
         Training(snapshots=np.array([[np.nan]]))
     with pytest.raises(ValueError, match="2 entries for 3 snapshots"):
         Training(snapshots=np.zeros((4, 3)), parameters=[{}, {}])
+
+
+def test_deferred_message_is_formatted_once_when_read():
+    from tissuebench.rom.base import DeferredStepResult
+
+    calls = []
+
+    def message():
+        calls.append(1)
+        return "load factor 3 is 2 above the range"
+
+    res = DeferredStepResult(np.zeros(2), "beyond_validity", message, {"a": 1.0})
+    assert isinstance(res, StepResult) and not calls  # nothing formatted on the haptic path
+    assert res.message == "load factor 3 is 2 above the range" and res.message.startswith("load") and len(calls) == 1
+    res.message = "replaced"
+    assert res.message == "replaced" and len(calls) == 1
+    assert DeferredStepResult(np.zeros(1), "extrapolation", None).message == ""
+    with pytest.raises(ValueError, match="no state"):
+        DeferredStepResult(np.zeros(1), "failed", message)
+    with pytest.raises(ValueError, match="expected one of"):
+        DeferredStepResult(np.zeros(1), "weird", message)

@@ -5,7 +5,7 @@ import pytest
 
 from tissuebench.rom import OnlineModel, StepResult
 from tissuebench.studies.evaluation import Evaluation, EvaluationPoint
-from tissuebench.studies.protocol import time_latency
+from tissuebench.studies.protocol import DISPLAY_EVERY, time_latency
 from tissuebench.studies.timing import latency_stats, max_displacement, relative_l2
 
 
@@ -32,7 +32,7 @@ class Counting(OnlineModel):
     kind = "path"
 
     def __init__(self, clock):
-        self.clock, self.steps, self.starts = clock, 0, 0
+        self.clock, self.steps, self.starts, self.floors = clock, 0, 0, 0
 
     @property
     def n_reduced(self):
@@ -54,23 +54,51 @@ class Counting(OnlineModel):
         self.clock.t += 5.0
         return np.repeat(result.q, 3)
 
+    def floor_ops(self):
+        def floor():
+            self.floors += 1
+            self.clock.t += 2.0
+        return floor
+
 
 def _path(n):
     return Evaluation("path", "load_factor", [EvaluationPoint({"load_factor": x}, None, {}, x)
                                               for x in np.linspace(0.1, 1, n)])
 
 
-def test_time_latency_times_haptic_step_and_reconstruction_apart():
+def test_time_latency_times_haptic_step_floor_and_reconstruction_apart():
     clock = FakeClock()
     m = Counting(clock)
     lat = time_latency(m, _path(10), steps=25, warmup=4, clock=clock)
-    h, r = lat["haptic"], lat["reconstruct"]
+    h, r, f = lat["haptic"], lat["reconstruct"], lat["floor"]
     # a path model is driven along its path, restarted (untimed) until >= 25 steps: 3 passes of 10
-    assert h.n == 30 and r.n == 30 and m.starts == 1 + 3
+    assert h.n == 30 and m.starts == 1 + 3
     assert m.steps == 4 + 30
     assert h.median == 4.0 and h.max == 31.0  # step + outputs; the slow step is in the tail only
     assert h.p99 == pytest.approx(np.percentile([4.0] * 27 + [31.0] * 3, 99))
-    assert r.median == r.max == 5.0  # reconstruction alone
+    # the floor after every timed step (and the warm-up's), alone
+    assert m.floors == 4 + 30 and f.n == 30 and f.median == f.max == 2.0
+    # the display's frames only: samples 0 and 17 (DISPLAY_EVERY), reconstruction alone
+    assert DISPLAY_EVERY == 17 and r.n == 2 and r.median == r.max == 5.0
+
+
+def test_time_latency_reconstructs_at_the_display_rate():
+    clock = FakeClock()
+    lat = time_latency(Counting(clock), _path(10), steps=40, warmup=0, clock=clock, display_every=4)
+    rows = lat["samples"]
+    timed = [r["sample"] for r in rows if np.isfinite(r["reconstruct_s"])]
+    assert timed == list(range(0, 40, 4)) and lat["reconstruct"].n == 10
+    with pytest.raises(ValueError, match="display_every"):
+        time_latency(Counting(clock), _path(10), clock=clock, display_every=0)
+
+
+def test_time_latency_refuses_a_floor_that_is_not_callable():
+    class Bad(Counting):
+        def floor_ops(self):
+            return 1.0
+
+    with pytest.raises(TypeError, match="floor_ops"):
+        time_latency(Bad(FakeClock()), _path(3), steps=3, warmup=0, clock=FakeClock())
 
 
 def test_time_latency_keeps_every_timed_step_with_its_abscissa():
@@ -84,7 +112,8 @@ def test_time_latency_keeps_every_timed_step_with_its_abscissa():
     assert [r["x"] for r in rows] == pytest.approx(list(np.linspace(0.1, 1, 10)) * 3)
     hap = np.array([r["haptic_s"] for r in rows])
     assert np.median(hap) == lat["haptic"].median and hap.max() == lat["haptic"].max
-    assert {r["reconstruct_s"] for r in rows} == {5.0}
+    assert {r["reconstruct_s"] for r in rows if np.isfinite(r["reconstruct_s"])} == {5.0}
+    assert {r["floor_s"] for r in rows} == {2.0}
     # the abscissa of a point is its x even where it is not a parameter (a held-out distance)
     held = Evaluation("path", "distance", [EvaluationPoint({"load_factor": 0.5}, None, {}, 0.25)],
                       timing_mus=[{"load_factor": 0.5}, {"load_factor": 0.7}])

@@ -22,7 +22,8 @@ from tissuebench.studies.sweep import run_sweep
 ROOT = Path(__file__).resolve().parents[1]
 # what differs between two runs of the same unit: timings, their ratios, dates, memory
 VOLATILE = {"haptic_median_s", "haptic_p99_s", "reconstruct_median_s", "reconstruct_p99_s", "reference_step_s",
-            "speedup", "calibration_s", "haptic_per_calibration", "offline_s", "build_peak_bytes", "date",
+            "speedup", "calibration_s", "haptic_per_calibration", "floor_s", "efficiency", "offline_s",
+            "build_peak_bytes", "date",
             "model_info", "machine", "blas_threads", "unit_wall_s"}
 
 TINY = """

@@ -21,13 +21,18 @@
 
 Exit codes: 0 success, 1 the run finished with a numerical failure (stored) or its results
 could not be written (a full disk: nothing stored), 2 bad input (including an output location
-that cannot be written, checked before any work), 130 interrupted (Ctrl-C).
+that cannot be written, checked before any work or found read-only during it), 130
+interrupted (Ctrl-C). Every error is one line naming the key, value or path, never a
+traceback (``TISSUEBENCH_DEBUG=1`` shows the traceback of an unexpected error).
 """
 from __future__ import annotations
 
 import argparse
+import errno
+import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
 
@@ -42,8 +47,9 @@ def _parser():
     run.add_argument("--resolution", default="ci", choices=["ci", "paper"])
     run.add_argument("--out", type=Path, default=None, help="result folder (default: out/CASE[-VARIANT]-BACKEND-RES)")
     run.add_argument("--force", action="store_true", help="replace an existing result folder")
-    run.add_argument("--linear-solver", default="direct", choices=["direct", "cholesky", "amg-cg"],
-                     help="linear solver of the Newton iterations (see README: which to pick)")
+    run.add_argument("--linear-solver", default="auto", choices=["auto", "direct", "cholesky", "amg-cg"],
+                     help="linear solver of the Newton iterations (default auto: NGSolve's sparse LDL^T from "
+                          "1000 dofs, SuperLU below; see README: which to pick)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     cases = sub.add_parser("cases", help="list the catalogue")
     cases.add_argument("--no-mesh", action="store_true", help="do not build meshes to count nodes")
@@ -64,11 +70,9 @@ def _parser():
     rep.add_argument("--require", default=None,
                      help='e.g. "rate>=500Hz, error<=2%%" (default: 1 kHz on the p99 haptic step, error <= 1 %%)')
     rep.add_argument("--case", default=None, help="only this case id (or catalogue case name)")
-    chk = sub.add_parser("check", help="fail on a regression in error or latency against a baseline")
-    chk.add_argument("results", type=Path, help="a sweep's results folder")
-    chk.add_argument("--baseline", type=Path, required=True, help="baseline TOML (e.g. baselines/ci.toml)")
-    chk.add_argument("--update-baseline", action="store_true", help="rewrite the baseline from the results")
-    chk.add_argument("--junit", type=Path, default=None, help="also write JUnit XML here")
+    rep.add_argument("--force", action="store_true",
+                     help="replace an existing file that is not a report written by tissuebench")
+    _check_parser(sub)
     ver = sub.add_parser("verify", help="our values against the external anchors (Cook, Land et al., analytic)")
     ver.add_argument("results", type=Path, nargs="?", default=None,
                      help="a sweep's results folder: the table goes to RESULTS/_anchors.parquet (the report shows it)")
@@ -95,11 +99,39 @@ def _sweep_options(p):
     p.add_argument("--resume", action="store_true", help="continue the sweep stored in --out")
     p.add_argument("--cases", default=None, help="only these case ids of the spec (comma-separated)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no per-unit lines")
+    p.add_argument("--max-units", type=int, default=None,
+                   help="refuse a spec expanding to more units than this (default: studies.spec.MAX_UNITS)")
 
 
 def _error(exc) -> int:
     print(f"tissuebench: error: {exc}", file=sys.stderr)
     return 2
+
+
+# an output the user pointed at cannot be written there: bad input (exit 2); anything else
+# (a full disk, an I/O error) is a failure to store results (exit 1)
+_BAD_PATH = {errno.EACCES, errno.EPERM, errno.EROFS, errno.EISDIR, errno.ENOTDIR, errno.ENAMETOOLONG, errno.ELOOP,
+             errno.ENOENT, errno.EEXIST, errno.ENOTEMPTY}
+
+
+def _os_error(exc: OSError, doing: str = "") -> int:
+    """One line naming the path of an OSError; 2 when the path is unusable, else 1."""
+    where = exc.filename if exc.filename is not None else "?"
+    if exc.filename2 is not None:
+        where = f"{where} -> {exc.filename2}"
+    reason = exc.strerror or type(exc).__name__
+    print(f"tissuebench: error: {doing + ': ' if doing else ''}cannot use {where}: {reason}", file=sys.stderr)
+    return 2 if exc.errno in _BAD_PATH else 1
+
+
+def _id_list(text, option: str):
+    """The comma-separated ids of ``option`` (None when not given); ValueError when it names none."""
+    if text is None:
+        return None
+    ids = [c.strip() for c in text.split(",") if c.strip()]
+    if not ids:
+        raise ValueError(f"{option} = {text!r}: names no id (give comma-separated ids)")
+    return ids
 
 
 def _run(args) -> int:
@@ -152,6 +184,7 @@ def _run_scene(scene, args, out) -> int:
 
 
 def _sweep(args, preset=None) -> int:
+    from .studies.run import safe_name
     from .studies.spec import list_presets, load_spec
     from .studies.sweep import run_sweep
 
@@ -159,20 +192,29 @@ def _sweep(args, preset=None) -> int:
         for name, desc in list_presets():
             print(f"{name:16s} {desc}")
         return 0
-    source = preset or args.preset or args.spec
-    if source is None or (args.spec and args.preset):
+    spec_arg, preset_arg = getattr(args, "spec", None), getattr(args, "preset", None)
+    source = preset or preset_arg or spec_arg
+    if source is None or (spec_arg and preset_arg):
         raise ValueError("sweep: give exactly one of SPEC.toml, --preset NAME or --list")
-    only = [c.strip() for c in args.cases.split(",") if c.strip()] if args.cases else None
-    spec = load_spec(source, resolution=args.resolution, only=only)
-    out = args.out or Path("out") / f"sweep-{spec.name}-{spec.resolution}"
+    spec = load_spec(source, resolution=args.resolution, only=_id_list(args.cases, "--cases"),
+                     max_units=args.max_units)
+    out = args.out or Path("out") / f"sweep-{safe_name(spec.name)}-{spec.resolution}"
     log = (lambda *_: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    resume_hint = f"tissuebench sweep {source} --out {out} --resume"
     try:
         summary = run_sweep(spec, out, args.executor, args.workers, args.scheduler, args.resume,
                             progress=not args.quiet, log=log)
     except KeyboardInterrupt:
-        print(f"tissuebench: interrupted; finished units are stored in {out}. Resume with: "
-              f"tissuebench sweep {source} --out {out} --resume", file=sys.stderr)
+        print(f"tissuebench: interrupted; finished units are stored in {out}. Resume with: {resume_hint}",
+              file=sys.stderr)
         return 130
+    except (FileExistsError, FileNotFoundError):
+        raise
+    except OSError as exc:  # the folder turned read-only, a full disk: the finished units are kept
+        code = _os_error(exc, f"sweep into {out}")
+        print(f"tissuebench: the units finished before are stored in {out}; once it is writable, resume with: "
+              f"{resume_hint}", file=sys.stderr)
+        return code
     _print_pareto(out)
     print(f"{summary.planned} units: {len(summary.computed)} computed ({len(summary.failed)} failed), "
           f"{len(summary.skipped)} kept from before, {len(summary.recomputed)} recomputed; results in {out}")
@@ -196,42 +238,107 @@ def _print_pareto(out) -> None:
 def _report(args) -> int:
     from .reports.html import DEFAULT_NAME, write_report
 
-    path = write_report(args.results, args.out or args.results / DEFAULT_NAME, args.require, args.case)
+    path = write_report(args.results, args.out or args.results / DEFAULT_NAME, args.require, args.case,
+                        force=args.force)
     print(f"report: {path}")
     return 0
 
 
+def _check_parser(sub):
+    chk = sub.add_parser("check", help="fail on a regression in error or latency (A/B against a git ref) or on a "
+                                       "requirement no unit meets")
+    chk.add_argument("results", type=Path, help="a sweep's results folder")
+    chk.add_argument("--baseline", type=Path, default=None, help="baseline TOML: errors gated exactly (e.g. "
+                     "baselines/ci.toml); latency too when there is no --against")
+    chk.add_argument("--against", default=None, metavar="REF", help="git ref (e.g. HEAD~1): every unit re-timed "
+                     "with REF's code and this code in alternating processes (A/B); falls back to the baseline's "
+                     "latency ratios when REF is not in the clone")
+    chk.add_argument("--require", default=None, help='e.g. "rate>=500Hz, error<=2%%": every case needs a unit that '
+                     "meets it (p99 rule of the report)")
+    chk.add_argument("--update-baseline", action="store_true", help="rewrite the baseline from the results")
+    chk.add_argument("--junit", type=Path, default=None, help="also write JUnit XML here")
+    chk.add_argument("--ab-rounds", default="3,8", metavar="MIN,MAX",
+                     help="A/B rounds: at least MIN, at most MAX (default 3,8)")
+    chk.add_argument("--ab-blocks", type=int, default=3, help="timed blocks per unit and worker process (default 3)")
+    chk.add_argument("--ab-budget", type=float, default=900.0, help="A/B time budget [s] (default 900)")
+
+
+def _ab_settings(args):
+    from .reports.gate import ABSettings
+
+    try:
+        lo, hi = (int(x) for x in args.ab_rounds.split(","))
+    except ValueError:
+        raise ValueError(f"--ab-rounds = {args.ab_rounds!r}: expected MIN,MAX (two integers, e.g. 3,8)") from None
+    if not 2 <= lo <= hi <= 100:
+        raise ValueError(f"--ab-rounds = {args.ab_rounds!r}: need 2 <= MIN <= MAX <= 100")
+    if not 1 <= args.ab_blocks <= 100:
+        raise ValueError(f"--ab-blocks = {args.ab_blocks}: need 1..100")
+    if not args.ab_budget > 0:
+        raise ValueError(f"--ab-budget = {args.ab_budget}: need a positive number of seconds")
+    return ABSettings(lo, hi, args.ab_blocks, args.ab_budget)
+
+
 def _check(args) -> int:
-    from .reports.check import check, update_baseline, write_junit
+    from .reports.gate import GateOutputError, baseline_rows, check, update_baseline, write_junit
 
     if args.update_baseline:
-        n = update_baseline(args.results, args.baseline)
+        if args.baseline is None:
+            raise ValueError("--update-baseline needs --baseline FILE")
+        rows, left = baseline_rows(args.results)
+        for key, why in left:
+            print(f"note: {' '.join(key)} left out of the baseline: {why}")
+        n = update_baseline(rows, args.baseline)
         print(f"baseline {args.baseline}: {n} units written from {args.results}")
         return 0
-    result = check(args.results, args.baseline)
+    result = check(args.results, args.baseline, args.against, args.require, _ab_settings(args),
+                   log=lambda m: print(m, file=sys.stderr, flush=True))
+    _print_check(result, args)
     if args.junit:
-        write_junit(result, args.junit)
+        try:
+            write_junit(result, args.junit)
+        except GateOutputError as exc:
+            return _error(exc)
+    return 0 if result.ok else 1
+
+
+def _print_check(result, args) -> None:
+    for note in result.notes:
+        print(f"note: {note}")
     for key in result.new_units:
-        print(f"note: {' '.join(key)} is not in the baseline (run --update-baseline to add it)")
+        print(f"note: {' '.join(key)} is not in the baseline" + (" and failed (--update-baseline leaves failed "
+              "units out)" if key in result.new_failed else " (run --update-baseline to add it)"))
+    for key, v in sorted(result.ab.items(), key=lambda kv: -kv[1].ratio):
+        print(f"A/B {v.verdict:6s} {key[0]} {key[1]} {key[2]}: {v.text()}")
+    errors = {"ref": f"errors against {args.against}", "baseline": f"errors against {args.baseline}",
+              "none": "no error check"}[result.errors_against]
+    latency = {"ab": f"latency A/B against {args.against}", "file": f"latency against {args.baseline}",
+               "none": "no latency check"}[result.latency_mode]
+    what = f"{errors}, {latency}" + (f", requirement {args.require!r}" if args.require else "")
+    units = len([k for k in result.per_unit if k[1] != "*"])
     if result.ok:
-        print(f"check: {result.checked} units hold against {args.baseline}")
-        return 0
-    print(f"check: {len(result.regressions)} regressions in {result.checked} units against {args.baseline}:")
+        print(f"check: {units} units hold ({what})")
+        return
+    print(f"check: {len(result.regressions)} regressions in {units} units ({what}):")
     for f in result.regressions:
         print("  " + f.line())
-    return 1
 
 
 def _cache(args) -> int:
-    from .studies.reference.cache import cache_dir, clear, list_entries
+    from .studies.reference.cache import cache_dir, clear, list_entries, stray_items
 
+    stray = stray_items()
     if args.action == "clear":
         print(f"removed {clear()} reference runs from {cache_dir()}")
-        return 0
-    table = list_entries()
-    print(f"{cache_dir()}: {len(table)} reference runs")
-    if len(table):
-        print(table.to_string(index=False))
+    else:
+        table = list_entries()
+        print(f"{cache_dir()}: {len(table)} reference runs")
+        if len(table):
+            print(table.to_string(index=False))
+    if stray:
+        names = ", ".join(p.name for p in stray[:10]) + (" ..." if len(stray) > 10 else "")
+        print(f"note: {len(stray)} items in {cache_dir() / 'references'} are not cache entries (no valid meta.json) "
+              f"and were left alone: {names}", file=sys.stderr)
     return 0
 
 
@@ -239,10 +346,13 @@ def _verify(args) -> int:
     from .reports.anchors import external_anchors
     from .studies.results import write_table
 
-    if args.results is not None and not args.results.is_dir():
-        raise FileNotFoundError(f"results: {args.results} is not a folder")
-    cases = None if args.cases is None else [c.strip() for c in args.cases.split(",") if c.strip()]
-    table = external_anchors(args.resolution, args.backend, cases)
+    if args.results is not None:
+        from .studies.store import check_output_location
+
+        if not args.results.is_dir():
+            raise FileNotFoundError(f"results: {args.results} is not a folder")
+        check_output_location(args.results, overwrite=True)  # writable, before minutes of solves
+    table = external_anchors(args.resolution, args.backend, _id_list(args.cases, "--cases"))
     with _pd_display():
         print(table[["case", "quantity", "unit", "ours", "anchor", "low", "high", "verdict"]].to_string(index=False))
     if args.results is not None:
@@ -285,36 +395,58 @@ def _pd_display():
     return pd.option_context("display.width", 200, "display.max_colwidth", 40)
 
 
+def _dispatch(args) -> int:
+    if args.command == "cases":
+        from .studies.describe import catalogue_table
+
+        print(catalogue_table(build_meshes=not args.no_mesh, paper=args.paper).to_string(index=False))
+        return 0
+    if args.command == "describe":
+        from .studies.describe import describe
+
+        print(describe(args.case, resolution=args.resolution, variant=args.variant))
+        return 0
+    if args.command == "sweep":
+        return _sweep(args)
+    if args.command == "study":
+        return _sweep(args, preset=args.name)
+    if args.command == "cache":
+        return _cache(args)
+    if args.command == "check":
+        return _check(args)
+    if args.command == "report":
+        return _report(args)
+    if args.command == "verify":
+        return _verify(args)
+    return _run(args)
+
+
+def _one_line_warning(message, category, filename, lineno, line=None) -> str:
+    return f"tissuebench: warning: {message}\n"
+
+
 def main(argv=None) -> int:
     from .studies.results import SweepLocked
 
     args = _parser().parse_args(argv)
+    formatwarning, warnings.formatwarning = warnings.formatwarning, _one_line_warning
     try:
-        if args.command == "cases":
-            from .studies.describe import catalogue_table
-
-            print(catalogue_table(build_meshes=not args.no_mesh, paper=args.paper).to_string(index=False))
-            return 0
-        if args.command == "describe":
-            from .studies.describe import describe
-
-            print(describe(args.case, resolution=args.resolution, variant=args.variant))
-            return 0
-        if args.command == "sweep":
-            return _sweep(args)
-        if args.command == "study":
-            return _sweep(args, preset=args.name)
-        if args.command == "cache":
-            return _cache(args)
-        if args.command == "check":
-            return _check(args)
-        if args.command == "report":
-            return _report(args)
-        if args.command == "verify":
-            return _verify(args)
-        return _run(args)
+        return _dispatch(args)
     except (ValueError, TypeError, FileExistsError, FileNotFoundError, SweepLocked) as exc:
         return _error(exc)
+    except KeyboardInterrupt:
+        print("tissuebench: interrupted", file=sys.stderr)
+        return 130
+    except OSError as exc:
+        return _os_error(exc, args.command)
+    except Exception as exc:  # a defect of tissuebench, not of the input: one line, exit 1
+        if os.environ.get("TISSUEBENCH_DEBUG", "").strip():
+            raise
+        print(f"tissuebench: internal error in `{args.command}`: {type(exc).__name__}: {exc} (a bug of tissuebench; "
+              f"TISSUEBENCH_DEBUG=1 shows the traceback)", file=sys.stderr)
+        return 1
+    finally:
+        warnings.formatwarning = formatwarning
 
 
 if __name__ == "__main__":

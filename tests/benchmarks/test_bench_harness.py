@@ -6,7 +6,8 @@ online model in the same process:
 * ``direct``: a bare loop ``step(mu); outputs(res)`` over the evaluation parameters, one
   clock pair around the whole loop (the cheapest way to call the method);
 * ``harness``: :func:`tissuebench.studies.protocol.time_latency`, which times every step on
-  its own (two clock reads per step) and reconstructs apart.
+  its own (two clock reads per step), times the model's floor after it and reconstructs
+  apart at the display's rate.
 
 Target (issue "Sweeps"): the harness's median haptic step within 5 % of the direct loop's
 mean step. With ``--benchmark-enable`` the ratio is asserted; under the plain test run the
@@ -25,7 +26,7 @@ from threadpoolctl import threadpool_limits
 
 from tissuebench.rom import make_method
 from tissuebench.studies.evaluation import build_evaluation
-from tissuebench.studies.protocol import time_latency
+from tissuebench.studies.protocol import DISPLAY_EVERY, time_latency
 from tissuebench.studies.training import build_training, case_scene
 
 pytestmark = pytest.mark.benchmark
@@ -65,7 +66,7 @@ def test_harness_overhead_on_the_online_loop(benchmark, cornea):
     ratio = lat["haptic"].median / float(np.median(direct))
     benchmark.extra_info.update(direct_step_us=float(np.median(direct)) * 1e6,
                                 harness_median_us=lat["haptic"].median * 1e6, ratio=ratio)
-    assert lat["haptic"].n >= 2000 and lat["reconstruct"].n >= 2000
+    assert lat["haptic"].n >= 2000 and lat["reconstruct"].n >= 2000 // DISPLAY_EVERY  # at the display's rate
     if not benchmark.disabled:
         assert ratio <= 1.05, f"harness median {lat['haptic'].median * 1e6:.2f} us vs direct loop " \
                               f"{np.median(direct) * 1e6:.2f} us per step"

@@ -7,7 +7,8 @@ vertices of boundary tags) are ignored. Cells with negative signed volume are
 reoriented by :class:`Mesh` (the shipped liver mesh has all of them negative; the count is
 ``Mesh.n_reoriented`` and the builders report it as ``reoriented_cells``); degenerate,
 duplicate and overlapping cells and folded meshes (an inverted cell overlapping its
-neighbour) are refused, with the path and the cells in the message.
+neighbour) are refused, with the path and the cells in the message; coincident nodes (the
+mesh is not connected there) are said in a warning naming them.
 
 Coordinates are returned as stored in the file, with no unit conversion: the shipped
 liver mesh ``liver/liver_tet.vtu`` is in millimetres.
@@ -21,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -140,10 +142,40 @@ def read_mesh(path, cell_type: str | None = None, reorient: bool = True) -> Mesh
         renumber[used] = np.arange(len(used))
         points, cells = points[used], renumber[cells]
     _check_cell_set(path, cells, cell_type)
+    _warn_coincident_nodes(path, points)
     try:
         return Mesh(points, cells, cell_type, reorient=reorient)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from exc
+
+
+def coincident_nodes(points: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
+    """Pairs ``(i, j)``, i < j, of nodes closer than ``rtol`` times the mesh's size (sorted)."""
+    pts = np.asarray(points, float)
+    if len(pts) < 2 or not np.all(np.isfinite(pts)):
+        return np.zeros((0, 2), dtype=np.int64)
+    from scipy.spatial import cKDTree
+
+    with np.errstate(over="ignore", invalid="ignore"):
+        low = pts.min(axis=0)
+        size = float(np.max(pts.max(axis=0) - low))
+        unit = (pts - low) / size if np.isfinite(size) and size > 0 else None
+    if unit is None or not np.all(np.isfinite(unit)):
+        return np.zeros((0, 2), dtype=np.int64)
+    pairs = cKDTree(unit).query_pairs(rtol, output_type="ndarray")  # scaled: 1e200 m squares without overflow
+    return pairs[np.lexsort(pairs.T[::-1])] if len(pairs) else pairs.reshape(0, 2)
+
+
+def _warn_coincident_nodes(path, points):
+    """A node repeated at the same place splits the mesh there (each copy belongs to its own cells:
+    a crack the file may not mean); said, naming the nodes, not refused (a cut is made that way)."""
+    pairs = coincident_nodes(points)
+    if len(pairs):
+        i, j = (int(v) for v in pairs[0])
+        shown = ", ".join(f"{int(a)}={int(b)}" for a, b in pairs[:6]) + (" ..." if len(pairs) > 6 else "")
+        warnings.warn(f"{path}: {len(pairs)} pairs of coincident nodes ({shown}; e.g. nodes {i} and {j} at "
+                      f"{np.round(points[i], 12).tolist()}): the cells on either side are not connected there; "
+                      "merge them if the body is one piece", stacklevel=3)
 
 
 def _check_cell_set(path, cells, cell_type):

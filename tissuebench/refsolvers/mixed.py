@@ -139,11 +139,13 @@ class MixedBackend(Backend):
     def element_internal_forces(self, z):
         raise NotImplementedError("element quantities are not defined for the mixed formulation")
 
-    def make_linear_solver(self, name="direct", **options):
+    def make_linear_solver(self, name="auto", **options):
         """:class:`~.saddle_solver.SaddlePointSolver` (the tangent is indefinite): LDL^T of the
-        regularised symmetric part + GMRES, falling back to SuperLU (COLAMD)."""
-        if name != "direct":
-            raise ValueError(f"linear_solver={name!r}: the mixed formulation needs 'direct' (indefinite tangent)")
+        regularised symmetric part + GMRES, falling back to SuperLU (COLAMD); for ``"auto"``
+        and ``"direct"`` alike."""
+        if name not in ("auto", "direct"):
+            raise ValueError(f"linear_solver={name!r}: the mixed formulation needs 'auto' or 'direct' "
+                             "(indefinite tangent)")
         from .saddle_solver import SaddlePointSolver
 
         return SaddlePointSolver(self.n_p, **options)

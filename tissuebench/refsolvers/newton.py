@@ -48,7 +48,7 @@ class NewtonOptions:
     easy_iterations: int = 6
     line_search: bool = False
     strict: bool = False
-    linear_solver: str = "direct"
+    linear_solver: str = "auto"
     linear_solver_options: dict = field(default_factory=dict)
     forcing_max: float = 1e-4
 

@@ -214,7 +214,8 @@ class Problem:
         vals = np.concatenate([p[1] for p in parts])
         scaled = np.concatenate([p[2] for p in parts])
         owner = np.concatenate([np.full(len(p[0]), k) for k, p in enumerate(parts)])
-        # later sets win on duplicated dofs
+        self._check_overlaps(dofs, owner)
+        # sets that share dofs prescribe the same values there (checked): the later one is kept
         _, first_rev = np.unique(dofs[::-1], return_index=True)
         keep = len(dofs) - 1 - first_rev
         # motions are re-evaluated per load factor on the dofs they still own
@@ -265,11 +266,46 @@ class Problem:
             raise ValueError(f"{name}.facets: empty or malformed facet selection (shape {facets.shape})")
         return facets
 
+    def _dirichlet_values(self, k: int, load_factor: float) -> np.ndarray:
+        """The values Dirichlet set ``k`` prescribes on its dofs (in :meth:`Dirichlet.resolve`
+        order) at ``load_factor``."""
+        d = self.dirichlet[k]
+        if d.motion is not None:
+            idx = _resolve_nodes("Dirichlet.nodes", d.nodes, self.nodes)
+            return d.motion_values(self.nodes, idx, load_factor)
+        _, vals, scaled = d.resolve(self.nodes)
+        return np.where(scaled, load_factor * vals, vals)
+
+    def _check_overlaps(self, dofs: np.ndarray, owner: np.ndarray) -> None:
+        """Refuse two Dirichlet sets prescribing different values on a shared dof (at load
+        factors 0.5 and 1: a clamp and a motion, or +d and -d), naming both sets."""
+        order = np.argsort(dofs, kind="stable")
+        sd, so = dofs[order], owner[order]
+        shared = np.flatnonzero((sd[1:] == sd[:-1]) & (so[1:] != so[:-1]))
+        if not len(shared):
+            return
+        pos = {k: {int(dof): i for i, dof in enumerate(dofs[owner == k])} for k in np.unique(owner)}
+        for lf in (1.0, 0.5):
+            values = {k: self._dirichlet_values(int(k), lf) for k in pos}
+            scale = max(float(np.max(np.abs(v), initial=0.0)) for v in values.values()) or 1.0
+            for i in shared:
+                dof, a, b = int(sd[i]), int(so[i]), int(so[i + 1])
+                va, vb = values[a][pos[a][dof]], values[b][pos[b][dof]]
+                if abs(va - vb) > 1e-9 * scale:
+                    n_shared = len(np.intersect1d(dofs[owner == a], dofs[owner == b]))
+                    raise ValueError(f"dirichlet[{a}] and dirichlet[{b}] prescribe different values on the dofs they "
+                                     f"share ({n_shared} dofs; e.g. node {dof // 3} component {'xyz'[dof % 3]}: "
+                                     f"{va:.6g} vs {vb:.6g} at load factor {lf:g}); give each dof one value")
+
     def _check_rigid_body_modes(self):
-        """Refuse a constraint set that leaves a rigid-body mode free (u = a + w x X)."""
+        """Refuse a constraint set that leaves a rigid-body mode free (u = a + w x X). The
+        coordinates are centred and scaled by the body's size, so the verdict does not depend
+        on the unit of length (a 1 m bar and the same bar in pm are the same problem)."""
         dofs = self.fixed_dofs
         nodes, comps = dofs // 3, dofs % 3
-        X = self.nodes[nodes] - self.nodes.mean(axis=0)
+        centre = self.nodes.mean(axis=0)
+        size = float(np.max(np.abs(self.nodes - centre), initial=0.0)) or 1.0
+        X = (self.nodes[nodes] - centre) / size
         rows = np.zeros((len(dofs), 6))
         rows[np.arange(len(dofs)), comps] = 1.0
         # rotation part: (w x X)_c

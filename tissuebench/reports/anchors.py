@@ -245,7 +245,11 @@ def external_anchors(resolution: str = "ci", backend: str = "ngsolve", cases=Non
     if backend not in ("ngsolve", "skfem"):
         raise ValueError(f"backend must be 'ngsolve' or 'skfem', got {backend!r}")
     known = {a.case for a in ANCHORS}
+    if isinstance(cases, str):
+        cases = [cases]
     chosen = known if cases is None else set(cases)
+    if not chosen:
+        raise ValueError(f"cases = {cases!r}: names no anchor case; valid: {sorted(known)}")
     if chosen - known:
         raise ValueError(f"cases: unknown {sorted(chosen - known)}; valid: {sorted(known)}")
     rows = []

@@ -24,16 +24,23 @@ BACKENDS = ("skfem", "ngsolve")
 
 def scenes_of_results(results) -> list:
     """``[(case id, scene)]`` of the case entries a sweep ran (``cases`` of its ``_sweep.json``)."""
-    import json
-    from pathlib import Path
-
+    from ..studies.results import SweepManifestError, read_sweep_manifest
     from ..studies.training import case_scene
 
-    meta = json.loads((Path(results) / "_sweep.json").read_text())
+    meta = read_sweep_manifest(results)
     if "cases" not in meta:
         raise ValueError(f"{results}/_sweep.json has no 'cases' (written by an older tissuebench): rerun the sweep "
                          "with --resume to record them")
-    return [(c["id"], case_scene(c)) for c in meta["cases"]]
+    out = []
+    for i, c in enumerate(meta["cases"]):
+        missing = [k for k in ("name", "resolution", "backend") if k not in c]
+        if missing:
+            raise SweepManifestError(f"{results}/_sweep.json: cases[{i}].{missing[0]}: missing")
+        try:
+            out.append((c["id"], case_scene(c)))
+        except (ValueError, TypeError) as exc:
+            raise SweepManifestError(f"{results}/_sweep.json: cases[{i}]: {exc}") from None
+    return out
 
 
 def _compare(case_id, scene) -> dict:

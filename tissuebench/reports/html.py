@@ -130,19 +130,65 @@ def _jsonable(obj):
     return obj
 
 
-def _check_out(out_html: Path, results_dir) -> None:
-    rel = _relative(out_html, Path(results_dir))
-    if rel is not None and not any(part.startswith(("_", ".")) for part in rel.parts[:-1]):
-        # pandas/pyarrow would read the page and its CSVs as part of the results dataset
-        raise ValueError(f"out_html = {str(out_html)!r}: inside the results folder only under a folder starting "
-                         f"with '_' (e.g. {str(Path(results_dir) / DEFAULT_NAME)!r}), else the store stops reading")
+# the folders of a results store that hold data read back (the datasets, the derived tables):
+# a report there would be read as data, or overwrite it
+_STORE_DATA = ("_points", "_outputs", "_latency", "_derived")
+_REPORT_SUFFIXES = (".html", ".htm")
+
+
+def _check_out(out_html: Path, results_dir, force: bool = False) -> None:
+    """Refuse, before any work, an output that would damage a store or another file: a name
+    that is not ``.html``, a place inside a store's data (its datasets, ``_derived``, a
+    ``case=`` partition, directly in a store), an existing file that no report wrote (unless
+    ``force``), a folder, an unwritable place."""
+    text = str(out_html)
+    if "\0" in text:
+        raise ValueError(f"out_html = {text!r}: contains a NUL byte")
     if out_html.is_dir():
-        raise ValueError(f"out_html = {str(out_html)!r}: is a folder; give a file name like report.html")
+        raise ValueError(f"out_html = {text!r}: is a folder; give a file name like report.html")
+    if out_html.suffix.lower() not in _REPORT_SUFFIXES:
+        raise ValueError(f"out_html = {text!r}: a report is an HTML file; give a name ending in .html")
+    for root in {Path(results_dir), *_stores_above(out_html)}:
+        rel = _relative(out_html, root)
+        if rel is None:
+            continue
+        folders = rel.parts[:-1]
+        if not folders or folders[0] in _STORE_DATA or not folders[0].startswith(("_", ".")) or any(
+                p.startswith(("case=", "method=")) for p in folders):
+            # pandas/pyarrow would read the page and its CSVs as part of the results, or replace its tables
+            raise ValueError(f"out_html = {text!r}: inside the results folder only under a folder starting with "
+                             f"'_' of its own (e.g. {str(root / DEFAULT_NAME)!r}), never in "
+                             f"{', '.join(_STORE_DATA)} or a case= partition of {str(root)!r}: the store would "
+                             "stop reading")
+    if out_html.exists() and not force and not _is_report(out_html):
+        raise ValueError(f"out_html = {text!r}: exists and is not a report written by tissuebench; choose another "
+                         "name, or pass --force to replace it")
     parent = next((p for p in [out_html.parent, *out_html.parent.parents] if p.exists()), Path("."))
     if not parent.is_dir():
-        raise ValueError(f"out_html = {str(out_html)!r}: {str(parent)!r} is not a folder")
+        raise ValueError(f"out_html = {text!r}: {str(parent)!r} is not a folder")
     if not os.access(parent, os.W_OK):
-        raise ValueError(f"out_html = {str(out_html)!r}: the folder {str(parent)!r} is not writable")
+        raise ValueError(f"out_html = {text!r}: the folder {str(parent)!r} is not writable")
+
+
+def _stores_above(path: Path) -> list:
+    """The results folders (holding ``_sweep.json``) among the folders above ``path``."""
+    try:
+        above = path.absolute().parents
+        return [p for p in above if (p / "_sweep.json").is_file()]
+    except OSError:
+        return []
+
+
+def _is_report(path: Path) -> bool:
+    """Was ``path`` written by a report: its data folder carries the marker, or its title says so."""
+    if (path.with_name(f"{path.stem}_data") / _MARKER).is_file():
+        return True
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return False
+    return head.startswith(b"<!DOCTYPE html>") and b"<title>tissuebench report" in head
 
 
 def _relative(path: Path, root: Path):
@@ -184,7 +230,8 @@ def _write(out_html: Path, page: str, tables: list) -> None:
     os.replace(tmp_html, out_html)
 
 
-def write_report(results_dir, out_html, require: str | None = None, case: str | None = None) -> Path:
+def write_report(results_dir, out_html, require: str | None = None, case: str | None = None,
+                 force: bool = False) -> Path:
     """Write the HTML report of a results folder (module docstring); returns the HTML path.
 
     Parameters
@@ -192,17 +239,21 @@ def write_report(results_dir, out_html, require: str | None = None, case: str | 
     results_dir : path
         A folder written by ``tissuebench sweep``.
     out_html : path
-        The HTML file; its data go to ``<stem>_data/`` beside it (both replaced). Inside the
-        results folder only under a ``_`` folder, e.g. ``RESULTS/_report/report.html``
-        (:data:`DEFAULT_NAME`): anything else there would be read as part of the dataset.
+        The HTML file (``.html``); its data go to ``<stem>_data/`` beside it (both replaced).
+        Inside a results folder only under a ``_`` folder of its own, e.g.
+        ``RESULTS/_report/report.html`` (:data:`DEFAULT_NAME`), never in the store's data
+        (``_points``, ``_outputs``, ``_latency``, ``_derived``, ``case=`` partitions). An existing
+        file is replaced only when a report wrote it, or with ``force``.
     require : str, optional
         ``"rate>=500Hz, error<=2%"`` (see :mod:`.recommend`); default 1 kHz and 1 %.
     case : str, optional
         Only this case id (or the case ids of this catalogue case name).
+    force : bool
+        Replace an existing file that no report wrote (never one inside a store's data).
     """
     requirement = parse_requirement(require)
     out_html = Path(out_html)
-    _check_out(out_html, results_dir)
+    _check_out(out_html, results_dir, force)
     _data_folder(out_html)
     data = load_results(results_dir, case)
     figures, tables = {}, []

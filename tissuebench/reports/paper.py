@@ -14,14 +14,13 @@ Rows come from three places of the scene's catalogue TOML:
 """
 from __future__ import annotations
 
-import hashlib
 import json
 
 import numpy as np
 import pandas as pd
 
 from ..studies.describe import paper_comparison
-from ..studies.reference.cache import cache_dir, reference_key
+from ..studies.reference.cache import cached_table
 
 __all__ = ["MEASURED", "best_unit", "paper_rows", "cached_reference_table"]
 
@@ -74,17 +73,9 @@ def _text(v) -> str:
 
 
 def cached_reference_table(scene, backend: str = "skfem") -> pd.DataFrame | None:
-    """The cached reference run's table of ``scene`` (None when not cached or corrupted); only the
-    table file is read, checked against the checksum the cache recorded, nothing is solved."""
-    entry = cache_dir() / "references" / reference_key(scene, backend)
-    try:
-        meta = json.loads((entry / "meta.json").read_text())
-        data = (entry / "table.parquet").read_bytes()
-        if hashlib.sha256(data).hexdigest() != meta["files"]["table.parquet"]["sha256"]:
-            return None
-        return pd.read_parquet(entry / "table.parquet")
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
+    """The cached reference run's table of ``scene`` (None when not cached or not a valid entry:
+    :func:`~tissuebench.studies.reference.cache.cached_table`); nothing is solved."""
+    return cached_table(scene, backend)
 
 
 def _measured_rows(scene, units, error_metric):

@@ -3,19 +3,19 @@ tables, the manifest and the optional anchors table.
 
 Nothing here writes or computes anything expensive: a missing derived table is recomputed
 from the unit rows (:func:`~tissuebench.studies.metrics.pareto_front`), a missing manifest
-gives the error metric ``max_rel_l2`` and empty provenance, both said in ``notes``.
+gives the error metric ``max_rel_l2`` and empty provenance, both said in ``notes``. A damaged
+manifest is refused (:func:`~tissuebench.studies.results.read_sweep_manifest`); files that are
+not part of the store (a foreign Parquet file ...) are ignored and named in ``notes``.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
 
 from ..studies.metrics import pareto_front
-from ..studies.results import read_outputs, read_points, read_units
-from ..studies.spec import ERROR_METRICS
+from ..studies.results import read_outputs, read_points, read_sweep_manifest, read_units
 
 __all__ = ["ReportData", "load_results", "ANCHOR_COLUMNS"]
 
@@ -45,15 +45,17 @@ class ReportData:
 
 
 def _manifest(root: Path, notes: list) -> dict:
-    path = root / "_sweep.json"
-    if not path.is_file():
-        notes.append(f"{path.name} is missing: no spec text or sweep provenance (rows carry their own)")
-        return {}
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        notes.append(f"{path.name} could not be read ({exc}): no spec text or sweep provenance")
-        return {}
+    manifest = read_sweep_manifest(root, missing_ok=True)
+    if not manifest:
+        notes.append("_sweep.json is missing: no spec text or sweep provenance (rows carry their own)")
+    return manifest
+
+
+def _foreign_notes(foreign: list, notes: list) -> None:
+    for path, why in foreign[:10]:
+        notes.append(f"{path}: not a file of this results store ({why}): ignored")
+    if len(foreign) > 10:
+        notes.append(f"{len(foreign) - 10} more files that are not part of the store were ignored")
 
 
 def _select(df: pd.DataFrame, keys) -> pd.DataFrame:
@@ -85,16 +87,14 @@ def load_results(results_dir, case: str | None = None) -> ReportData:
     root = Path(results_dir)
     if not root.is_dir():
         raise ValueError(f"results_dir = {str(root)!r}: not a folder")
-    units = read_units(root)
+    foreign: list = []
+    units = read_units(root, foreign)
     if units.empty:
         raise ValueError(f"results_dir = {str(root)!r}: holds no unit rows (case=*/method=*/*.parquet); "
                          "run `tissuebench sweep SPEC --out RESULTS_DIR` first")
     notes: list = []
     manifest = _manifest(root, notes)
     metric = manifest.get("error_metric", "max_rel_l2")
-    if metric not in ERROR_METRICS:
-        notes.append(f"_sweep.json error_metric {metric!r} is unknown; max_rel_l2 used")
-        metric = "max_rel_l2"
     units = _select_cases(units, case).reset_index(drop=True)
     keys = set(units["unit_key"])
     pareto = _derived(root, "pareto.parquet", notes)
@@ -113,11 +113,33 @@ def load_results(results_dir, case: str | None = None) -> ReportData:
     if anchors is not None and case is not None:
         names = set(units["case"]) | set(units["case_name"])
         anchors = anchors[anchors["case"].astype(str).isin(names)].reset_index(drop=True)
-    backends = pd.read_parquet(root / "_backends.parquet") if (root / "_backends.parquet").is_file() else None
+    backends = _backends(root, notes)
     if backends is not None and case is not None:
         backends = backends[backends["case"].astype(str).isin(set(units["case"]))].reset_index(drop=True)
-    return ReportData(root, units, _select(read_points(root), keys), _select(read_outputs(root), keys),
+    points, outputs = read_points(root, foreign), read_outputs(root, foreign)
+    _foreign_notes(foreign, notes)
+    return ReportData(root, units, _select(points, keys), _select(outputs, keys),
                       _select(pareto, keys), _select(radius, keys), manifest, metric, anchors, notes, backends)
+
+
+_DERIVED_COLUMNS = {"pareto.parquet": ["case", "method", "label", "options", "unit_key", "pareto", "error",
+                                        "error_metric"],
+                    "radius.parquet": ["case", "method", "label", "options", "unit_key", "x_name", "validity_1pct",
+                                       "validity_5pct"]}
+
+
+def _side_table(path: Path, notes: list, required=()) -> pd.DataFrame | None:
+    """A Parquet side table, or None with a note naming it when unreadable or lacking ``required``."""
+    try:
+        df = pd.read_parquet(path)
+    except Exception as exc:  # noqa: BLE001 - pyarrow raises several types for a damaged file
+        notes.append(f"{path}: not a readable Parquet table ({type(exc).__name__}): ignored")
+        return None
+    missing = [c for c in required if c not in df]
+    if missing:
+        notes.append(f"{path}: lacks the columns {missing}: ignored")
+        return None
+    return df
 
 
 def _derived(root: Path, name: str, notes: list) -> pd.DataFrame | None:
@@ -125,14 +147,25 @@ def _derived(root: Path, name: str, notes: list) -> pd.DataFrame | None:
     if not path.is_file():
         notes.append(f"_derived/{name} is missing: recomputed from the unit rows")
         return None
-    return pd.read_parquet(path)
+    df = _side_table(path, notes, _DERIVED_COLUMNS[name])
+    if df is not None and name == "pareto.parquet" and df["pareto"].dtype != bool:
+        notes.append(f"{path}: its column 'pareto' is not boolean: recomputed from the unit rows")
+        return None
+    return df
+
+
+def _backends(root: Path, notes: list) -> pd.DataFrame | None:
+    path = root / "_backends.parquet"
+    return _side_table(path, notes, ("case", "verdict")) if path.is_file() else None
 
 
 def _anchors(root: Path, notes: list) -> pd.DataFrame | None:
     path = root / "_anchors.parquet"
     if not path.is_file():
         return None
-    df = pd.read_parquet(path)
+    df = _side_table(path, notes, ("case",))
+    if df is None:
+        return None
     missing = [c for c in ANCHOR_COLUMNS if c not in df]
     if missing:
         notes.append(f"_anchors.parquet lacks the columns {missing}: shown as '-'")

@@ -59,13 +59,17 @@ def recommendation(units: pd.DataFrame, requirement, error_metric: str) -> dict:
 
 
 def ranking_table(name: str, ranked: pd.DataFrame) -> dict:
+    # floor_s / efficiency: the step's arithmetic floor timed beside it (NaN in a store written before them)
+    floor = ranked["floor_s"] if "floor_s" in ranked else pd.Series(np.nan, index=ranked.index)
+    eff = ranked["efficiency"] if "efficiency" in ranked else pd.Series(np.nan, index=ranked.index)
     rows = [[r.label, {"text": "meets" if r.meets else "no", "cls": "pass" if r.meets else "fail"},
-             number(r.margin, 3), seconds(r.p99_s), hz(r.rate_hz), seconds(r.haptic_median_s), percent(r.error),
-             r.misses] for r in ranked.itertuples()]
-    cols = ["unit", "meets", "margin", "haptic p99", "rate on p99", "haptic median", "error", "misses by"]
+             number(r.margin, 3), seconds(r.p99_s), hz(r.rate_hz), seconds(r.haptic_median_s), seconds(f),
+             number(e, 2), percent(r.error), r.misses] for r, f, e in zip(ranked.itertuples(), floor, eff)]
+    cols = ["unit", "meets", "margin", "haptic p99", "rate on p99", "haptic median", "arithmetic floor",
+            "efficiency (floor / median)", "error", "misses by"]
     keep = ["case", "label", "options", "unit_key", "meets", "margin", "p99_s", "rate_hz", "haptic_median_s", "error",
             "misses"] + [c for c in ranked.columns if c.startswith("headroom_")]
-    return Table(name, cols, rows, ranked[keep])
+    return Table(name, cols, rows, ranked[keep].assign(floor_s=floor, efficiency=eff))
 
 
 def extremes_table_view(name: str, ext: pd.DataFrame) -> dict:

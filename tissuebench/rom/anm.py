@@ -71,7 +71,11 @@ class AnmSeries:
         # Horner tables, kept as Python floats for the microsecond root search
         self._Z = np.vstack([self.u0[None, :], self.u])
         self._c = [float(self.lam0), *map(float, self.lam)]
+        self._rc = tuple(reversed(self._c))  # highest order first: Horner's order
+        self._exps = np.arange(len(self._c), dtype=float)
         self._mono = None  # (lo, hi): lam'(a) > 0 on (lo, hi) around 0, computed at first use
+        self._table = None  # (lam values, a values) of prepare_roots: the brackets of the fast root
+        self._table_far = None  # the same for the search without limit (a step past the last series)
 
     @property
     def order(self) -> int:
@@ -100,9 +104,62 @@ class AnmSeries:
         return v
 
     def evaluate(self, a: float):
-        """(u(a), lam(a)): state in the series' space, shape (n,), and load factor."""
+        """(u(a), lam(a)): state in the series' space, shape (n,), and load factor (the offline
+        form: a continuation expands its next series about this state, so its arithmetic is kept
+        as it was; :meth:`state` is the online one, equal to round-off)."""
         pw = np.array([a ** p for p in range(len(self._c))])
         return pw @ self._Z, self.load_factor(a)
+
+    def state(self, a: float) -> np.ndarray:
+        """u(a) (n,): the powers ``a^0 .. a^N`` times the coefficient rows (one product)."""
+        return np.dot(a ** self._exps, self._Z)
+
+    def prepare_roots(self, n: int = 257, n_far: int = 4097) -> bool:
+        """Tabulate lam(a) on ``n`` points of the bracket :meth:`load_factor_to_a` searches
+        (the monotone interval around 0 within ``a_end``), so :meth:`root` starts Newton from
+        the linear interpolant of the inverse inside one table interval: one or two Horner
+        steps instead of a search from 0 (the online step of a precomputed continuation).
+        A second table, on ``n_far`` points, covers the search without limit (the monotone
+        interval, cut at 64 ``a_end`` where it is unbounded): the extrapolation of a step past
+        the last series. The tables are evaluated by the same Horner scheme as the search, so
+        their brackets hold in floating point. False (no table) when the bracket is empty or
+        unbounded.
+        """
+        lim = self.a_end if self.a_end is not None else math.inf
+        lo, hi = self.monotone_interval()
+        self._table = self._tabulate(max(lo, -lim), min(hi, lim), n)
+        if math.isfinite(lim):
+            far = 64.0 * lim
+            self._table_far = self._tabulate(max(lo, -far), min(hi, far), n_far)
+        return self._table is not None
+
+    def _tabulate(self, a_lo: float, a_hi: float, n: int):
+        if not (a_lo < a_hi and math.isfinite(a_lo) and math.isfinite(a_hi)):
+            return None
+        A = np.linspace(a_lo, a_hi, int(n)).tolist()
+        A[0], A[-1] = a_lo, a_hi
+        L = [_horner(self._c, a)[0] for a in A]
+        if not all(x < y for x, y in zip(L, L[1:])) or not all(map(math.isfinite, L)):
+            return None
+        return L, A
+
+    def root(self, lam_star: float, a_limit: float | None = None):
+        """:meth:`load_factor_to_a`, from the tables of :meth:`prepare_roots` when they bracket
+        ``lam_star`` (``a_limit``: None, the default limit, or inf): the same root (the unique
+        one of the monotone bracket) to the last bits of Newton's convergence test."""
+        rc = self._rc
+        if len(rc) == 2 and rc[0] > 0.0 and (a_limit is None or a_limit == math.inf):
+            a = (lam_star - rc[1]) / rc[0]  # order 1: lam = lam0 + lam1 a
+            if a_limit is not None or self.a_end is None or abs(a) <= self.a_end:
+                return a
+        t = self._table if a_limit is None else self._table_far if a_limit == math.inf else None
+        if t is not None:
+            L, A = t
+            j = bisect.bisect_right(L, lam_star) - 1
+            if 0 <= j < len(L) - 1:
+                l0, a0, a1 = L[j], A[j], A[j + 1]
+                return _newton_in(rc, lam_star, a0, a1, a0 + (a1 - a0) * (lam_star - l0) / (L[j + 1] - l0))
+        return self.load_factor_to_a(lam_star, a_limit)
 
     def load_factor_to_a(self, lam_star: float, a_limit: float | None = None):
         """The ``a`` with ``lam(a) = lam_star`` nearest to 0 on the side of ``lam_star - lam0``.
@@ -119,7 +176,7 @@ class AnmSeries:
             None when no root lies within the limit.
         """
         lim = (self.a_end if self.a_end is not None else math.inf) if a_limit is None else a_limit
-        lo, hi = self.monotone_interval()
+        lo, hi = self._monotone_within(lim)
         if lo < hi:  # lam increases on (lo, hi): a root there is the one nearest 0, and unique
             c = self._c
             if lam_star >= c[0]:
@@ -131,6 +188,21 @@ class AnmSeries:
             if (lam_star >= c[0] and hi >= lim) or (lam_star < c[0] and lo <= -lim):
                 return None  # monotone up to the limit and the target is not reached there
         return _robust_root(self._c, lam_star, lim)
+
+    def _monotone_within(self, lim: float) -> tuple[float, float]:
+        """:meth:`monotone_interval`, or ``(-lim, lim)`` when ``lam' > 0`` provably holds on
+        ``[-lim, lim]`` (``lam_1 > sum_k k |lam_k| lim^(k-1)``): the search then brackets the same
+        way and a series built for one step needs no roots of ``lam'`` (a companion-matrix
+        eigenvalue problem)."""
+        if self._mono is None and math.isfinite(lim) and len(self._c) > 2:
+            c = self._c
+            bound, p = 0.0, 1.0
+            for k in range(2, len(c)):
+                p *= lim
+                bound += k * abs(c[k]) * p
+            if c[1] > bound:
+                return -lim, lim
+        return self.monotone_interval()
 
     def monotone_interval(self) -> tuple[float, float]:
         """``(lo, hi)`` around 0 on which ``lam'(a) > 0`` (the roots of lam' nearest 0, or
@@ -186,6 +258,32 @@ def _bracketed_root(c, target, lo, hi):
     a = 0.0 if lo <= 0.0 <= hi else 0.5 * (lo + hi)
     for _ in range(100):
         v, d = _horner(c, a)
+        v -= target
+        if v == 0.0:
+            return a
+        if v < 0:
+            lo = a
+        else:
+            hi = a
+        nxt = a - v / d if d > 0 else 0.5 * (lo + hi)
+        if not lo < nxt < hi:
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - a) <= 1e-15 * max(abs(nxt), 1e-300) or hi - lo <= 1e-15 * max(abs(hi), abs(lo)):
+            return nxt
+        a = nxt
+    return a
+
+
+def _newton_in(rc, target, lo, hi, a):
+    """The root of ``p(a) = target`` in [lo, hi] where p increases and changes sign, from ``a``:
+    Newton safeguarded by bisection, the convergence test of :func:`_bracketed_root`
+    (``rc``: coefficients, highest order first)."""
+    top, rest = rc[0], rc[1:]
+    for _ in range(100):
+        v, d = top, 0.0
+        for ck in rest:
+            d = d * a + v
+            v = v * a + ck
         v -= target
         if v == 0.0:
             return a
@@ -399,8 +497,11 @@ def reduced_series(poly, q0=None, lam0: float = 0.0, order: int = 6) -> AnmSerie
         Reduced coefficients ``zeta_p`` (m,), tangent ``K_r(q0)`` factorised once.
     """
     m = poly.m
-    q0 = np.zeros(m) if q0 is None else np.asarray(q0, dtype=float)
-    K, Q0 = poly.about(q0)
+    if q0 is None:  # the expansion about the origin: K_t(0) = L, Q0 = Q (about(0) adds zeros)
+        q0, K, Q0 = np.zeros(m), poly.L, poly.Q
+    else:
+        q0 = np.asarray(q0, dtype=float)
+        K, Q0 = poly.about(q0)
     # m x m with m <= ~30: an explicit inverse costs less than the LAPACK wrappers' call
     # overhead (about 15 us per lu_solve) and is accurate for the well-conditioned K_r
     solve = (np.linalg.inv(K).__matmul__ if m <= 32 else

@@ -39,15 +39,18 @@ interpolated coordinates and tensors are then wrong, and more modes can be *wors
 """
 from __future__ import annotations
 
+import bisect
+import math
 import time
 from collections import OrderedDict
 
 import numpy as np
 
 from .anm_pod import AnmPod, AnmPodModel
-from .base import OnlineModel, RomMethod, StepResult, Training, check_parameters, register
-from .interpolation import (grassmann_interpolate, interpolation_weights, match_modes, principal_angles,
-                            procrustes_align)
+from .base import OnlineModel, RomMethod, StepResult, Training, register
+from .online import parameter
+from .interp_outputs import InterpolatedOutputs
+from .interpolation import grassmann_interpolate, match_modes, principal_angles, procrustes_align
 from .pod import pod_basis
 from .polynomial import ReducedPolynomial, check_polynomial_problem, reduced_polynomial
 
@@ -188,6 +191,15 @@ class AnmPodInterpModel(OnlineModel):
         self._Q = np.array([p.Q for p in polys])
         self._C = np.array([p.C for p in polys])
         self._f = np.array([p.f for p in polys])
+        # ... and all four side by side, flattened: one product interpolates them all
+        self._T = np.ascontiguousarray(np.hstack([T.reshape(len(polys), -1) for T in (self._L, self._Q, self._C,
+                                                                                     self._f)]))
+        m = bases.shape[2]
+        cuts = np.cumsum([m * m, m ** 3, m ** 4])
+        self._shapes = [((m, m), slice(0, cuts[0])), ((m, m, m), slice(cuts[0], cuts[1])),
+                        ((m, m, m, m), slice(cuts[1], cuts[2])), ((m,), slice(cuts[2], None))]
+        self._pos = [float(x) for x in positions]
+        self._reduced_outputs = None
         self._lam_env = lam_envelope
         # what every interpolated model runs: series built online at first need, then kept
         self._series = AnmPod(n_modes=bases.shape[2], order=options.order, eps=options.eps,
@@ -213,8 +225,9 @@ class AnmPodInterpModel(OnlineModel):
             self._cache.move_to_end(s)
             return (*self._cache[s], {"tensors": 0.0})
         t0 = time.perf_counter()
-        idx, w, extra, dist = interpolation_weights(self.positions, s)
-        poly = ReducedPolynomial(*(np.tensordot(w, T[idx], axes=1) for T in (self._L, self._Q, self._C, self._f)))
+        idx, w, extra, dist = self._weights(s)
+        flat = w @ self._T[idx]
+        poly = ReducedPolynomial(*(flat[sl].reshape(shape) for shape, sl in self._shapes))
         t1 = time.perf_counter()
         model = AnmPodModel(None, self.free_dofs, self.ndof, poly, self._series, self._lam_env)
         record = {"indices": idx, "weights": w, "position_extrapolation": extra, "distance": dist}
@@ -222,6 +235,84 @@ class AnmPodInterpModel(OnlineModel):
         if len(self._cache) > self.options.cache_size:
             self._cache.popitem(last=False)
         return model, record, {"tensors": t1 - t0}
+
+    def _weights(self, s: float):
+        """:func:`.interpolation_weights` of the stored positions (sorted, 1D) at ``s``: the hat
+        functions of its interval, without the checks and the sort of the general function."""
+        ps = self._pos
+        j = min(max(bisect.bisect_left(ps, s) - 1, 0), len(ps) - 2)
+        t = (s - ps[j]) / (ps[j + 1] - ps[j])
+        w0, w1 = 1.0 - t, t
+        extra = w0 < -1e-12 or w1 < -1e-12
+        dist = min(abs(p - s) for p in ps)
+        if abs(w0) <= 1e-14:
+            return np.array([j + 1]), np.array([w1]), extra, dist
+        if abs(w1) <= 1e-14:
+            return np.array([j]), np.array([w0]), extra, dist
+        return np.array([j, j + 1]), np.array([w0, w1]), extra, dist
+
+    def attach_outputs(self, operators) -> None:
+        """Outputs reduced offline to m-sized operators of every interpolated basis (:mod:`.interp_outputs`)."""
+        super().attach_outputs(operators)
+        names, C = self._outputs[0], self._outputs[1]
+        self._reduced_outputs = None if not len(names) else InterpolatedOutputs(
+            C[:, self.free_dofs], self.bases, self.options.basis_interpolation)
+
+    def outputs(self, result: StepResult) -> dict:
+        """The attached outputs: ``C B(s) q`` with ``C B(s)`` from m-sized quantities (kept per
+        cached position); the full reconstruction only where those degenerate or the result
+        carries its own basis."""
+        names = self._outputs[0] if hasattr(self, "_outputs") else ()
+        info, q = result.info, result.q
+        if not names or q is None or self._reduced_outputs is None or info.get("basis") is not None:
+            return super().outputs(result)
+        s = info["position"]
+        entry = self._cache.get(s)
+        rec = entry[1] if entry is not None else {"indices": info["indices"], "weights": info["weights"]}
+        CB = rec.get("outputs")
+        if CB is None:
+            CB = rec["outputs"] = self._reduced_outputs.operator(rec["indices"], rec["weights"])
+            if CB is None:
+                return super().outputs(result)
+        return dict(zip(names, np.dot(CB, q).tolist()))
+
+    def floor_ops(self):
+        """A step at a new position, written with the fewest products: the tensors interpolated
+        (one product over the stacked L, Q, C, f), the reduced series of the chosen order from
+        the origin (per order: the pair and triple convolutions of the known coefficients, two
+        tensor contractions, the solve with the inverse of L), its radius and its value at one
+        ``a``, and the output operator of the interpolated basis (:mod:`.interp_outputs`). The
+        scalar root of ``lam(a)`` is not counted."""
+        m, N = self.n_reduced, self.options.order
+        s = 0.5 * (self._pos[0] + self._pos[1])
+        idx, w, _, _ = self._weights(s)
+        T, flat = np.ascontiguousarray(self._T[idx]), np.empty(self._T.shape[1])
+        (_, sl_L), (_, sl_Q), (_, sl_C), (_, sl_f) = self._shapes
+        Z, WS = np.zeros((N + 1, m)), np.zeros((N + 1, m * m))
+        exps, q = np.arange(N + 1, dtype=float), np.empty(m)
+        ops = self._reduced_outputs
+
+        def floor():
+            np.dot(w, T, out=flat)
+            L, Q2, C3, f = flat[sl_L].reshape(m, m), flat[sl_Q].reshape(m, m * m), flat[sl_C].reshape(m, m ** 3), \
+                flat[sl_f]
+            Kinv = np.linalg.inv(L)
+            u = Kinv @ f
+            lam1 = 1.0 / math.sqrt(1.0 + u @ u)
+            Z[1] = lam1 * u
+            for p in range(2, N + 1):
+                W = Z[1:p].T @ Z[p - 1:0:-1]
+                WS[p] = W.ravel()
+                R = Q2 @ WS[p]
+                if p >= 3:
+                    R += C3 @ (Z[1:p - 1].T @ WS[p - 1:1:-1]).ravel()
+                u_nl = Kinv @ -R
+                Z[p] = (-(u_nl @ Z[1])) * Z[1] + u_nl
+            np.linalg.norm(Z[1]), np.linalg.norm(Z[N])
+            np.dot(np.power(0.1, exps), Z, out=q)
+            if ops is not None:
+                ops.operator(idx, w) @ q
+        return floor
 
     def basis_at(self, s: float) -> np.ndarray:
         """Interpolated orthonormal basis (n_free, m) at position ``s`` in the aligned
@@ -247,8 +338,7 @@ class AnmPodInterpModel(OnlineModel):
         the load factor outside the training envelope (value returned);
         ``"beyond_validity"`` past the ``max_segments`` series (as :class:`.AnmPodModel`).
         """
-        mu = check_parameters(mu, ("load_factor", "position"), self.name)
-        lam, s = float(mu["load_factor"]), float(mu["position"])
+        lam, s = parameter(mu, "load_factor", self.name), parameter(mu, "position", self.name)
         model, rec, timings = self.model_at(s)
         t0 = time.perf_counter()
         model._segments_for(lam)  # build/extend the continuation (timed apart from the evaluation)
@@ -256,7 +346,8 @@ class AnmPodInterpModel(OnlineModel):
         res = model.step({"load_factor": lam})
         t2 = time.perf_counter()
         timings.update(series=t1 - t0, evaluation=t2 - t1)
-        info = {**res.info, **{k: v for k, v in rec.items() if k != "basis"}, "position": s, "timings": timings}
+        info = {**res.info, **{k: v for k, v in rec.items() if k not in ("basis", "outputs")}, "position": s,
+                "timings": timings}
         status, msg = res.status, res.message
         if rec["position_extrapolation"]:
             lo, hi = self.envelope["position"]

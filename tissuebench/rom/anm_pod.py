@@ -14,7 +14,8 @@ import time
 import numpy as np
 
 from .anm import AnmPath, AnmSeries, reduced_path, reduced_series
-from .base import LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, check_parameters, register
+from .base import DeferredStepResult, LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, register
+from .online import parameter
 from .pod import pod_basis
 from .polynomial import check_polynomial_problem, reduced_polynomial
 
@@ -104,7 +105,7 @@ class AnmPod(RomMethod):
         if self.precompute:
             model._path = reduced_path(poly, self.lam_max or hi, self.order, self.eps, self.max_segments,
                                        self.correct)
-            model._refresh()
+            model._refresh(tabulate=True)
         t3 = time.perf_counter()
         model.info = {"n_modes": Phi.shape[1], "energy_captured": captured, "pod_message": basis.message,
                       "rank": basis.rank, "n_evals": poly.n_evals,
@@ -138,6 +139,8 @@ class AnmPodModel(LinearReconstruction, OnlineModel):
         self._env = envelope
         self._path = AnmPath()
         self._ends = []
+        self._top, self._fixed_path = -math.inf, False
+        self._ok = (envelope[0] - 1e-12, envelope[1] + 1e-12)
         self.info = {}
 
     @property
@@ -153,8 +156,18 @@ class AnmPodModel(LinearReconstruction, OnlineModel):
         """The continuation segments built so far (the first is the series from the origin)."""
         return self._path
 
-    def _refresh(self):
+    def _refresh(self, tabulate: bool = False):
+        """After the continuation changed: its ends, and (``tabulate``: a precomputed one, stepped
+        again and again) the root tables of its segments (:meth:`AnmSeries.prepare_roots`)."""
         self._ends = self._path.load_factor_ends
+        if tabulate:
+            for seg in self._path:
+                if seg._table is None:
+                    seg.prepare_roots()
+        o = self.options
+        # the haptic path: a kept continuation that covers lam, or that no step may extend
+        self._top = self._ends[-1] if (self._ends and o.cache) else -math.inf
+        self._fixed_path = o.cache and len(self._path) >= o.max_segments
 
     def variant(self, n_modes: int | None = None, **options) -> "AnmPodModel":
         """The same offline data with fewer modes (leading POD modes, sliced tensors) and/or other
@@ -168,7 +181,7 @@ class AnmPodModel(LinearReconstruction, OnlineModel):
         if opts.precompute:
             model._path = reduced_path(model.poly, opts.lam_max or self._env[1], opts.order, opts.eps,
                                        opts.max_segments, opts.correct)
-            model._refresh()
+            model._refresh(tabulate=True)
         model.info = {**self.info, "n_modes": m, "segments": len(model._path)}
         return model
 
@@ -195,38 +208,63 @@ class AnmPodModel(LinearReconstruction, OnlineModel):
         training envelope, ``"beyond_validity"`` past the segments ``max_segments`` allow
         (the last series is extrapolated and the message says how far).
         """
-        lam = float(check_parameters(mu, ("load_factor",), self.name)["load_factor"])
-        path = self._segments_for(lam)
-        ends = self._ends if path is self._path else path.load_factor_ends
+        lam = parameter(mu, "load_factor", self.name)
+        if self._fixed_path or lam <= self._top:  # the continuation covers lam or cannot grow
+            path, ends = self._path, self._ends
+        else:
+            path = self._segments_for(lam)
+            ends = self._ends if path is self._path else path.load_factor_ends
         k = 0 if lam <= path[0].lam0 else bisect.bisect_left(ends, lam)
         if k < len(path):
             s = path[k]
-            a = s.load_factor_to_a(lam)
+            a = s.root(lam)
             if a is not None:
-                q = s.evaluate(a)[0]
+                q = s.state(a)
+                lo, hi = self._ok
+                if lo <= lam <= hi:
+                    return StepResult(q, "ok", "", {"segment": k, "a": a})
                 lo, hi = self._env
-                if lo - 1e-12 <= lam <= hi + 1e-12:
-                    return StepResult(q, "ok", info={"segment": k, "a": a})
-                return StepResult(q, "extrapolation", f"load factor {lam:.6g} outside the training envelope "
-                                  f"[{lo:.6g}, {hi:.6g}]", {"segment": k, "a": a})
+                return DeferredStepResult(q, "extrapolation", lambda: f"load factor {lam:.6g} outside the training "
+                                          f"envelope [{lo:.6g}, {hi:.6g}]", {"segment": k, "a": a})
         return self._beyond(path, lam)
+
+    def floor_ops(self):
+        """The series evaluation (powers of ``a``, the (order + 1) x m coefficient product) and the
+        output product: what a step does once ``a`` is known (the scalar root of ``lam(a)``,
+        a few flops, is not counted)."""
+        s = self._path[0] if self._path else self.series_at(None, 0.0)
+        Z = np.ascontiguousarray(s._Z)
+        exps, pw, q = s._exps, np.empty(Z.shape[0]), np.empty(Z.shape[1])
+        C_r = getattr(self, "_outputs", (None, None, None))[2]
+        a = 0.5 * s.a_end if s.a_end is not None and math.isfinite(s.a_end) else 0.1
+        if C_r is None:
+            return lambda: np.dot(np.power(a, exps, out=pw), Z, out=q)
+        y = np.empty(C_r.shape[0])
+
+        def floor():
+            np.dot(np.power(a, exps, out=pw), Z, out=q)
+            np.dot(C_r, q, out=y)
+        return floor
 
     def _beyond(self, path, lam):
         """Past the last (or before the first) series: extrapolate it and say by how much."""
         first = lam <= path[0].lam0
         s = path[0] if first else path[-1]
-        covered = (path[0].load_factor(-path[0].a_end) if first else s.load_factor(s.a_end))
-        a = s.load_factor_to_a(lam, a_limit=math.inf)
-        extra = "" if a is None else f"; the series is extrapolated to a = {a:.4g} ({abs(a) / s.a_end:.3g} a_max)"
-        if a is None:
+        covered = (path[0].load_factor(-path[0].a_end) if first else
+                   (self._ends[-1] if path is self._path and self._ends else s.load_factor(s.a_end)))
+        a = s.root(lam, math.inf)
+        solved = a is not None
+        if not solved:
             a = -s.a_end if first else s.a_end
-            extra = f"; no solution of lam(a) = {lam:.6g}: the state at the range end is returned"
-        q = s.evaluate(a)[0]
-        if not np.all(np.isfinite(q)):
+        q = s.state(a)
+        if not math.isfinite(q.sum()) and not np.all(np.isfinite(q)):
             return StepResult(None, "failed", f"load factor {lam:.6g}: the extrapolated series overflowed")
-        side = "below" if first else "above"
-        msg = (f"load factor {lam:.6g} is {abs(lam - covered):.3g} {side} the range covered by "
-               f"{len(path)} ANM segment(s) (max_segments={self.options.max_segments}, ends at {covered:.6g})"
-               f"{extra}")
-        return StepResult(q, "beyond_validity", msg, {"segment": 0 if first else len(path) - 1, "a": a})
+        n_seg, max_seg = len(path), self.options.max_segments
 
+        def message():
+            tail = (f" {'below' if first else 'above'} the range covered by {n_seg} ANM segment(s) "
+                    f"(max_segments={max_seg}, ends at {covered:.6g})")
+            extra = (f"; the series is extrapolated to a = {a:.4g} ({abs(a) / s.a_end:.3g} a_max)" if solved else
+                     f"; no solution of lam(a) = {lam:.6g}: the state at the range end is returned")
+            return f"load factor {lam:.6g} is {abs(lam - covered):.3g}{tail}{extra}"
+        return DeferredStepResult(q, "beyond_validity", message, {"segment": 0 if first else len(path) - 1, "a": a})

@@ -18,6 +18,9 @@ PGD, skinning-cubature, direct time integrators, baselines), so the sweep harnes
    haptic step that latency measures; neither touches a full-size vector.
 3. **Reconstruction**: ``u = model.reconstruct(res)`` gives the full dof vector (n_dof,),
    including the prescribed (Dirichlet) values at that step; timed separately.
+4. **Floor**: ``model.floor_ops()`` returns a zero-argument callable doing only the
+   arithmetic a haptic step cannot avoid at the model's sizes (:mod:`.online`); the latency
+   protocol times it beside the step and reports ``efficiency = floor / haptic median``.
 
 ``OnlineModel.kind`` says how a model is driven: ``"map"`` (a static state at any ``mu``,
 in any order), ``"path"`` (a static load path followed in increasing load factor: warm
@@ -37,12 +40,12 @@ from __future__ import annotations
 import inspect
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["Training", "StepResult", "OnlineModel", "RomMethod", "METHODS", "register", "make_method",
-           "STEP_STATUSES", "MODEL_KINDS", "check_parameters", "LinearReconstruction", "method_class"]
+__all__ = ["Training", "StepResult", "DeferredStepResult", "OnlineModel", "RomMethod", "METHODS", "register",
+           "make_method", "STEP_STATUSES", "MODEL_KINDS", "check_parameters", "LinearReconstruction", "method_class"]
 
 STEP_STATUSES = ("ok", "extrapolation", "beyond_validity", "failed")
 MODEL_KINDS = ("map", "path", "trajectory")
@@ -126,9 +129,13 @@ class Training:
             raise ValueError(f"training.parameters need {key!r} for every snapshot") from None
 
 
-@dataclass
+@dataclass(slots=True)
 class StepResult:
-    """Outcome of one online step (see the module docstring for ``status``)."""
+    """Outcome of one online step (see the module docstring for ``status``).
+
+    ``q`` belongs to the result (a model never writes into it after returning it); ``mu`` may
+    be the mapping the step was called with, not a copy (the protocol and the drivers never
+    change a ``mu`` after stepping with it)."""
 
     q: np.ndarray | None
     status: str = "ok"
@@ -137,14 +144,47 @@ class StepResult:
     mu: dict | None = None
 
     def __post_init__(self):
-        if self.status not in STEP_STATUSES:
-            raise ValueError(f"status = {self.status!r}: expected one of {STEP_STATUSES}")
-        if self.status == "failed" and self.q is not None:
-            raise ValueError("a failed step carries no state (q must be None)")
+        if self.status != "ok":  # the haptic path: one comparison
+            if self.status not in STEP_STATUSES:
+                raise ValueError(f"status = {self.status!r}: expected one of {STEP_STATUSES}")
+            if self.status == "failed" and self.q is not None:
+                raise ValueError("a failed step carries no state (q must be None)")
 
     @property
     def ok(self) -> bool:
         return self.status == "ok"
+
+
+_MESSAGE = StepResult.__dict__["message"]  # the slot of StepResult.message
+
+
+class DeferredStepResult(StepResult):
+    """A :class:`StepResult` whose ``message`` is formatted at its first reading: ``message_of``
+    (a zero-argument callable returning the text) runs then, once. A haptic loop steps past
+    the training envelope at every step and rarely reads why; the message is the same as an
+    eager one whenever it is read."""
+
+    __slots__ = ("_message_of",)
+
+    def __init__(self, q, status: str, message_of, info=None, mu=None):
+        self.q, self.status, self.info, self.mu, self._message_of = q, status, {} if info is None else info, mu, \
+            message_of
+        if message_of is None:
+            _MESSAGE.__set__(self, "")
+        self.__post_init__()
+
+    @property
+    def message(self) -> str:
+        f = getattr(self, "_message_of", None)
+        if f is not None:
+            self._message_of = None
+            _MESSAGE.__set__(self, f())
+        return _MESSAGE.__get__(self)
+
+    @message.setter
+    def message(self, value: str) -> None:
+        self._message_of = None
+        _MESSAGE.__set__(self, value)
 
 
 def check_parameters(mu, required: tuple, name: str) -> dict:
@@ -212,6 +252,22 @@ class OnlineModel(ABC):
         """The training envelope: ``{parameter: (min, max)}``."""
         return {}
 
+    # ---------------------------------------------------------------- floor
+    def floor_ops(self) -> Callable[[], object]:
+        """A zero-argument callable doing only the arithmetic a haptic step (``step`` +
+        ``outputs``) cannot avoid at this model's sizes, on preallocated arrays (:mod:`.online`).
+
+        The latency protocol times it beside the step, in the same process; ``efficiency =
+        floor / haptic median`` says how much of a step is its arithmetic and how much is
+        overhead. Default: a reduced solve of size :attr:`n_reduced` with a stored factor
+        and the output product (:func:`~.online.solve_floor`); a method whose step does other
+        unavoidable work (a series evaluation, an interpolation, a Newton iteration) declares
+        that instead.
+        """
+        from .online import solve_floor
+
+        return solve_floor(self.n_reduced, len(self.output_names))
+
     # ---------------------------------------------------------------- outputs
     def output_map(self):
         """``(free_dofs, B)`` when ``u[free] = B @ q`` (fixed dofs: the prescribed values),
@@ -222,34 +278,60 @@ class OnlineModel(ABC):
         """``(fixed_dofs, values)`` of the prescribed displacements at ``mu`` (default: none)."""
         return np.zeros(0, dtype=np.int64), np.zeros(0)
 
+    def prescribed_affine(self):
+        """``(v0, v1)`` with ``prescribed(mu)[1] == v0 + mu["load_factor"] * v1`` for every
+        ``mu``, or None when the values are not affine in the load factor (a motion) or not
+        known to be (the default): outputs then evaluate :meth:`prescribed` at every step."""
+        fixed, _ = self.prescribed(None)
+        return (np.zeros(0), np.zeros(0)) if not len(fixed) else None
+
     def attach_outputs(self, operators: Mapping[str, np.ndarray]) -> None:
-        """Offline: reduce linear output functionals ``{name: c (n_dof,)}`` (``y = c @ u``)."""
+        """Offline: reduce linear output functionals ``{name: c (n_dof,)}`` (``y = c @ u``).
+
+        With ``u[free] = B q`` (:meth:`output_map`) the outputs are one product ``C_r @ q``
+        (``C_r = C[:, free] B``), plus the share of the prescribed values: ``c0 + lam c1``
+        when they are affine in the load factor (:meth:`prescribed_affine`; nothing at all
+        when they are zero), else ``C[:, fixed] @ prescribed(mu)`` per step.
+        """
         names = list(operators)
         if not names:
             self._outputs = ((), None, None, None)
             return
         C = np.array([np.asarray(operators[n], float) for n in names]).reshape(len(names), -1)
         lin = self.output_map()
-        fixed, _ = self.prescribed(None) if lin is not None else (None, None)
         if lin is None:
             self._outputs = (names, C, None, None)
-        else:
-            free, B = lin
-            self._outputs = (names, C, np.ascontiguousarray(C[:, free] @ B), C[:, fixed] if len(fixed) else None)
+            return
+        free, B = lin
+        fixed, _ = self.prescribed(None)
+        fixed_part = None
+        if len(fixed):
+            affine = self.prescribed_affine()
+            if affine is None or any(np.shape(v) != (len(fixed),) for v in affine):
+                fixed_part = C[:, fixed]
+            else:
+                c0, c1 = C[:, fixed] @ affine[0], C[:, fixed] @ affine[1]
+                fixed_part = (c0, c1) if np.any(c0) or np.any(c1) else None
+        self._outputs = (names, C, np.ascontiguousarray(C[:, free] @ B), fixed_part)
 
     def outputs(self, result: StepResult) -> dict:
         """The attached outputs at a step (``{}`` if none attached; NaN for a failed step)."""
-        names, C, C_r, C_fixed = getattr(self, "_outputs", ((), None, None, None))
+        names, C, C_r, fixed_part = getattr(self, "_outputs", ((), None, None, None))
         if not names:
             return {}
-        if result.q is None:
+        q = result.q
+        if q is None:
             return {n: float("nan") for n in names}
         if C_r is None:
             y = C @ self.reconstruct(result)
         else:
-            y = C_r @ result.q
-            if C_fixed is not None:
-                y = y + C_fixed @ self.prescribed(result.mu)[1]
+            y = np.dot(C_r, q)  # np.dot: less call overhead than @ at these sizes
+            if fixed_part is not None:
+                if type(fixed_part) is tuple:
+                    c0, c1 = fixed_part
+                    y += c0 + float(result.mu["load_factor"]) * c1
+                else:
+                    y += np.dot(fixed_part, self.prescribed(result.mu)[1])
         return dict(zip(names, y.tolist()))
 
     @property
@@ -277,6 +359,16 @@ class LinearReconstruction:
             return np.zeros(0, dtype=np.int64), np.zeros(0)
         lam = 1.0 if mu is None else float(mu["load_factor"])
         return pb.fixed_dofs, pb.prescribed_values(lam)
+
+    def prescribed_affine(self):
+        """Affine in the load factor unless a Dirichlet set prescribes a motion (a rotation)."""
+        pb = self.problem
+        if pb is None or not len(pb.fixed_dofs):
+            return np.zeros(0), np.zeros(0)
+        if any(getattr(d, "motion", None) is not None for d in pb.dirichlet):
+            return None
+        v0 = pb.prescribed_values(0.0)
+        return v0, pb.prescribed_values(1.0) - v0
 
     def reconstruct(self, result: StepResult) -> np.ndarray:
         if result.q is None:

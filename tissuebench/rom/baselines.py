@@ -18,7 +18,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import LinearNDInterpolator, RBFInterpolator
 
-from .base import LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, check_parameters, register
+from .base import DeferredStepResult, LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, register
+from .interpolants import Linear1D, LinearSimplex, RbfAtPoint
+from .online import parameter
 from .pod import pod_basis
 
 __all__ = ["Nearest", "PodInterp"]
@@ -43,17 +45,31 @@ class _ParametricModel(OnlineModel):
         self.name, self.keys, self._lo, self._span = name, keys, lo, span
         self._X = (P - lo) / span  # scaled training parameters
         self._hi = lo + np.where(P.max(axis=0) > P.min(axis=0), span, 0.0)
+        # the haptic path, per key: (key, lo, span, lower and upper bound of "inside") as floats
+        self._bounds = [(k, float(a), float(s), float(a - 1e-12 * (1 + abs(a))), float(b + 1e-12 * (1 + abs(b))))
+                        for k, a, s, b in zip(keys, lo, span, self._hi)]
+        self._x = np.empty(len(keys))
 
     @property
     def envelope(self) -> dict:
         return {k: (float(a), float(b)) for k, a, b in zip(self.keys, self._lo, self._hi)}
 
     def _scaled(self, mu):
-        mu = check_parameters(mu, tuple(self.keys), self.name)
-        p = np.array([float(mu[k]) for k in self.keys])
-        inside = bool(np.all(p >= self._lo - 1e-12 * (1 + abs(self._lo))) and
-                      np.all(p <= self._hi + 1e-12 * (1 + abs(self._hi))))
-        return (p - self._lo) / self._span, inside, {k: float(mu[k]) for k in self.keys}
+        """(scaled parameters (d,), inside the envelope, the parameters read): one float per key,
+        no copy of ``mu`` (:func:`~.online.parameter`)."""
+        x, inside, name = self._x, True, self.name
+        for i, (k, a, s, lo, hi) in enumerate(self._bounds):
+            v = parameter(mu, k, name)
+            if not lo <= v <= hi:
+                inside = False
+            x[i] = (v - a) / s
+        return x, inside
+
+    def _outside(self, q, info, mu) -> DeferredStepResult:
+        """The ``extrapolation`` result, its message formatted when read."""
+        values = {k: float(mu[k]) for k in self.keys}
+        return DeferredStepResult(q, "extrapolation", lambda: f"mu = {values} outside the training envelope "
+                                  f"{self.envelope}", info, mu)
 
 
 @register
@@ -73,21 +89,41 @@ class _NearestModel(_ParametricModel):
     def __init__(self, name, keys, P, lo, span, S):
         super().__init__(name, keys, P, lo, span)
         self._S = S
+        self._D = np.empty_like(self._X)  # squared differences to the stored parameters
+        self._d2 = np.empty(len(self._X))
 
     @property
     def n_reduced(self) -> int:
         return 1
 
+    def _nearest(self, x) -> int:
+        """Index of the stored parameters nearest to ``x``: ``argmin sum((X - x)^2)`` on
+        preallocated arrays (the first of equals, as ``np.argmin``)."""
+        D = np.subtract(self._X, x, out=self._D)
+        np.square(D, out=D)
+        if D.shape[1] == 1:
+            return int(D[:, 0].argmin())
+        return int(np.sum(D, axis=1, out=self._d2).argmin())
+
     def step(self, mu) -> StepResult:
-        x, inside, mu = self._scaled(mu)
-        j = int(np.argmin(np.sum((self._X - x) ** 2, axis=1)))
-        status = "ok" if inside else "extrapolation"
-        msg = "" if inside else f"mu = {mu} outside the training envelope {self.envelope}"
-        return StepResult(np.array([float(j)]), status, msg, {"snapshot": j}, mu=mu)
+        x, inside = self._scaled(mu)
+        j = self._nearest(x)
+        if inside:
+            return StepResult(np.array([float(j)]), "ok", "", {"snapshot": j}, mu)
+        return self._outside(np.array([float(j)]), {"snapshot": j}, mu)
+
+    def floor_ops(self):
+        """The distances to the stored parameters, their argmin, the stored outputs of that snapshot."""
+        x = self._X.mean(axis=0)
+        Y = getattr(self, "_outputs", ((), np.zeros((0, len(self._X)))))[1]
+
+        def floor():
+            Y[:, self._nearest(x)]
+        return floor
 
     def attach_outputs(self, operators) -> None:
         names = list(operators)
-        self._outputs = (names, np.array([operators[n] for n in names]) @ self._S)
+        self._outputs = (names, np.array([operators[n] for n in names]).reshape(len(names), -1) @ self._S)
 
     def outputs(self, result) -> dict:
         names, Y = getattr(self, "_outputs", ((), None))
@@ -161,25 +197,42 @@ class _PodInterpModel(LinearReconstruction, _ParametricModel):
         self.free_dofs = np.arange(self.ndof)
         self._A = A  # (n_snap, m) coefficients at the training parameters
         X = self._X
+        self._always_finite = False
         if options.interpolation == "rbf":
-            self._f = RBFInterpolator(X, A, kernel=options.kernel)
+            self._f = RbfAtPoint(RBFInterpolator(X, A, kernel=options.kernel))
         elif X.shape[1] == 1:
             order = np.argsort(X[:, 0], kind="stable")
-            xs, As = X[order, 0], A[order]
-            self._f = lambda x: np.array([[np.interp(x[0, 0], xs, As[:, i]) for i in range(As.shape[1])]])
+            self._f = Linear1D(X[order, 0], A[order])
+            self._always_finite = bool(np.all(np.isfinite(A)))  # blends and end values of finite data
         else:
-            self._f = LinearNDInterpolator(X, A)
+            self._f = LinearSimplex(LinearNDInterpolator(X, A).tri, A)
+        self._nearest_model = _NearestModel(name, keys, P, lo, span, np.zeros((1, len(P))))
 
     @property
     def n_reduced(self) -> int:
         return self.basis.shape[1]
 
     def step(self, mu) -> StepResult:
-        x, inside, mu = self._scaled(mu)
-        q = np.asarray(self._f(x[None, :]), float).reshape(-1)
-        if not np.all(np.isfinite(q)):  # outside the Delaunay hull: the nearest snapshot's coefficients
-            q = self._A[int(np.argmin(np.sum((self._X - x) ** 2, axis=1)))].copy()
+        x, inside = self._scaled(mu)
+        q = self._f(x)
+        if q is None or not (self._always_finite or np.isfinite(q).all()):
+            # outside the Delaunay hull: the nearest snapshot's coefficients
+            q = self._A[self._nearest_model._nearest(x)].copy()
             inside = False
-        status = "ok" if inside else "extrapolation"
-        msg = "" if inside else f"mu = {mu} outside the training envelope {self.envelope}"
-        return StepResult(q, status, msg, mu=mu)
+        if inside:
+            return StepResult(q, "ok", "", {}, mu)
+        return self._outside(q, {}, mu)
+
+    def floor_ops(self):
+        """The interpolant's arithmetic at one point (:mod:`.interpolants`) and the output product."""
+        x = self._X.mean(axis=0)
+        blend = self._f.floor(x)
+        C_r = getattr(self, "_outputs", (None, None, None))[2]
+        if C_r is None:
+            return blend
+        q, y = np.ones(C_r.shape[1]), np.empty(C_r.shape[0])
+
+        def floor():
+            blend()
+            np.dot(C_r, q, out=y)
+        return floor

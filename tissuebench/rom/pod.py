@@ -20,6 +20,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from .base import LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, check_parameters, register
+from .online import parameter
 
 __all__ = ["PodBasis", "pod_basis", "PodLinear", "PodNewton"]
 
@@ -247,25 +248,73 @@ class PodLinear(_PodStatic):
         model._K_rc = np.asarray((K[free][:, fixed].T @ Phi).T) if len(fixed) else None
         # K_r is SPD for a stable reference state; LU is the fallback (e.g. a singular-ish K_r)
         try:
-            model._factor, model._solve = sla.cho_factor(K_r), sla.cho_solve
+            model._factor, solve = sla.cho_factor(K_r), sla.cho_solve
         except np.linalg.LinAlgError:
-            model._factor, model._solve = sla.lu_factor(K_r), sla.lu_solve
+            model._factor, solve = sla.lu_factor(K_r), sla.lu_solve
+        model._solve = lambda factor, b: solve(factor, b, check_finite=False)
         model.K_r, model.f_r = K_r, f_r
         model._q1 = model._solve(model._factor, f_r)
+        model._prepare()
         return model
 
 
 class _PodLinearOnline(_PodOnline):
 
+    def _prepare(self):
+        """Offline: the step as ``q = lam a + b`` when the prescribed values are affine in the
+        load factor (:meth:`prescribed_affine`; ``a = K_r^-1 (f_r - K_rc v1)``, ``b = -K_r^-1 K_rc v0``,
+        b None when zero), else None (a motion: its share is solved per step)."""
+        lo, hi = self._envelope.get("load_factor", (-np.inf, np.inf))
+        tol = 1e-12 * max(1.0, abs(lo), abs(hi))
+        self._ok = (lo - tol, hi + tol)
+        self._affine = None
+        aff = self.prescribed_affine() if self._K_rc is not None else (None, None)
+        if aff is None:
+            return
+        a, b = self._q1, None
+        if self._K_rc is not None:
+            v0, v1 = aff
+            if np.any(v1 != 0.0):
+                a = a - self._solve(self._factor, self._K_rc @ v1)
+            if np.any(v0 != 0.0):
+                b = -self._solve(self._factor, self._K_rc @ v0)
+        self._affine = (np.ascontiguousarray(a), b)
+
     def step(self, mu) -> StepResult:
         """``q = lam K_r^{-1} f_r`` (+ the prescribed values' share, solved with the offline factor)."""
-        lam = float(check_parameters(mu, ("load_factor",), self.name)["load_factor"])
-        q = lam * self._q1
-        if self._K_rc is not None:
+        lam = parameter(mu, "load_factor", self.name)
+        if self._affine is not None:
+            a, b = self._affine
+            q = a * lam
+            if b is not None:
+                q += b
+        else:
+            q = lam * self._q1
             values = self.prescribed({"load_factor": lam})[1]
             if np.any(values != 0.0):
                 q = q - self._solve(self._factor, self._K_rc @ values)
+        lo, hi = self._ok
+        if lo <= lam <= hi:
+            return StepResult(q, "ok", "", {}, mu)
         return StepResult(q, *self._status(lam), mu={"load_factor": lam})
+
+    def floor_ops(self):
+        """``q = lam a (+ b)`` and the outputs' product (with the prescribed values' share)."""
+        a, b = self._affine if self._affine is not None else (self._q1, None)
+        names, _, C_r, fixed_part = getattr(self, "_outputs", ((), None, None, None))
+        lam, q = 0.5, np.empty_like(a)
+        y = np.empty(0 if C_r is None else C_r.shape[0])
+        c0, c1 = fixed_part if type(fixed_part) is tuple else (None, None)
+
+        def floor():
+            np.multiply(a, lam, out=q)
+            if b is not None:
+                q.__iadd__(b)
+            if C_r is not None:
+                np.dot(C_r, q, out=y)
+                if c0 is not None:
+                    y.__iadd__(c0 + lam * c1)
+        return floor
 
 
 @register
@@ -322,6 +371,17 @@ class _PodNewtonOnline(_PodOnline):
         # Dirichlet data (no load at all), the reaction it takes (as the full Newton does)
         scale = max(np.linalg.norm(f_ext), np.linalg.norm(f_int[self.problem.fixed_dofs]))
         return r, Phi.T @ (K[free][:, free] @ Phi), scale
+
+    def floor_ops(self):
+        """One Newton iteration: the full internal force and tangent at a state of the envelope,
+        their projection and the reduced solve (a step needs at least one; it takes a few)."""
+        lam = self._envelope.get("load_factor", (0.0, 1.0))[1]
+        q = np.zeros(self.n_reduced)
+
+        def floor():
+            r, K_r, _ = self._residual_and_tangent(q, lam)
+            np.linalg.solve(K_r, r)
+        return floor
 
     def step(self, mu) -> StepResult:
         """Newton iterations on ``q`` from the last converged state; ``failed`` if they do not converge."""

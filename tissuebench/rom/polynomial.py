@@ -252,6 +252,16 @@ class ReducedPolynomial:
         """Reduced tangent ``L + 2 Q(q, .) + 3 C(q, q, .)``, shape (m, m)."""
         return self.L + 2.0 * (self.Q @ q) + 3.0 * ((self.C @ q) @ q)
 
+    def force_and_tangent(self, q):
+        """(:meth:`force`, :meth:`tangent`) at ``q`` sharing their contractions ``Q q`` and
+        ``C q q`` (a Newton iteration's both); the same values as the two calls."""
+        Qq, Cqq = self.Q @ q, (self.C @ q) @ q
+        f = self.L @ q + Qq @ q + Cqq @ q
+        K = 2.0 * Qq
+        K += self.L
+        K += 3.0 * Cqq
+        return f, K
+
     def about(self, q0):
         """(K0, Q0) of the expansion about ``q0``: ``Q0 = Q + 3 C(q0, ., .)``."""
         q0 = np.asarray(q0, dtype=float)

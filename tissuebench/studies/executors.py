@@ -6,13 +6,21 @@ Every executor runs :func:`~.units.run_unit` on plain-data units, one unit at a 
 worker process (threads_per_worker = 1), and yields ``(unit, outcome)`` as units finish;
 the caller alone writes the store, so its contents do not depend on the executor.
 Dask workers of an existing cluster need tissuebench importable (the same version).
+
+A worker process that dies (SIGKILL, the out-of-memory killer, a crash in native code)
+does not end the sweep. Dask resubmits the lost task itself. The ``processes`` pool breaks
+as a whole when one worker dies, losing every unit in flight: they are run again in a
+fresh pool, one at a time (so the unit that kills its worker is known); a unit whose worker
+dies while it runs alone is stored as failed, saying so, and the sweep goes on.
 """
 from __future__ import annotations
 
 import multiprocessing
-from concurrent.futures import ProcessPoolExecutor, as_completed
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 
-from .units import run_unit
+from .units import failed_outcome, run_unit
 
 __all__ = ["EXECUTORS", "execute", "check_executor"]
 
@@ -31,27 +39,64 @@ def check_executor(name: str, workers: int | None = None, scheduler: str | None 
         raise ValueError(f"scheduler = {scheduler!r}: expected an address such as tcp://127.0.0.1:8786")
 
 
-def execute(units, name: str = "serial", workers: int | None = None, scheduler: str | None = None):
-    """Yield ``(unit, UnitOutcome)`` for every unit, in completion order."""
+def execute(units, name: str = "serial", workers: int | None = None, scheduler: str | None = None, run=run_unit):
+    """Yield ``(unit, UnitOutcome)`` for every unit, in completion order (``run``: the function
+    a worker applies to a unit, :func:`~.units.run_unit`; a module-level function)."""
     check_executor(name, workers, scheduler)
     if name == "serial":
         for u in units:
-            yield u, run_unit(u)
+            yield u, run(u)
     elif name == "processes":
-        yield from _processes(units, workers or 2)
+        yield from _processes(units, workers or 2, run)
     else:
-        yield from _dask(units, workers or 2, scheduler)
+        yield from _dask(units, workers or 2, scheduler, run)
 
 
-def _processes(units, workers):
+def _pool(workers):
     # spawn: a fresh interpreter per worker (no forked BLAS / NGSolve thread state)
-    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = {pool.submit(run_unit, u): u for u in units}
-        for fut in as_completed(futures):
-            yield futures[fut], fut.result()
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
 
 
-def _dask(units, workers, scheduler):
+def _processes(units, workers, run):
+    """At most ``workers`` units in flight; after a worker died, the units it took down run
+    again one at a time (module docstring)."""
+    queue, suspects = list(units)[::-1], []
+    while queue or suspects:
+        pool = _pool(workers)
+        in_flight = {}
+        try:
+            while queue or suspects or in_flight:
+                alone = bool(suspects)
+                while not in_flight and suspects:  # a suspect runs alone: its own death is its own
+                    u = suspects.pop()
+                    in_flight[pool.submit(run, u)] = (u, time.perf_counter())
+                while not alone and queue and len(in_flight) < workers:
+                    u = queue.pop()
+                    in_flight[pool.submit(run, u)] = (u, time.perf_counter())
+                done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    u, t0 = in_flight.pop(fut)
+                    try:
+                        outcome = fut.result()
+                    except BrokenProcessPool:
+                        if alone:
+                            yield u, failed_outcome(u, "the worker process running this unit died (killed by a "
+                                                       "signal, out of memory, or a crash in native code); the "
+                                                       "sweep went on", time.perf_counter() - t0)
+                        else:
+                            suspects.append(u)
+                        continue
+                    yield u, outcome
+                if any(isinstance(f.exception(), BrokenProcessPool) for f in done if f.done()):
+                    # the pool is gone: what is still in flight died with it; run it again
+                    suspects += [u for u, _ in in_flight.values()]
+                    in_flight.clear()
+                    break
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _dask(units, workers, scheduler, run):
     try:
         from distributed import Client, LocalCluster, as_completed as dask_completed
     except ImportError as exc:  # pragma: no cover - dask is a dependency
@@ -67,7 +112,7 @@ def _dask(units, workers, scheduler):
         except (OSError, TimeoutError) as exc:
             raise ValueError(f"scheduler = {scheduler!r} cannot be reached: {exc}") from None
     try:
-        futures = {client.submit(run_unit, u, key=f"unit-{u.key[:32]}", pure=False): u for u in units}
+        futures = {client.submit(run, u, key=f"unit-{u.key[:32]}", pure=False): u for u in units}
         for fut in dask_completed(futures):
             yield futures[fut], fut.result()
     finally:

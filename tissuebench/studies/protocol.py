@@ -7,12 +7,18 @@ For every unit, in one process, one unit at a time, with the BLAS thread count l
    order (``start`` then ``step`` per point; trajectories from the initial state at the
    reference's dt), its outputs and reconstructed fields collected.
 2. **Latency pass**: after ``warmup`` untimed steps, at least ``steps`` haptic steps
-   (``step`` + ``outputs``) are timed one by one with ``time.perf_counter`` (a map model
-   at seeded random parameters, a path model along its path, a
-   trajectory model through its time steps, restarted untimed when a pass ends); the
-   reconstruction of each result is timed separately. Median and 99th percentile. A map
-   model is timed at fresh parameters drawn uniformly over the evaluation's range (never at
-   parameters it may have cached).
+   (``step`` + ``outputs`` back to back, as a haptic loop runs them) are timed one by one
+   with ``time.perf_counter`` (a map model at seeded random parameters, a path model along
+   its path, a trajectory model through its time steps, restarted untimed when a pass
+   ends). The full field is reconstructed, and timed apart, only at the display's rate:
+   once every ``ceil(1 kHz / 60 Hz) = 17`` steps (a display draws at ~60 Hz while the
+   haptic loop runs at 1 kHz), so the caches a step sees are those of a haptic loop, not
+   those left by a full-size reconstruction after every step. Right after each step the
+   model's **floor** (:meth:`~tissuebench.rom.OnlineModel.floor_ops`: the arithmetic its
+   step cannot avoid) is timed too, so ``efficiency = floor / haptic median`` compares
+   the two under the same load. Median and 99th percentile. A map model is timed at fresh
+   parameters drawn uniformly over the evaluation's range (never at parameters it may
+   have cached).
 3. **Reference step**: the full model's own step (one Newton increment from a converged
    state, one back-substitution for a linear static scene, one time step of the
    reference integrator) timed ``reference_samples`` times in the same process, so every
@@ -38,7 +44,7 @@ from .reference import dynamics_system
 from .timing import latency_stats
 
 __all__ = ["Driven", "drive", "time_latency", "calibration_seconds", "reference_step_seconds", "blas_info",
-           "cached_dynamics_system"]
+           "cached_dynamics_system", "HAPTIC_HZ", "DISPLAY_HZ", "DISPLAY_EVERY"]
 
 
 @dataclass
@@ -140,49 +146,69 @@ def _abscissae(evaluation, seq) -> list:
     return [float(at_point.get(repr(sorted(mu.items())), mu.get(evaluation.x_name, np.nan))) for mu in seq]
 
 
+#: the rate a haptic loop runs at [Hz] and the rate a display asks for a full field [Hz]: the
+#: latency pass reconstructs once every ceil(HAPTIC_HZ / DISPLAY_HZ) = 17 steps
+HAPTIC_HZ, DISPLAY_HZ = 1000.0, 60.0
+DISPLAY_EVERY = int(np.ceil(HAPTIC_HZ / DISPLAY_HZ))
+
+
 def time_latency(model, evaluation, history=None, steps: int = 200, warmup: int = 20, seed: int = 0,
-                 clock=time.perf_counter) -> dict:
+                 clock=time.perf_counter, display_every: int = DISPLAY_EVERY) -> dict:
     """Latency pass (module docstring, 2).
 
-    Returns ``{"haptic": LatencyStats, "reconstruct": LatencyStats | None, "samples": rows}``,
-    ``rows`` one dict per timed step in timing order: ``sample``, ``x`` (its abscissa, see
-    :func:`_abscissae`), ``haptic_s`` and ``reconstruct_s`` [s] (NaN where nothing was
-    reconstructed): the distribution per cut length or load factor (pgd-cutting Fig. 8).
-    ``clock`` returns seconds (injectable, for testing the protocol with exact durations)."""
+    Returns ``{"haptic": LatencyStats, "reconstruct": LatencyStats | None, "floor": LatencyStats,
+    "samples": rows}``, ``rows`` one dict per timed step in timing order: ``sample``, ``x`` (its
+    abscissa, see :func:`_abscissae`), ``haptic_s``, ``floor_s`` (the model's floor,
+    :meth:`~tissuebench.rom.OnlineModel.floor_ops`, timed right after that step) and
+    ``reconstruct_s`` [s] (NaN where nothing was reconstructed: the display asks for a field
+    every ``display_every``-th step only): the distribution per cut length or load factor
+    (pgd-cutting Fig. 8). ``clock`` returns seconds (injectable, for testing the protocol with
+    exact durations)."""
+    if int(display_every) < 1:
+        raise ValueError(f"time_latency: display_every must be >= 1, got {display_every!r}")
     seq = _timing_sequence(model, evaluation, history, steps, seed)
     if not seq:
         raise ValueError("time_latency: an empty evaluation set cannot be timed")
+    floor = model.floor_ops()
+    if not callable(floor):
+        raise TypeError(f"{type(model).__name__}.floor_ops() returned {type(floor).__name__}, not a callable")
     xs = _abscissae(evaluation, seq)
     _start(model, evaluation, seq)
-    for mu in seq[:warmup]:
+    for i, mu in enumerate(seq[:warmup]):
         res = model.step(mu)
         model.outputs(res)
-        if res.q is not None:
+        floor()
+        if res.q is not None and i % display_every == 0:
             model.reconstruct(res)
-    haptic, recon, samples = [], [], []
+    haptic, floors, recon, samples = [], [], [], []
     while len(haptic) < steps:
         _start(model, evaluation, seq)
         for mu, x in zip(seq, xs):
+            # the haptic loop: step + outputs back to back, one clock pair per step
             t0 = clock()
             res = model.step(mu)
             model.outputs(res)
             t1 = clock()
+            floor()
+            t2 = clock()
             haptic.append(t1 - t0)
+            floors.append(t2 - t1)
             r = np.nan
-            if res.q is not None:
+            if res.q is not None and len(samples) % display_every == 0:  # the display's frame
                 if res.mu is None:
                     res.mu = mu
-                t2 = clock()
+                t3 = clock()
                 model.reconstruct(res)
-                r = clock() - t2
+                r = clock() - t3
                 recon.append(r)
-            samples.append({"sample": len(samples), "x": x, "haptic_s": t1 - t0, "reconstruct_s": r})
+            samples.append({"sample": len(samples), "x": x, "haptic_s": t1 - t0, "floor_s": t2 - t1,
+                            "reconstruct_s": r})
             if res.status == "failed" and evaluation.kind == "trajectory":
                 break
         if not haptic:
             break
     return {"haptic": latency_stats(haptic), "reconstruct": latency_stats(recon) if recon else None,
-            "samples": samples}
+            "floor": latency_stats(floors), "samples": samples}
 
 
 def calibration_seconds(n: int = 256, repeats: int = 30, seed: int = 0) -> float:

@@ -16,22 +16,33 @@ last: each file goes to a temporary name and is renamed into place, so the row f
 the unit's completion marker; a killed sweep leaves at most temporary files, removed at
 the next start. A row file that cannot be read back (truncated by a disk fault) does not
 count as finished.
+
+Everything read back is validated like user input: :func:`read_units` and the side-table
+readers read only files at their place in the layout whose columns and types are the
+schema's (a foreign or damaged Parquet file, or any other file, is named and ignored, or
+refused with ``foreign="raise"``: :class:`StoreError`), and :func:`read_sweep_manifest`
+checks ``_sweep.json`` (:class:`SweepManifestError` names the file and the key).
 """
 from __future__ import annotations
 
 import json
+import math
 import os
 import platform
 import re
+import warnings
 from pathlib import Path
+from urllib.parse import unquote
 
 import pandas as pd
+import pyarrow as pa
 import pyarrow.parquet as pq
 
 from .schema import LATENCY_COLUMNS, OUTPUT_COLUMNS, POINT_COLUMNS, UNIT_COLUMNS, conform
 from .store import write_json_atomic
 
-__all__ = ["ResultsStore", "SweepLocked", "read_units", "read_points", "read_outputs", "read_latency"]
+__all__ = ["ResultsStore", "SweepLocked", "StoreError", "SweepManifestError", "read_units", "read_points",
+           "read_outputs", "read_latency", "read_sweep_manifest", "foreign_files", "MANIFEST", "MANIFEST_STATES"]
 
 _SIDE_TABLES = ("_points", "_outputs", "_latency")
 
@@ -94,7 +105,13 @@ class ResultsStore:
         raise SweepLocked(f"could not take the lock {lock}")
 
     def release(self) -> None:
-        (self.root / ".lock").unlink(missing_ok=True)
+        """Remove the lock; a folder that turned read-only keeps it (said: a later sweep on this
+        host takes a lock of a dead process over)."""
+        try:
+            (self.root / ".lock").unlink(missing_ok=True)
+        except OSError as exc:
+            warnings.warn(f"could not remove the lock {self.root / '.lock'} ({exc.strerror or exc}); the next sweep "
+                          "into this folder takes it over", stacklevel=2)
 
     def clean_temporaries(self) -> int:
         n = 0
@@ -158,30 +175,286 @@ def _alive(pid) -> bool:
     return True
 
 
-def _read(root: Path) -> pd.DataFrame:
-    if not root.is_dir() or not any(root.glob("case=*/method=*/*.parquet")):
+class StoreError(ValueError):
+    """A file of a results folder that is not what the store wrote there (the message names it)."""
+
+
+_KEY = re.compile(r"[0-9a-f]{64}")
+_DATASETS = {"": UNIT_COLUMNS, "_points": POINT_COLUMNS, "_outputs": OUTPUT_COLUMNS, "_latency": LATENCY_COLUMNS}
+# files of a results folder's top level that are not unit rows (written by sweep, verify, report)
+_KNOWN_TOP = {"_sweep.json", ".lock", "_anchors.parquet", "_backends.parquet"}
+
+
+def _scan(root: Path, dataset: str) -> tuple[list, list]:
+    """``(files, foreign)`` of one dataset: the Parquet files at their place in the layout
+    (``case=<id>/method=<name>/<key>.parquet``) and ``(path, why)`` of every other file in
+    the dataset's folders. The units dataset skips the top-level ``_``/``.`` entries (side
+    tables, derived tables, reports, the lock and temporaries)."""
+    base = root / dataset if dataset else root
+    files, foreign = [], []
+    if not base.is_dir():
+        return files, foreign
+    for dirpath, dirnames, filenames in os.walk(base):
+        here = Path(dirpath)
+        depth = len(here.relative_to(base).parts)
+        if depth == 0 and not dataset:
+            dirnames[:] = [d for d in dirnames if not d.startswith(("_", "."))]
+            filenames = [f for f in filenames if f not in _KNOWN_TOP and not f.startswith(("_", "."))]
+        dirnames.sort()
+        for name in sorted(filenames):
+            path = here / name
+            if name.startswith(".") and name.endswith(".tmp"):
+                continue  # a unit being written (removed at the next start)
+            parts = path.relative_to(base).parts
+            if (len(parts) == 3 and parts[0].startswith("case=") and len(parts[0]) > 5
+                    and parts[1].startswith("method=") and len(parts[1]) > 7
+                    and name.endswith(".parquet") and _SAFE.fullmatch(name[:-8])):
+                files.append(path)
+            else:
+                foreign.append((path, "not at a place of the store's layout case=<id>/method=<name>/<key>.parquet"))
+    return files, foreign
+
+
+def _check_table(path: Path, table: pa.Table, columns: dict, one_row: bool) -> str | None:
+    """Why ``table`` (read from ``path``) is not one the store wrote there, or None."""
+    extra = [n for n in table.column_names if n not in columns]
+    if extra:
+        return f"columns not in the store schema: {extra[:5]}"
+    if "unit_key" not in table.column_names:
+        return "no unit_key column"
+    wrong = [n for n in table.column_names if table.schema.field(n).type != columns[n]]
+    if wrong:
+        n = wrong[0]
+        return f"column {n!r} is {table.schema.field(n).type}, the schema says {columns[n]}"
+    if one_row and table.num_rows != 1:
+        return f"{table.num_rows} rows (a unit row file holds one)"
+    keys = set(table.column("unit_key").to_pylist())
+    if keys - {path.stem}:
+        return f"its unit_key {sorted(keys - {path.stem}, key=str)[0]!r} is not its file name's"
+    return None
+
+
+def _listed_units(root: Path) -> dict:
+    """``{unit key: (case, method)}`` as the folder's valid ``_sweep.json`` lists them ({} if none)."""
+    try:
+        units = read_sweep_manifest(root, missing_ok=True).get("units", [])
+    except SweepManifestError:
+        return {}
+    return {u["key"]: (u["case"], u["method"]) for u in units}
+
+
+def _single_copies(found: list, root: Path, stray: list) -> list:
+    """``found`` (path, case, method, table) without the copies of a unit key stored in several
+    partitions: the copy ``_sweep.json`` lists is kept, the others (all, when it decides none)
+    are named as foreign."""
+    by_key: dict = {}
+    for item in found:
+        by_key.setdefault(item[0].stem, []).append(item)
+    if all(len(v) == 1 for v in by_key.values()):
+        return found
+    listed = _listed_units(root)
+    keep = []
+    for key, items in by_key.items():
+        if len(items) == 1:
+            keep += items
+            continue
+        genuine = [it for it in items if listed.get(key) == (it[1], it[2])][:1]
+        keep += genuine
+        for it in items:
+            if it not in genuine:
+                others = ", ".join(str(o[0]) for o in items if o is not it)
+                stray.append((it[0], f"unit {key} is stored more than once (also {others}); _sweep.json lists "
+                                     + (f"the one in case={genuine[0][1]}/method={genuine[0][2]}" if genuine
+                                        else "none of them")))
+    return sorted(keep, key=lambda it: str(it[0]))
+
+
+def _read_dataset(root: Path, dataset: str, foreign) -> pd.DataFrame:
+    files, stray = _scan(root, dataset)
+    columns = _DATASETS[dataset]
+    found = []
+    for path in files:
+        try:
+            table = pq.read_table(path)
+        except Exception as exc:  # noqa: BLE001 - pyarrow raises several types for a damaged file
+            stray.append((path, f"not a readable Parquet file ({type(exc).__name__})"))
+            continue
+        why = _check_table(path, table, columns, one_row=not dataset)
+        if why is not None:
+            stray.append((path, why))
+            continue
+        # partition values as pyarrow's hive partitioning reads them (URI-decoded)
+        found.append((path, unquote(path.parent.parent.name[5:]), unquote(path.parent.name[7:]), table))
+    tables = []
+    for _, case, method, table in _single_copies(found, root, stray):
+        n = table.num_rows
+        table = table.append_column("case", pa.array([case] * n, pa.string()))
+        tables.append(table.append_column("method", pa.array([method] * n, pa.string())))
+    _report_foreign(stray, foreign)
+    if not tables:
         return pd.DataFrame()
-    df = pd.read_parquet(root)
+    df = pa.concat_tables(tables, promote_options="default").to_pandas()
     for c in ("case", "method"):
-        if c in df:
-            df[c] = df[c].astype(str)
+        df[c] = df[c].astype(str)
     return df
 
 
-def read_units(root) -> pd.DataFrame:
-    """All unit rows of a results folder (``case`` and ``method`` as plain strings)."""
-    return _read(Path(root))
+def _report_foreign(stray: list, foreign) -> None:
+    if not stray:
+        return
+    if isinstance(foreign, list):
+        foreign.extend(stray)
+        return
+    if foreign == "raise":
+        path, why = stray[0]
+        more = f" (and {len(stray) - 1} more)" if len(stray) > 1 else ""
+        raise StoreError(f"{path}: not a file of this results store: {why}{more}; move it out of the folder")
+    if foreign == "warn":
+        for path, why in stray[:5]:
+            warnings.warn(f"{path}: not a file of this results store ({why}): ignored", stacklevel=3)
+        if len(stray) > 5:
+            warnings.warn(f"{len(stray) - 5} more files that are not part of the store were ignored", stacklevel=3)
 
 
-def read_points(root) -> pd.DataFrame:
-    return _read(Path(root) / "_points")
+def foreign_files(root) -> list:
+    """``(path, why)`` of every file in a results folder's datasets that the readers ignore."""
+    out: list = []
+    for dataset in _DATASETS:
+        _read_dataset(Path(root), dataset, out)
+    return out
 
 
-def read_outputs(root) -> pd.DataFrame:
-    return _read(Path(root) / "_outputs")
+def read_units(root, foreign="warn") -> pd.DataFrame:
+    """All unit rows of a results folder (``case`` and ``method`` as plain strings); a file that
+    is not a unit row of the store is ignored with a warning naming it (``foreign="warn"``),
+    silently (``"ignore"``), refused (``"raise"``: :class:`StoreError`), or ignored and its
+    ``(path, why)`` appended to ``foreign`` when that is a list."""
+    return _read_dataset(Path(root), "", foreign)
 
 
-def read_latency(root) -> pd.DataFrame:
+def read_points(root, foreign="warn") -> pd.DataFrame:
+    return _read_dataset(Path(root), "_points", foreign)
+
+
+def read_outputs(root, foreign="warn") -> pd.DataFrame:
+    return _read_dataset(Path(root), "_outputs", foreign)
+
+
+def read_latency(root, foreign="warn") -> pd.DataFrame:
     """The timed haptic steps of every unit (``LATENCY_COLUMNS``; empty for a folder written
     before they were stored)."""
-    return _read(Path(root) / "_latency")
+    return _read_dataset(Path(root), "_latency", foreign)
+
+
+# ------------------------------------------------------------------------------ _sweep.json
+MANIFEST = "_sweep.json"
+MANIFEST_STATES = ("running", "finished", "failed", "interrupted")
+_MAX_MANIFEST_BYTES = 64 << 20
+
+
+class SweepManifestError(ValueError):
+    """A ``_sweep.json`` that is not what a sweep writes (the message names the file and the key)."""
+
+
+def _is_str(v):
+    return isinstance(v, str)
+
+
+def _is_count(v):
+    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
+
+
+def _is_seconds(v):
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+
+
+def _is_hash(v):
+    return isinstance(v, str) and _KEY.fullmatch(v) is not None
+
+
+_MANIFEST_KEYS = {"spec_name": (_is_str, "a string"), "spec_source": (_is_str, "a string"),
+                  "spec_hash": (_is_hash, "64 hexadecimal digits"), "spec_text": (_is_str, "a string"),
+                  "resolution": (lambda v: v in ("ci", "paper"), "'ci' or 'paper'"),
+                  "executor": (_is_str, "a string"),
+                  "state": (lambda v: v in MANIFEST_STATES, f"one of {MANIFEST_STATES}"),
+                  "git_commit": (_is_str, "a string"), "code_hash": (_is_str, "a string"),
+                  "date": (_is_str, "a string"), "versions": (lambda v: isinstance(v, dict), "a table"),
+                  "machine": (lambda v: isinstance(v, dict), "a table"),
+                  "computed": (_is_count, "a count"), "skipped": (_is_count, "a count"),
+                  "recomputed": (_is_count, "a count"), "failed": (_is_count, "a count"),
+                  "wall_s": (_is_seconds, "a finite number of seconds >= 0")}
+_CASE_KEYS = {"id": _is_str, "name": _is_str, "resolution": lambda v: v in ("ci", "paper"), "backend": _is_str,
+              "variant": lambda v: v is None or isinstance(v, str), "training": lambda v: isinstance(v, dict),
+              "evaluation": lambda v: isinstance(v, dict), "mu": lambda v: isinstance(v, dict),
+              "mesh": lambda v: isinstance(v, dict), "paper_points": lambda v: isinstance(v, list)}
+_POINT_KEYS = {"label": _is_str, "step_ms": _is_seconds, "error": _is_seconds}
+_UNIT_KEYS = {"key": lambda v: isinstance(v, str) and _SAFE.fullmatch(v) is not None, "case": _is_str,
+              "method": _is_str, "label": _is_str}
+
+
+def _manifest_fail(path, key, value, what):
+    shown = repr(value)
+    shown = shown if len(shown) <= 80 else shown[:77] + "..."
+    raise SweepManifestError(f"{path}: {key} = {shown}: expected {what}")
+
+
+def _check_entries(path, key, value, schema, required):
+    if not isinstance(value, list):
+        _manifest_fail(path, key, value, "a list of tables")
+    for i, entry in enumerate(value):
+        if not isinstance(entry, dict):
+            _manifest_fail(path, f"{key}[{i}]", entry, "a table")
+        for k in required:
+            if k not in entry:
+                raise SweepManifestError(f"{path}: {key}[{i}].{k}: missing")
+        for k, ok in schema.items():
+            if k in entry and not ok(entry[k]):
+                _manifest_fail(path, f"{key}[{i}].{k}", entry[k], "another value (the sweep writes it)")
+        if key == "cases" and "paper_points" in entry:
+            _check_entries(path, f"{key}[{i}].paper_points", entry["paper_points"], _POINT_KEYS, tuple(_POINT_KEYS))
+
+
+def read_sweep_manifest(results_dir, missing_ok: bool = False) -> dict:
+    """The validated ``_sweep.json`` of a results folder.
+
+    Raises :class:`SweepManifestError` (a ValueError) naming the file and the key when it is
+    not a JSON object, truncated or invalid JSON, has an ``error_metric`` that is not one of
+    the error columns of the store schema (:data:`~.spec.ERROR_METRICS`), or a value of
+    another type than the sweep writes. A missing file is an error too, or ``{}`` with
+    ``missing_ok``. ``error_metric`` is filled in (``max_rel_l2``) when absent.
+    """
+    from .spec import ERROR_METRICS
+
+    path = Path(results_dir) / MANIFEST
+    try:
+        size = path.stat().st_size
+        if size > _MAX_MANIFEST_BYTES:
+            raise SweepManifestError(f"{path}: {size} bytes; a sweep manifest is at most {_MAX_MANIFEST_BYTES}")
+        text = path.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        if missing_ok:
+            return {}
+        raise SweepManifestError(f"{path}: missing (not a folder written by `tissuebench sweep`)") from None
+    except UnicodeDecodeError as exc:
+        raise SweepManifestError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except OSError as exc:
+        raise SweepManifestError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    try:
+        data = json.loads(text)
+    except ValueError as exc:
+        raise SweepManifestError(f"{path}: not valid JSON (truncated or damaged): {exc}") from None
+    except RecursionError:
+        raise SweepManifestError(f"{path}: not valid JSON (nested too deeply)") from None
+    if not isinstance(data, dict):
+        raise SweepManifestError(f"{path}: expected a JSON object, found {type(data).__name__}")
+    metric = data.setdefault("error_metric", "max_rel_l2")
+    if not isinstance(metric, str) or metric not in ERROR_METRICS or UNIT_COLUMNS.get(metric) != pa.float64():
+        _manifest_fail(path, "error_metric", metric, f"one of the error columns {list(ERROR_METRICS)}")
+    for key, (ok, what) in _MANIFEST_KEYS.items():
+        if key in data and not ok(data[key]):
+            _manifest_fail(path, key, data[key], what)
+    if "cases" in data:
+        _check_entries(path, "cases", data["cases"], _CASE_KEYS, ("id",))
+    if "units" in data:
+        _check_entries(path, "units", data["units"], _UNIT_KEYS, tuple(_UNIT_KEYS))
+    return data

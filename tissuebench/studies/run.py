@@ -71,7 +71,7 @@ def safe_name(text: str) -> str:
 
 def run_case(case, backend: str = "skfem", resolution: str = "ci", variant: str | None = None,
              out: Path | None = None, overwrite: bool = False, progress: bool = True,
-             linear_solver: str = "direct") -> ReferenceResult:
+             linear_solver: str = "auto") -> ReferenceResult:
     """Solve catalogue ``case`` (name, scene file or loaded :class:`Scene`) and, with
     ``out``, store it (``resolution`` and ``variant`` apply to a name or a file).
 

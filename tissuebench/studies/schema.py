@@ -40,6 +40,9 @@ UNIT_COLUMNS = {
     # latency [s] and the same-process references
     "haptic_median_s": _F, "haptic_p99_s": _F, "haptic_n": _I, "reconstruct_median_s": _F, "reconstruct_p99_s": _F,
     "reference_step_s": _F, "speedup": _F, "calibration_s": _F, "haptic_per_calibration": _F,
+    # the arithmetic floor of the step (OnlineModel.floor_ops, median, timed beside it) and
+    # efficiency = floor_s / haptic_median_s (1: nothing but the arithmetic)
+    "floor_s": _F, "efficiency": _F,
     "blas": _S, "blas_threads": _I,
     # offline
     "offline_s": _F, "build_peak_bytes": _I, "model_bytes": _I, "model_info": _S, "unit_wall_s": _F,
@@ -54,7 +57,8 @@ POINT_COLUMNS = {"unit_key": _S, "point": _I, "x": _F, "group": _F, "mu": _S, "s
                  "energy_rel": _F, "reference_energy_rel": _F}
 OUTPUT_COLUMNS = {"unit_key": _S, "point": _I, "x": _F, "monitor": _S, "reference": _F, "rom": _F, "rel_error": _F}
 # x: the evaluation abscissa of the timed parameter (protocol._abscissae), NaN when it has none
-LATENCY_COLUMNS = {"unit_key": _S, "sample": _I, "x": _F, "haptic_s": _F, "reconstruct_s": _F}
+# floor_s: the model's floor timed right after that step; reconstruct_s: NaN but at the display's frames
+LATENCY_COLUMNS = {"unit_key": _S, "sample": _I, "x": _F, "haptic_s": _F, "floor_s": _F, "reconstruct_s": _F}
 
 
 def arrow_schema(columns: dict) -> pa.Schema:

@@ -35,13 +35,16 @@ a grid of options, the protocol and the error metric of the derived tables::
     [method.paper]                    # replaces options/grid/list at --resolution paper
     grid = { n_modes = [1, 2, 3], order = [1, 2, 3] }
 
-Every error names the key and the value and lists the valid choices (exit 2 in the CLI).
+Every error names the key and the value and lists the valid choices (exit 2 in the CLI);
+values are checked when the spec loads, counts against named maxima (:mod:`.limits`), and the
+number of units is counted before the grid expands (``max_units``, default
+:data:`~.limits.MAX_UNITS`). The same unit listed twice (a ``[[method]]`` repeated) runs once.
 """
 from __future__ import annotations
 
 import hashlib
 import itertools
-import json
+import math
 import re
 import tomllib
 from dataclasses import dataclass
@@ -51,8 +54,9 @@ from ..cases.scene import RESOLUTIONS, list_cases, resolve_toml
 from ..cases.schema import c_nonneg, c_pos, c_str, check_table, key_text, value_text
 from ..rom import METHODS, method_class
 from .evaluation import EVALUATION_KINDS
+from .limits import MAX_UNITS, check_evaluation, check_option_values, check_protocol, check_training
 from .training import TRAINING_KINDS, case_scene
-from .units import DEFAULT_PROTOCOL, WorkUnit, unit_key
+from .units import DEFAULT_PROTOCOL, WorkUnit, options_text, unit_key
 
 __all__ = ["PRESETS_DIR", "ERROR_METRICS", "SweepSpec", "load_spec", "list_presets", "expand_units"]
 
@@ -60,6 +64,7 @@ PRESETS_DIR = Path(__file__).resolve().parent / "presets"
 ERROR_METRICS = ("max_rel_l2", "mean_rel_l2", "rmse_rel", "max_rel_l2_in_envelope", "max_monitor_rel_error")
 _TOP = {"sweep", "protocol", "case", "method"}
 _SWEEP = {"name", "description", "resolution", "error_metric"}
+_NAME = re.compile(r"[^/\\\x00-\x1f\x7f]{1,100}")  # a spec name is part of a folder name: no separator
 _CASE = {"name", "id", "variant", "backend", "resolution", "training", "evaluation", "mu", "mesh", "paper_points"}
 # a published configuration drawn beside ours on the case's Pareto plot (paper resolution)
 _PAPER_POINT = {"label": c_str, "step_ms": c_pos, "error": c_nonneg}
@@ -114,7 +119,7 @@ def _resolve(spec_or_preset) -> Path:
     return resolve_toml(spec_or_preset, PRESETS_DIR, "preset", lambda: [n for n, _ in list_presets()])
 
 
-def _check_case(i, c, resolution):
+def _check_case(i, c, resolution, default_resolution):
     path = f"case[{i}]"
     _table(path, c, _CASE)
     if "name" not in c:
@@ -125,7 +130,7 @@ def _check_case(i, c, resolution):
     backend = c.get("backend", "skfem")
     if backend not in BACKENDS:
         _fail(f"{path}.backend", backend, f"valid: {list(BACKENDS)}")
-    res = resolution or c.get("resolution", "ci")
+    res = resolution or c.get("resolution", default_resolution)
     if res not in RESOLUTIONS:
         _fail(f"{path}.resolution", res, f"valid: {list(RESOLUTIONS)}")
     training = dict(_table(f"{path}.training", c.get("training", {"kind": "path"}), {"kind"} | set().union(
@@ -157,7 +162,9 @@ def _check_case(i, c, resolution):
             _fail(f"{path}.paper_points", points, "expected a non-empty array of tables {label, step_ms, error}")
         entry["paper_points"] = [check_table(f"{path}.paper_points[{j}]", dict(p) if isinstance(p, dict) else p,
                                              _PAPER_POINT, required=tuple(_PAPER_POINT)) for j, p in enumerate(points)]
-    _named(path, case_scene, entry)  # the scene must load and take the mu (their errors name the key)
+    scene = _named(path, case_scene, entry)  # the scene must load and take the mu (their errors name the key)
+    check_training(f"{path}.training", training, scene)
+    check_evaluation(f"{path}.evaluation", evaluation, scene)
     return entry
 
 
@@ -176,8 +183,9 @@ def _named(path, fn, *args):
         raise ValueError(f"{path}: {exc}") from None
 
 
-def _option_sets(path, m, cls):
-    """The option sets of a method entry: ``options`` merged into each grid point and list entry."""
+def _option_sets(path, m, cls, max_sets):
+    """The option sets of a method entry: ``options`` merged into each grid point and list entry
+    (distinct, in order; counted before the grid is expanded: at most ``max_sets``)."""
     grid, fixed, explicit = m.get("grid", {}), m.get("options", {}), m.get("list", [])
     for key, value in (("grid", grid), ("options", fixed)):
         if not isinstance(value, dict):
@@ -190,19 +198,31 @@ def _option_sets(path, m, cls):
         _fail(f"{path}.list", explicit, "expected an array of option tables")
     for j, o in enumerate(explicit):
         _named(f"{path}.list[{j}]", cls.check_options, o)
-    sets = [dict(zip(grid, combo)) for combo in itertools.product(*grid.values())] if grid else []
-    sets += [dict(o) for o in explicit]
-    if not sets and ("grid" in m or "list" in m):
+    n = math.prod(len(v) for v in grid.values()) if grid else 0
+    if n + len(explicit) > max_sets:
+        _fail(f"{path}.grid", {k: f"{len(v)} values" for k, v in grid.items()},
+              f"{n + len(explicit)} option sets; at most {max_sets} units may be planned (--max-units)")
+    for key, values in grid.items():  # the type of each value once, before the product
+        for v in values:
+            check_option_values(f"{path}.grid", cls, {key: v}, construct=False)
+    sets = (dict(zip(grid, combo)) for combo in itertools.product(*grid.values())) if grid else iter(())
+    if not grid and not explicit and ("grid" in m or "list" in m):
         _fail(f"{path}.grid", grid, "the grid and list give no option set")
-    out = []
-    for o in sets or [{}]:
+    out = {}
+    for where, o in itertools.chain(((f"{path}.grid", o) for o in sets),
+                                    ((f"{path}.list[{j}]", o) for j, o in enumerate(explicit))):
         opts = {**fixed, **o}
-        if opts not in out:
-            out.append(opts)
-    return out
+        text = options_text(opts)
+        if text not in out:
+            check_option_values(where, cls, opts)
+            out[text] = opts
+    if not out:
+        check_option_values(f"{path}.options", cls, dict(fixed))
+        out[options_text(fixed)] = dict(fixed)
+    return list(out.values())
 
 
-def _check_method(i, m, cases, resolution):
+def _check_method(i, m, cases, resolution, max_sets):
     path = f"method[{i}]"
     _table(path, m, _METHOD)
     name = m.get("name")
@@ -217,7 +237,7 @@ def _check_method(i, m, cases, resolution):
         src, opath = {**paper, "options": {**m.get("options", {}), **paper.get("options", {})}}, f"{path}.paper"
     else:
         src, opath = m, path
-    sets = _option_sets(opath, src, cls)
+    sets = _option_sets(opath, src, cls, max_sets)
     ids = [c["id"] for c in cases]
     wanted = m.get("cases")
     if wanted is None:
@@ -240,100 +260,137 @@ def _check_method(i, m, cases, resolution):
     return {"name": name, "cases": [c["id"] for c in chosen], "option_sets": sets, "protocol": protocol}
 
 
-def _check_protocol(path, protocol):
-    for k, v in protocol.items():
-        if isinstance(v, bool) or not isinstance(v, int) or v < (1 if k in ("latency_steps", "reference_samples")
-                                                                   else 0):
-            _fail(f"{path}.{k}", v, "expected a non-negative integer (latency_steps, reference_samples >= 1)")
-
-
-def load_spec(spec_or_preset, resolution: str | None = None, only: list | None = None) -> SweepSpec:
-    """Read and validate a sweep spec (a path or a preset name); ``resolution`` overrides the
-    cases'; ``only`` (case ids) keeps those cases and the methods' units on them."""
-    path = _resolve(spec_or_preset)
-    text = path.read_text()
+def _read(path: Path) -> tuple[str, dict]:
     try:
-        raw = tomllib.loads(text)
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    try:
+        return text, tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: not valid TOML: {exc}") from None
+
+
+def _check_sweep_table(sweep: dict, path: Path) -> tuple[str, str]:
+    """``(name, description)``; the name becomes part of the default results folder."""
+    name = sweep.get("name", path.stem)
+    if not isinstance(name, str) or not _NAME.fullmatch(name) or name.strip() in ("", ".", ".."):
+        _fail("sweep.name", name, "expected 1 to 100 printable characters without '/' or '\\' (it names the "
+              "results folder out/sweep-NAME-RES)")
+    description = sweep.get("description", "")
+    if not isinstance(description, str) or len(description) > 2000:
+        _fail("sweep.description", description, "expected a string of at most 2000 characters")
+    return name, description
+
+
+def load_spec(spec_or_preset, resolution: str | None = None, only: list | None = None,
+              max_units: int | None = None) -> SweepSpec:
+    """Read and validate a sweep spec (a path or a preset name); ``resolution`` overrides the
+    cases'; ``only`` (case ids) keeps those cases and the methods' units on them; more than
+    ``max_units`` units (default :data:`~.limits.MAX_UNITS`) is refused before expanding them."""
+    max_units = MAX_UNITS if max_units is None else max_units
+    if isinstance(max_units, bool) or not isinstance(max_units, int) or max_units < 1:
+        _fail("--max-units", max_units, "expected a positive integer")
+    path = _resolve(spec_or_preset)
+    text, raw = _read(path)
     for key in raw:
         if key not in _TOP:
             raise ValueError(f"{key_text(key)}: unknown top-level key in {path} (valid: {sorted(_TOP)})")
     sweep = _table("sweep", raw.get("sweep", {}), _SWEEP)
+    name, description = _check_sweep_table(sweep, path)
     if resolution is not None and resolution not in RESOLUTIONS:
         _fail("resolution", resolution, f"valid: {list(RESOLUTIONS)}")
     res = resolution or sweep.get("resolution", "ci")
+    if res not in RESOLUTIONS:
+        _fail("sweep.resolution", res, f"valid: {list(RESOLUTIONS)}")
     metric = sweep.get("error_metric", "max_rel_l2")
     if metric not in ERROR_METRICS:
         _fail("sweep.error_metric", metric, f"unknown metric; valid: {list(ERROR_METRICS)}")
     protocol = {**DEFAULT_PROTOCOL, **_table("protocol", raw.get("protocol", {}), set(DEFAULT_PROTOCOL))}
-    _check_protocol("protocol", protocol)
+    check_protocol("protocol", protocol)
     raw_cases = raw.get("case", [])
     if not isinstance(raw_cases, list) or not raw_cases:
         raise ValueError(f"case: a sweep needs at least one [[case]] ({path})")
-    cases = [_check_case(i, c, resolution) for i, c in enumerate(raw_cases)]
-    if resolution is None:
-        for c, rc in zip(cases, raw_cases):
-            c["resolution"] = rc.get("resolution", res)
+    cases = [_check_case(i, c, resolution, res) for i, c in enumerate(raw_cases)]
     ids = [c["id"] for c in cases]
     if len(set(ids)) != len(ids):
         _fail("case", ids, "case ids must be unique (give `id` to a case listed twice)")
     raw_methods = raw.get("method", [])
     if not isinstance(raw_methods, list) or not raw_methods:
         raise ValueError(f"method: a sweep needs at least one [[method]] ({path})")
-    methods = [_check_method(i, m, cases, res) for i, m in enumerate(raw_methods)]
+    methods = [_check_method(i, m, cases, res, max_units) for i, m in enumerate(raw_methods)]
     if only is not None:
-        unknown = sorted(set(only) - set(ids))
+        unknown = sorted(set(only) - set(ids)) if isinstance(only, (list, tuple, set)) and only else [only]
         if unknown:
             _fail("--cases", unknown[0], f"not a case id of {path.name}; valid: {ids}")
         cases = [c for c in cases if c["id"] in only]
         methods = [{**m, "cases": [c for c in m["cases"] if c in only]} for m in methods]
         methods = [m for m in methods if m["cases"]]
+        if not methods:
+            _fail("--cases", ",".join(only), "no method of the spec runs on these cases: the sweep would select no "
+                  "unit")
     for i, m in enumerate(methods):
         m["protocol"] = {**protocol, **m["protocol"]}
-        _check_protocol(f"method[{i}].protocol", m["protocol"])
-    return SweepSpec(str(sweep.get("name", path.stem)), str(sweep.get("description", "")), res, metric, protocol,
-                     cases, methods, text, str(path))
+        check_protocol(f"method[{i}].protocol", m["protocol"])
+    planned = sum(len(m["option_sets"]) * len(m["cases"]) for m in methods)
+    if planned > max_units:
+        _fail("method", f"{planned} units", f"at most {max_units} units may be planned (--max-units raises the "
+              "limit)")
+    return SweepSpec(name, description, res, metric, protocol, cases, methods, text, str(path))
 
 
 def expand_units(spec: SweepSpec) -> list[WorkUnit]:
-    """One :class:`WorkUnit` per (case, method, option set), keys computed: in spec order,
-    except that the option sets of one nested group (one parent, :func:`_nested_parents`)
+    """One :class:`WorkUnit` per distinct (case, method, option set), keys computed: in spec
+    order, except that the option sets of one nested group (one parent, :func:`_nested_parents`)
     run one after another, where the group first appears, so that a process builds each
     parent once (a grid whose nested option varies fastest would otherwise interleave the
-    groups and rebuild their parents unit after unit)."""
+    groups and rebuild their parents unit after unit). A unit planned twice (the same
+    ``[[method]]`` listed twice) is kept once. Linear in the number of units."""
     scene_hashes = {c["id"]: case_scene(c).content_hash() for c in spec.cases}
     by_id = {c["id"]: c for c in spec.cases}
     meta = {"name": spec.name, "hash": spec.hash}
-    units = []
+    units, seen = [], set()
     for m in spec.methods:
         parents = _nested_parents(m["name"], m["option_sets"])
         groups = {}
         for i, parent in enumerate(parents):
-            groups.setdefault(i if parent is None else json.dumps(parent, sort_keys=True), []).append(i)
+            groups.setdefault(i if parent is None else options_text(parent), []).append(i)
         order = [i for members in groups.values() for i in members]
         for cid in m["cases"]:
             for opts, parent in ((m["option_sets"][i], parents[i]) for i in order):
                 case = by_id[cid]
                 key = unit_key(case, scene_hashes[cid], m["name"], opts, m["protocol"])
-                units.append(WorkUnit(case, m["name"], opts, dict(m["protocol"]), meta, key, parent))
+                if key not in seen:
+                    seen.add(key)
+                    units.append(WorkUnit(case, m["name"], opts, dict(m["protocol"]), meta, key, parent))
     return units
 
 
 def _nested_parents(method: str, option_sets: list) -> list:
     """Per option set, the options with the method's nested options at the maximum over the
-    sets that agree on every other option (None when nothing is nested or a value is not a number)."""
+    sets that agree on every other option (None when nothing is nested or a value is not a
+    number). One pass to group the sets, one to read the groups: linear in the sets."""
     nested = method_class(method).nested
-    out = []
-    for opts in option_sets:
-        rest = {k: v for k, v in opts.items() if k not in nested}
-        group = [o for o in option_sets if {k: v for k, v in o.items() if k not in nested} == rest]
-        parent = dict(opts)
+    if not nested:
+        return [None] * len(option_sets)
+    rest_of = [options_text({k: v for k, v in o.items() if k not in nested}) for o in option_sets]
+    groups: dict = {}
+    for opts, rest in zip(option_sets, rest_of):
+        groups.setdefault(rest, []).append(opts)
+    tops: dict = {}
+    for rest, group in groups.items():
+        top = {}
         for k in nested:
             values = [o.get(k) for o in group]
-            if k not in opts or not all(isinstance(v, int) and not isinstance(v, bool) for v in values):
-                parent = None
-                break
-            parent[k] = max(values)
-        out.append(parent if parent and len(group) > 1 else None)
+            top[k] = max(values) if all(isinstance(v, int) and not isinstance(v, bool) for v in values) else None
+        tops[rest] = top
+    out = []
+    for opts, rest in zip(option_sets, rest_of):
+        top = tops[rest]
+        if len(groups[rest]) < 2 or any(k not in opts or top[k] is None for k in nested):
+            out.append(None)
+        else:
+            out.append({**opts, **top})
     return out

@@ -10,7 +10,6 @@ sweep goes on. Ctrl-C stops after releasing the lock, saying how to resume.
 """
 from __future__ import annotations
 
-import json
 import shutil
 import tempfile
 import time
@@ -21,9 +20,10 @@ import pandas as pd
 
 from .executors import check_executor, execute
 from .metrics import TOLERANCES, pareto_front
-from .results import ResultsStore, read_latency, read_outputs, read_points, read_units
+from .results import (ResultsStore, SweepManifestError, read_latency, read_outputs, read_points, read_sweep_manifest,
+                      read_units)
 from .spec import SweepSpec, expand_units
-from .store import check_output_location, provenance
+from .store import _writable, check_output_location, provenance
 
 __all__ = ["SweepSummary", "run_sweep", "check_output_folder", "write_derived"]
 
@@ -44,6 +44,8 @@ def check_output_folder(out: Path, resume: bool) -> None:
     and a folder that holds a sweep without ``resume``."""
     check_output_location(out, overwrite=True)
     out = Path(out)
+    if out.is_dir() and not _writable(out):
+        raise ValueError(f"--out = {out}: the folder is not writable")
     if out.is_dir() and any(out.glob("case=*")) and not resume:
         raise FileExistsError(f"results folder {out} holds a sweep; pass --resume to continue it, "
                               "or choose another --out")
@@ -66,6 +68,22 @@ def _plan(units, store, resume, log):
     return pending, skipped, stale
 
 
+def check_same_spec(out: Path, spec: SweepSpec, units, store: ResultsStore) -> None:
+    """Refuse to resume into a folder holding units this spec does not plan (module docstring)."""
+    planned = {u.identity for u in units}
+    foreign = [(k, ident) for k, ident in store.finished().items() if ident not in planned]
+    if not foreign:
+        return
+    try:
+        stored = read_sweep_manifest(out, missing_ok=True).get("spec_hash", "unknown (no _sweep.json)")
+    except SweepManifestError as exc:
+        stored = f"unknown ({exc})"
+    key, (case, method, options) = foreign[0]
+    raise ValueError(f"--resume: results folder {out} holds {len(foreign)} units that spec {spec.name!r} (hash "
+                     f"{spec.hash[:16]}) does not plan, e.g. {case} {method} {options}; they were written by the "
+                     f"spec of hash {str(stored)[:16]}. Resume with that spec, or choose another --out")
+
+
 def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | None = None,
               scheduler: str | None = None, resume: bool = False, progress: bool = True, log=print) -> SweepSummary:
     """Run a sweep into results folder ``out`` (module docstring)."""
@@ -73,37 +91,61 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
     check_executor(executor, workers, scheduler)
     check_output_folder(out, resume)
     units = expand_units(spec)
+    if not units:
+        raise ValueError(f"spec {spec.name!r}: plans no unit (no method runs on the selected cases)")
     t_start = time.perf_counter()
     store = ResultsStore(out)
     store.acquire()
+    state = "running"
     try:
         store.clean_temporaries()
+        if resume:
+            check_same_spec(out, spec, units, store)
         pending, skipped, stale = _plan(units, store, resume, log if progress else (lambda *_: None))
         summary = SweepSummary(out, len(units), skipped=[u.key for u in skipped], recomputed=[u.key for u, _ in stale])
-        store.write_manifest(_manifest(spec, units, executor, "running"))
-        bar = _bar(len(units), len(skipped), progress)
-        stale_old = {u.key: old for u, old in stale}
-        try:
-            for unit, outcome in execute(pending, executor, workers, scheduler):
-                store.write_unit(outcome)
-                if unit.key in stale_old:
-                    store.remove_unit(unit.case["id"], unit.method, stale_old[unit.key])
-                summary.computed.append(unit.key)
-                if outcome.row.get("unit_status") != "ok":
-                    summary.failed.append(unit.key)
-                if bar is not None:
-                    bar.update(1)
-                    bar.write(_line(len(summary.computed) + len(skipped), len(units), unit, outcome.row,
-                                     spec.error_metric))
-        finally:
-            if bar is not None:
-                bar.close()
+        store.write_manifest(_manifest(spec, units, executor, state))
+        state = "failed"  # until it finishes
+        _execute(spec, units, pending, skipped, stale, store, summary, executor, workers, scheduler, progress)
         write_derived(out, spec.error_metric)
         summary.wall_s = time.perf_counter() - t_start
-        store.write_manifest(_manifest(spec, units, executor, "finished", summary))
+        state = "finished"
+        store.write_manifest(_manifest(spec, units, executor, state, summary))
         return summary
+    except KeyboardInterrupt:
+        state = "interrupted"
+        raise
     finally:
+        if state in ("failed", "interrupted"):
+            _mark(store, spec, units, executor, state)
         store.release()
+
+
+def _execute(spec, units, pending, skipped, stale, store, summary, executor, workers, scheduler, progress):
+    bar = _bar(len(units), len(skipped), progress)
+    stale_old = {u.key: old for u, old in stale}
+    try:
+        for unit, outcome in execute(pending, executor, workers, scheduler):
+            store.write_unit(outcome)
+            if unit.key in stale_old:
+                store.remove_unit(unit.case["id"], unit.method, stale_old[unit.key])
+            summary.computed.append(unit.key)
+            if outcome.row.get("unit_status") != "ok":
+                summary.failed.append(unit.key)
+            if bar is not None:
+                bar.update(1)
+                bar.write(_line(len(summary.computed) + len(skipped), len(units), unit, outcome.row,
+                                 spec.error_metric))
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _mark(store, spec, units, executor, state) -> None:
+    """Best effort: record that the sweep stopped (the folder may have turned read-only)."""
+    try:
+        store.write_manifest(_manifest(spec, units, executor, state))
+    except OSError:
+        pass
 
 
 def _manifest(spec, units, executor, state, summary=None) -> dict:
@@ -142,8 +184,7 @@ def plot_trends(out: Path, units, error_metric: str, folder: Path) -> list[Path]
     from ..reports.point_plots import plot_latency, plot_point_errors
     from ..reports.trend_plots import plot_case_trends, plot_histories, plot_option_trends, plot_spectra
 
-    manifest = out / "_sweep.json"
-    cases = json.loads(manifest.read_text()).get("cases", []) if manifest.is_file() else []
+    cases = read_sweep_manifest(out, missing_ok=True).get("cases", [])
     outputs, points = read_outputs(out), read_points(out)
     return (plot_histories(units, points, outputs, folder, error_metric)
             + plot_spectra(units, outputs, folder, error_metric) + plot_option_trends(units, folder, error_metric)
@@ -155,8 +196,7 @@ def plot_trends(out: Path, units, error_metric: str, folder: Path) -> list[Path]
 def paper_points(out: Path) -> pd.DataFrame:
     """The published points of the sweep's paper-resolution cases (``case.paper_points``):
     columns case, label, step_ms, error (empty when none)."""
-    manifest = out / "_sweep.json"
-    cases = json.loads(manifest.read_text()).get("cases", []) if manifest.is_file() else []
+    cases = read_sweep_manifest(out, missing_ok=True).get("cases", [])
     rows = [{"case": c["id"], **p} for c in cases if c.get("resolution") == "paper"
             for p in c.get("paper_points", [])]
     return pd.DataFrame(rows, columns=["case", "label", "step_ms", "error"])

@@ -27,12 +27,12 @@ from ..rom import make_method, method_class
 from .energy import EnergyDrift, model_drift
 from .evaluation import NEEDS_MODEL, build_evaluation
 from .metrics import output_rows, point_rows, summarise_points
-from .protocol import (blas_info, cached_dynamics_system, calibration_seconds, drive, reference_step_seconds,
-                       time_latency)
+from .protocol import (_timing_sequence, blas_info, cached_dynamics_system, calibration_seconds, drive,
+                       reference_step_seconds, time_latency)
 from .store import code_hash, git_commit, package_versions
 from .training import build_training, case_scene
 
-__all__ = ["WorkUnit", "UnitOutcome", "unit_key", "options_text", "run_unit", "DEFAULT_PROTOCOL"]
+__all__ = ["WorkUnit", "UnitOutcome", "unit_key", "options_text", "run_unit", "failed_outcome", "DEFAULT_PROTOCOL"]
 
 DEFAULT_PROTOCOL = {"latency_steps": 200, "warmup": 20, "blas_threads": 1, "reference_samples": 3, "seed": 0}
 
@@ -121,14 +121,22 @@ def run_unit(unit: WorkUnit) -> UnitOutcome:
     try:
         with threadpool_limits(limits=threads, user_api="blas"):
             row.update(_measure(unit, row))
-            row.update(unit_status="ok", message="", unit_wall_s=time.perf_counter() - t0)
+            row.update(unit_status="ok", message="; ".join(row.pop("_notes")), unit_wall_s=time.perf_counter() - t0)
             return UnitOutcome(row, row.pop("_points"), row.pop("_outputs"), row.pop("_latency"))
     except Exception as exc:  # a method that raises is a stored result, not the end of the sweep
         tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
-        for side in ("_points", "_outputs", "_latency"):
+        for side in ("_points", "_outputs", "_latency", "_notes"):
             row.pop(side, None)
         row.update(unit_status="failed", message=f"{tb} (in {_where(exc)})", unit_wall_s=time.perf_counter() - t0)
         return UnitOutcome(row)
+
+
+def failed_outcome(unit: WorkUnit, message: str, wall_s: float = float("nan")) -> UnitOutcome:
+    """The stored row of a unit that could not run to its end outside :func:`run_unit` (its
+    worker process died): ``unit_status = "failed"`` with ``message``."""
+    row = {**_base_row(unit), **_provenance_row()}
+    row.update(unit_status="failed", message=message, unit_wall_s=wall_s)
+    return UnitOutcome(row)
 
 
 def _where(exc) -> str:
@@ -154,6 +162,7 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
     outputs = pd.DataFrame(output_rows(evaluation, driven), columns=["point", "x", "monitor", "reference", "rom",
                                                                        "rel_error"])
     lat = time_latency(model, evaluation, history, int(p["latency_steps"]), int(p["warmup"]), int(p["seed"]))
+    notes, label = _asked_versus_done(unit, model, evaluation, history)
     ref_step = reference_step_seconds(evaluation, unit.case["backend"], int(p["reference_samples"]))
     calib = calibration_seconds()
     h, r = lat["haptic"], lat["reconstruct"]
@@ -166,12 +175,41 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
             "reconstruct_median_s": r.median if r else np.nan, "reconstruct_p99_s": r.p99 if r else np.nan,
             "reference_step_s": ref_step, "speedup": ref_step / h.median if h.median > 0 else np.nan,
             "calibration_s": calib, "haptic_per_calibration": h.median / calib, **blas_info(),
+            "floor_s": lat["floor"].median, "efficiency": lat["floor"].median / h.median,
             "offline_s": offline, "build_peak_bytes": int(peak), "model_bytes": _nbytes(model),
             "scene_hash": scene.content_hash(), "kind": model.kind,  # the built model's (a baseline's varies)
             **{k: evaluation.info.get(k) for k in ("reference_status", "reference_message",
                                                      "reference_energy_growth")}, **energy,
-            "model_info": json.dumps(_jsonable(getattr(model, "info", {}))),
-            "_points": points.to_dict("records"), "_outputs": outputs.to_dict("records"), "_latency": lat["samples"]}
+            "model_info": json.dumps(_jsonable(getattr(model, "info", {}))), "label": label,
+            "_points": points.to_dict("records"), "_outputs": outputs.to_dict("records"), "_latency": lat["samples"],
+            "_notes": notes + _blas_note(unit)}
+
+
+def _asked_versus_done(unit: WorkUnit, model, evaluation, history) -> tuple[list, str]:
+    """What the unit asked for and did not get, said (notes for the row's message) rather than
+    capped silently: fewer modes than ``n_modes`` (the training set spans fewer; the label says
+    ``(N built)``), a ``warmup`` longer than the timing sequence (one pass of it is run)."""
+    notes, label = [], unit.label
+    asked, built = unit.options.get("n_modes"), int(model.n_reduced)
+    if isinstance(asked, int) and not isinstance(asked, bool) and built < asked:
+        notes.append(f"n_modes = {asked} asked, the model has {built} reduced coordinates (the training set or the "
+                     "parent model spans no more)")
+        label = f"{label} ({built} built)"
+    warmup = int(unit.protocol.get("warmup", 0))
+    if warmup:
+        n = len(_timing_sequence(model, evaluation, history, int(unit.protocol["latency_steps"]),
+                                 int(unit.protocol["seed"])))
+        if warmup > n:
+            notes.append(f"warmup = {warmup} asked, {n} untimed steps run (one pass of the {n}-step timing sequence)")
+    return notes, label
+
+
+def _blas_note(unit: WorkUnit) -> list:
+    """A note when the BLAS ran another number of threads than ``blas_threads`` asked (the
+    library caps it at what it was built or started with)."""
+    asked = int(unit.protocol.get("blas_threads") or 0)
+    ran = blas_info()["blas_threads"]
+    return [f"blas_threads = {asked} asked, the BLAS ran {ran}"] if asked and ran and ran != asked else []
 
 
 def _energy_drift(evaluation, driven, backend) -> tuple[dict, dict]:

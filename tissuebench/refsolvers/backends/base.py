@@ -121,7 +121,7 @@ class Backend(ABC):
         cells = self.problem.layout[1]
         return (3 * cells[:, :, None] + np.arange(3)).reshape(len(cells), -1)
 
-    def make_linear_solver(self, name: str = "direct", **options):
+    def make_linear_solver(self, name: str = "auto", **options):
         """A linear solver for this backend (see :mod:`tissuebench.refsolvers.linear_solvers`)."""
         from ..linear_solvers import make_linear_solver
 

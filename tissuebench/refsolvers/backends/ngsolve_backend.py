@@ -500,9 +500,9 @@ class NgsolveBackend(Backend):
             return sp.diags(np.asarray(self._mass.sum(axis=1)).ravel(), format="csr")
         return self._mass.copy()
 
-    def make_linear_solver(self, name="direct", **options):
-        """``"direct"``: NGSolve's sparse Cholesky/UMFPACK (:class:`NgsolveSparseSolver`,
+    def make_linear_solver(self, name="auto", **options):
+        """``"direct"`` and ``"auto"``: NGSolve's sparse Cholesky/UMFPACK (:class:`NgsolveSparseSolver`,
         also ``"cholesky"`` on every backend); other names: the shared solvers."""
-        if name == "direct":
+        if name in ("direct", "auto"):
             return NgsolveSparseSolver(**options)
         return super().make_linear_solver(name, **options)

@@ -10,9 +10,12 @@ offline): P x N + n_q x N operations. The full field of the step is ``F_u w``
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from ..base import OnlineModel, StepResult, check_parameters
+from ..base import DeferredStepResult, OnlineModel, StepResult
+from ..online import parameter
 from .schemes import SCHEMES, StepOperators, VectorAlgebra
 from .vademecum import Evaluator, Vademecum
 
@@ -100,35 +103,55 @@ class DirectModel(OnlineModel):
         factor lies outside its interval (the value is linearly extrapolated, and counted
         in :attr:`extrapolations`); ``"failed"`` on a non-finite state (kept unchanged).
         """
-        mu = check_parameters(mu, ("load_factor",), self.name)
-        lam_new = float(mu["load_factor"])
+        lam_new = parameter(mu, "load_factor", self.name)
         p = self._p
         p[:-1] = self.q
         p[-1] = (lam_new if self.load_at == "end" else self._lam_prev if self.load_at == "start"
                  else 0.5 * (lam_new + self._lam_prev))
         self.n_steps += 1
-        if not np.all(np.isfinite(p)):
+        ev = self._eval
+        s = ev.positions(p)
+        if not math.isfinite(s.sum()) and not np.all(np.isfinite(p)):  # one reduction on the haptic path
             return StepResult(None, "failed", f"step {self.n_steps}: non-finite input (load factor {lam_new!r} "
                               "or the previous state)", {"step": self.n_steps}, mu)
-        w, s = self._eval.weights(p)
+        inside = ev.inside(s)
+        out = None if inside else ev.outside(s)
+        w = ev.blend(s)
         with np.errstate(over="ignore", invalid="ignore"):
-            q = self._R @ w
+            q = np.dot(self._R, w)
         for dst, src in self._shift:
             q[dst] = self.q[src]
-        if not np.all(np.isfinite(q)):
+        if not math.isfinite(q.sum()) and not np.all(np.isfinite(q)):
             return StepResult(None, "failed", f"step {self.n_steps}: non-finite state (extrapolated far outside "
                               "the parameter intervals)", {"step": self.n_steps}, mu)
-        out = self._eval.outside(s)
         self.q, self._lam_prev = q, lam_new
         info = {"weights": w, "step": self.n_steps}
-        if out.size:
+        if out is not None and out.size:
             self.extrapolations += 1
             d = int(out[0])
+            n_out, step, value = out.size, self.n_steps, float(p[d])  # p is overwritten by the next step
             name, (lo, hi) = self.vademecum.param_names[d], (self.vademecum.meshes[d].lo, self.vademecum.meshes[d].hi)
-            msg = (f"step {self.n_steps}: {out.size} parameter(s) outside the vademecum, e.g. {name} = "
-                   f"{p[d]:.6g} not in [{lo:.6g}, {hi:.6g}]; linearly extrapolated")
-            return StepResult(q, "extrapolation", msg, info, mu)
+            return DeferredStepResult(q, "extrapolation", lambda: (
+                f"step {step}: {n_out} parameter(s) outside the vademecum, e.g. {name} = {value:.6g} not in "
+                f"[{lo:.6g}, {hi:.6g}]; linearly extrapolated"), info, mu)
         return StepResult(q, "ok", "", info, mu)
+
+    def floor_ops(self):
+        """The vademecum's evaluation at the current state (positions, the gather of the P factors'
+        elements, the product over parameters), the next coordinates ``R w`` and the output
+        product ``C F_u w``."""
+        ev, p = self._eval, self._p.copy()
+        p[:-1], p[-1] = self.q, 0.0
+        R, q = self._R, np.empty(self._R.shape[0])
+        C_r = getattr(self, "_outputs", (None, None, None))[2]
+        y = np.empty(0 if C_r is None else C_r.shape[0])
+
+        def floor():
+            w = ev.blend(ev.positions(p))
+            np.dot(R, w, out=q)
+            if C_r is not None:
+                np.dot(C_r, w, out=y)
+        return floor
 
     # ------------------------------------------------------------------ fields and outputs
     def _weights(self, result: StepResult):
@@ -169,5 +192,5 @@ class DirectModel(OnlineModel):
         if result.q is None:
             return {n: float("nan") for n in names}
         w = (result.info or {}).get("weights")
-        y = C_r @ w if w is not None else self._outputs[1] @ self.reconstruct(result)
+        y = np.dot(C_r, w) if w is not None else self._outputs[1] @ self.reconstruct(result)
         return dict(zip(names, y.tolist()))

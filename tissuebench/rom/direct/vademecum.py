@@ -101,31 +101,59 @@ class Vademecum:
 class Evaluator:
     """Precomputed arrays for the online evaluation of a :class:`Vademecum`.
 
-    ``weights(p)`` costs a handful of NumPy calls on (P, N) arrays: locate each ``p_d``
-    on its uniform mesh, interpolate the left value plus ``w`` times the element
-    difference, multiply over the parameters.
+    ``weights(p)`` costs a handful of NumPy calls on (P, N) arrays, into buffers kept between
+    calls: locate each ``p_d`` on its uniform mesh, gather the left nodal values and the
+    element differences of every parameter in one ``take`` (they are stored side by side),
+    interpolate, multiply over the parameters.
     """
 
     def __init__(self, vad: Vademecum):
         G = np.ascontiguousarray(vad.factors)
+        P, n, N = G.shape
         self.left = np.ascontiguousarray(G[:, :-1, :])
         self.diff = np.ascontiguousarray(G[:, 1:, :] - G[:, :-1, :])
+        # row (d, k) of the table: [left value | difference] of parameter d's element k
+        self._table = np.ascontiguousarray(np.concatenate([self.left, self.diff], axis=2).reshape(P * (n - 1), 2 * N))
+        self._base = np.arange(P) * (n - 1)
         self.lo = np.array([m.lo for m in vad.meshes])
         self.inv_h = np.array([1.0 / m.h for m in vad.meshes])
         self.last = vad.factors.shape[1] - 2
         self.rows = np.arange(vad.n_params)
         self.tol = 1e-12 * (self.last + 1)
+        self.N = N
+        self._s, self._k = np.empty(P), np.empty(P)
+        self._ki = np.empty(P, dtype=np.int64)
+        self._g = np.empty((P, 2 * N))
+
+    def positions(self, p: np.ndarray) -> np.ndarray:
+        """``s`` (P,): each parameter's position in element units (a buffer, overwritten by the next call)."""
+        s = np.subtract(p, self.lo, out=self._s)
+        s *= self.inv_h
+        return s
+
+    def blend(self, s) -> np.ndarray:
+        """``weights`` (N,), a new array, at finite positions ``s``."""
+        # clip before the cast: truncation is the floor for s >= 0, and s < 0 maps to element 0
+        k = np.clip(s, 0.0, self.last, out=self._k)
+        ki = self._ki
+        ki[:] = k
+        w = np.subtract(s, ki, out=self._k)[:, None]
+        ki += self._base
+        g = self._table.take(ki, axis=0, out=self._g)
+        vals, dv = g[:, :self.N], g[:, self.N:]
+        dv *= w
+        vals += dv
+        with np.errstate(over="ignore", invalid="ignore"):  # far extrapolation: reported by the caller
+            return vals.prod(axis=0)
 
     def weights(self, p: np.ndarray):
         """(weights (N,), s (P,)): ``s`` is the position in element units (outside ``[0, n-1]``: extrapolated)."""
-        s = (p - self.lo) * self.inv_h
-        # clip before the cast: truncation is the floor for s >= 0, and s < 0 maps to element 0
-        k = np.clip(s, 0.0, self.last).astype(np.int64)
-        w = (s - k)[:, None]
-        vals = self.left[self.rows, k]
-        vals += w * self.diff[self.rows, k]
-        with np.errstate(over="ignore", invalid="ignore"):  # far extrapolation: reported by the caller
-            return vals.prod(axis=0), s
+        s = self.positions(p)
+        return self.blend(s), s.copy()
+
+    def inside(self, s) -> bool:
+        """Every parameter within its interval (the haptic path: two reductions)."""
+        return bool(s.min() >= -self.tol and s.max() <= self.last + 1 + self.tol)
 
     def outside(self, s) -> np.ndarray:
         """Indices of the parameters outside their interval."""

@@ -26,6 +26,7 @@ mesh cut to length c (:func:`~.enrichment.to_cut_mesh`).
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -75,7 +76,7 @@ class CuttingModel(OnlineModel):
         lam, V = np.linalg.eigh(proj.K_r)
         keep = lam > 1e-12 * lam.max()  # (pseudo-)inverse: prb's K_bb may be singular for dependent modes
         self._inv = {0: (V[:, keep] / lam[keep]) @ V[:, keep].T}  # inverse of the coupled matrix per cut length
-        self._normals = {}
+        self._contacts = {}  # node -> what a step there reads (_contact)
         self.points = points
         self._c = 0
 
@@ -124,55 +125,96 @@ class CuttingModel(OnlineModel):
     # ------------------------------------------------------------------ step
     def _force(self, mu, lam):
         keys = ("force_x", "force_y", "force_z")
-        if any(k in mu for k in keys):
+        if "force_x" in mu or "force_y" in mu or "force_z" in mu:
             F = np.array([float(mu.get(k, 0.0)) for k in keys])
             if not np.all(np.isfinite(F)):
                 raise ValueError(f"{self.name}.step: non-finite contact force {F.tolist()}")
             return F
         return lam * self.force
 
+    def _contact(self, node: int):
+        """What a step at ``node`` reads, prepared at its first visit: the free rows of its three
+        dofs, which of the three are free, those basis rows and enrichment-correction rows, the
+        outward normal."""
+        entry = self._contacts.get(node)
+        if entry is None:
+            rows = self.vademecum.family.free_index[3 * node + np.arange(3)]
+            keep = rows >= 0
+            rows = rows[keep]
+            G = None if self._G_rows is None else np.ascontiguousarray(self._G_rows[rows])
+            n = self.strip.normal(self.points, node)
+            entry = self._contacts[node] = (rows, keep if not keep.all() else None,
+                                            np.ascontiguousarray(self.basis[rows]), G, n, tuple(map(float, n)))
+        return entry
+
     def step(self, mu) -> StepResult:
         """Coupled reduced solve at the contact position and cut length of ``mu``."""
         if "cut_length" not in mu:
             raise ValueError(f"{self.name}.step: parameter 'cut_length' missing from mu = {dict(mu)}")
-        c = self.strip.check_length(mu["cut_length"])
+        c = mu["cut_length"]
+        if not (type(c) is int and 0 <= c <= self.strip.max_cut_length):
+            c = self.strip.check_length(c)
         ct, status, msg, lam = locate(self.vademecum, mu, self.name, need_S=self.projection == "prb")
         if ct is None:
             return StepResult(None, "failed", msg, mu=dict(mu))
         F = self._force(mu, lam)
-        fam = self.vademecum.family
         node = int(ct.where)
-        rows = fam.free_index[3 * node + np.arange(3)]
-        keep = rows >= 0
-        rows, Fv = rows[keep], F[keep]
-        Minv = self._inverse(c)
+        rows, keep, B, G, n, nf = self._contact(node)
+        Fv = F if keep is None else F[keep]
+        Minv = self._inv.get(c)
+        if Minv is None:
+            Minv = self._inverse(c)
         self._c = c
         b = np.zeros(Minv.shape[0])
-        b[:self.r] = self.basis[rows].T @ Fv if self._gamma is None else self._gamma * (self.basis[rows].T @ Fv)
-        if self._G_rows is not None and c:
-            b[self.r:] = -self._S_measure * (self._G_rows[rows, :len(b) - self.r].T @ Fv)
-        x = Minv @ b
+        r = self.r
+        b[:r] = np.dot(Fv, B) if self._gamma is None else self._gamma * np.dot(Fv, B)
+        if G is not None and c:
+            b[r:] = -self._S_measure * np.dot(Fv, G[:, :len(b) - r])
+        x = np.dot(Minv, b)
         if ct.S_p is not None and self.projection == "prb":
-            x[:self.r] *= ct.S_p
-        u_c = self.basis[rows] @ x[:self.r]  # the contact node is a crack-front node: not enriched
-        n = self._normals.get(node)
-        if n is None:
-            n = self._normals[node] = self.strip.normal(self.points, node)
-        F_n = float(F @ n)
-        F_par = float(np.linalg.norm(F - F_n * n))
+            x[:r] *= ct.S_p
+        u_c = np.dot(B, x[:r])  # the contact node is a crack-front node: not enriched
+        f0, f1, f2 = F.tolist()
+        F_n = f0 * nf[0] + f1 * nf[1] + f2 * nf[2]
+        F_par = math.sqrt((f0 - F_n * nf[0]) ** 2 + (f1 - F_n * nf[1]) ** 2 + (f2 - F_n * nf[2]) ** 2)
         info = {"cut_length": c, "contact_node": node, "contact_displacement": u_c, "F_normal": F_n,
                 "F_parallel": F_par, "cuts": F_par > self.F_cut, "parameter_index": ct.index}
-        return StepResult(x, status, msg, info=info, mu=dict(mu))
+        return StepResult(x, status, msg, info, mu)
+
+    def floor_ops(self):
+        """At the crack tip of the longest cut: the load on the basis rows and on the enrichment
+        corrections, the coupled solve (the product with the inverse kept for that length), the
+        contact displacement."""
+        c = self.strip.max_cut_length
+        Minv = self._inverse(c)
+        rows, keep, B, G, n, nf = self._contact(int(self.strip.tip(c)))
+        F = self.force if keep is None else self.force[keep]
+        r, n_all = self.r, Minv.shape[0]
+        b, x, u_c = np.zeros(n_all), np.empty(n_all), np.empty(len(rows))
+        Gc = None if G is None or not c else np.ascontiguousarray(G[:, :n_all - r])
+        S_p = self.vademecum.S[0] if self.projection == "prb" else None
+
+        def floor():
+            np.dot(F, B, out=b[:r])
+            if Gc is not None:
+                np.dot(F, Gc, out=b[r:])
+            np.dot(Minv, b, out=x)
+            if S_p is not None:
+                x[:r] *= S_p
+            np.dot(B, x[:r], out=u_c)
+        return floor
 
     def outputs(self, result: StepResult) -> dict:
         """Contact displacement (mm) and the parallel contact force (N) of a step."""
         if result.q is None:
             return {k: float("nan") for k in ("contact_ux", "contact_uy", "contact_uz", "F_parallel")}
-        u = np.zeros(3)
-        fam = self.vademecum.family
-        rows = fam.free_index[3 * result.info["contact_node"] + np.arange(3)]
-        u[rows >= 0] = result.info["contact_displacement"]
-        return {"contact_ux": u[0], "contact_uy": u[1], "contact_uz": u[2], "F_parallel": result.info["F_parallel"]}
+        info = result.info
+        keep = self._contact(info["contact_node"])[1]
+        u = info["contact_displacement"].tolist()
+        if keep is not None:
+            it = iter(u)
+            u = [next(it) if k else 0.0 for k in keep]
+        return {"contact_ux": u[0], "contact_uy": u[1], "contact_uz": u[2], "F_parallel": info["F_parallel"]}
 
     def reconstruct(self, result: StepResult) -> np.ndarray:
         """Displacement on the mesh cut to the step's length (originals, then copies)."""

@@ -109,15 +109,55 @@ class PgdModel(LinearReconstruction, OnlineModel):
         fixed = np.setdiff1d(np.arange(self.ndof), self.free_dofs)
         return fixed, np.zeros(len(fixed))
 
+    def prescribed_affine(self):
+        n = self.ndof - len(self.free_dofs)
+        return np.zeros(n), np.zeros(n)
+
     def step(self, mu) -> StepResult:
         """Reduced state at the contact position of ``mu`` (see :mod:`.online`)."""
         c, status, msg, lam = locate(self.vademecum, mu, self.name, need_S=self.projection != "srb")
         if c is None:
             return StepResult(None, "failed", msg, mu=dict(mu))
+        B = self.basis[c.rows if c.block is None else c.block]  # the basis rows the load touches
         if self.proj is None:
-            q = lam * c.S_p
+            q = c.S_p * lam
         else:
-            q = lam * self.proj.coefficients(c.rows, c.values, c.S_p)
-        u_c = self.basis[c.rows] @ q  # displacement at the loaded dofs (tool tip)
-        return StepResult(q, status, msg, info={"contact_displacement": u_c, "parameter_index": c.index},
-                          mu=dict(mu))
+            q = np.dot(c.values, B)  # Phi^T f
+            if self.projection == "prb":  # beta of eq. 14, times S(s_p)
+                q *= self.proj.gamma
+                q = np.dot(self.proj._inv, q)
+                q *= c.S_p
+            if lam != 1.0:
+                q *= lam
+        u_c = np.dot(B, q)  # displacement at the loaded dofs (tool tip)
+        return StepResult(q, status, msg, {"contact_displacement": u_c, "parameter_index": c.index}, mu)
+
+    def floor_ops(self):
+        """At a contact inside the domain: the parameter functions there (prb, vademecum), the
+        projection of the load on the basis rows it touches, the contact displacement and the
+        output product."""
+        fam, vad = self.vademecum.family, self.vademecum
+        j = fam.n_parameters // 2
+        rows, vals = fam.load_at(fam.coords[j] if fam.kind == "line" else fam.nodes[j])
+        B = np.ascontiguousarray(self.basis[rows])
+        w, S2 = np.array([0.5, 0.5]), np.ascontiguousarray(vad.S[j:j + 2] if j + 2 <= len(vad.S) else vad.S[-2:])
+        r = self.basis.shape[1]
+        q, S_p, uc = np.empty(r), np.empty(vad.S.shape[1]), np.empty(len(rows))
+        C_r = getattr(self, "_outputs", (None, None, None))[2]
+        y = np.empty(0 if C_r is None else C_r.shape[0])
+        proj = self.proj
+
+        def floor():
+            if self.projection != "srb":
+                np.dot(w, S2, out=S_p)
+            if proj is None:
+                np.multiply(S_p, 1.0, out=q)
+            elif self.projection == "srb":
+                np.dot(vals, B, out=q)
+            else:
+                np.dot(proj._inv, proj.gamma * (vals @ B), out=q)
+                q.__imul__(S_p)
+            np.dot(B, q, out=uc)
+            if C_r is not None:
+                np.dot(C_r, q, out=y)
+        return floor

@@ -54,7 +54,7 @@ class SrbProjection:
 
     def coefficients(self, rows, values, S_p=None) -> np.ndarray:
         """``q = Phi^T f`` for a load ``values`` on the free-dof ``rows`` (S_p unused)."""
-        return self.basis[rows].T @ values
+        return values @ self.basis[rows]
 
     def coefficients_at(self, j: int) -> np.ndarray:
         """``q`` of the load at parameter node ``j`` (precomputed reduced load)."""
@@ -87,11 +87,15 @@ class PrbProjection:
 
     def beta(self, rows, values) -> np.ndarray:
         """``beta`` of eq. 14 (N modes) for a load ``values`` on the free-dof ``rows``."""
-        return self._inv @ (self.gamma * (self.basis[rows].T @ values))
+        x = values @ self.basis[rows]
+        x *= self.gamma
+        return self._inv @ x
 
     def coefficients(self, rows, values, S_p) -> np.ndarray:
         """Coefficients on X at s_p: ``beta ∘ S(s_p)``."""
-        return self.beta(rows, values) * S_p
+        b = self.beta(rows, values)
+        b *= S_p
+        return b
 
     def coefficients_at(self, j: int) -> np.ndarray:
         return (self._inv @ self.loads_r[:, j]) * self.vademecum.S[j]

@@ -13,7 +13,10 @@ vector); if that does not converge, by load increments (2, 4, 8 ...) up to
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+import scipy.linalg as sla
 
 from ..base import LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, register
 from ..polynomial import check_polynomial_problem, reduced_polynomial
@@ -78,6 +81,7 @@ class PgdSvkModel(LinearReconstruction, OnlineModel):
         self.free_dofs, self.ndof, self.problem = fam.free_dofs, fam.ndof, problem
         self.rtol, self.max_iterations, self.max_increments = rtol, max_iterations, max_increments
         self._L_inv = np.linalg.inv(poly.L)
+        self._gesv = sla.get_lapack_funcs("gesv", (poly.L,))  # the m x m solve without np.linalg's checks
 
     @property
     def n_reduced(self) -> int:
@@ -96,38 +100,68 @@ class PgdSvkModel(LinearReconstruction, OnlineModel):
         fixed = np.setdiff1d(np.arange(self.ndof), self.free_dofs)
         return fixed, np.zeros(len(fixed))
 
+    def prescribed_affine(self):
+        n = self.ndof - len(self.free_dofs)
+        return np.zeros(n), np.zeros(n)
+
     def _newton(self, q, f, scale, norms):
+        force_and_tangent, gesv, tol = self.poly.force_and_tangent, self._gesv, self.rtol * scale
         for _ in range(self.max_iterations):
-            r = self.poly.force(q) - f
-            norms.append(float(np.linalg.norm(r)))
-            if not np.isfinite(norms[-1]):
+            r, K = force_and_tangent(q)
+            r -= f
+            norms.append(math.sqrt(r @ r))
+            if not math.isfinite(norms[-1]):
                 return None
-            if norms[-1] <= self.rtol * scale:
+            if norms[-1] <= tol:
                 return q
-            q = q - np.linalg.solve(self.poly.tangent(q), r)
+            dq, info = gesv(K, r)[2:]
+            if info != 0:
+                return None
+            q = q - dq
         r = self.poly.force(q) - f
-        norms.append(float(np.linalg.norm(r)))
-        return q if norms[-1] <= self.rtol * scale else None
+        norms.append(math.sqrt(r @ r))
+        return q if norms[-1] <= tol else None
 
     def step(self, mu) -> StepResult:
         """Reduced SVK equilibrium under the contact force at the position of ``mu``."""
         c, status, msg, lam = locate(self.vademecum, mu, self.name, need_S=False)
         if c is None:
             return StepResult(None, "failed", msg, mu=dict(mu))
-        f = lam * (self.basis[c.rows].T @ c.values)
-        scale = max(float(np.linalg.norm(f)), 1e-300)
+        f = np.dot(c.values, self.basis[c.rows])
+        if lam != 1.0:
+            f *= lam
+        scale = max(math.sqrt(f @ f), 1e-300)
         norms: list = []
         n = 1
         while n <= self.max_increments:
             q = self._L_inv @ (f / n)  # linear predictor of the first increment
             for k in range(1, n + 1):
-                q = self._newton(q, f * (k / n), scale, norms)
+                q = self._newton(q, f * (k / n) if n > 1 else f, scale, norms)
                 if q is None:
                     break
             if q is not None:
                 info = {"increments": n, "residual_norms": norms, "parameter_index": c.index}
-                return StepResult(q, status, msg, info=info, mu=dict(mu))
+                return StepResult(q, status, msg, info, mu)
             n *= 2
         return StepResult(None, "failed", f"{self.name}: reduced Newton did not converge with up to "
                           f"{self.max_increments} increments (last residual {norms[-1]:.3e}, target "
                           f"{self.rtol * scale:.3e})", info={"residual_norms": norms}, mu=dict(mu))
+
+    def floor_ops(self):
+        """The load on the basis rows of a contact, one Newton iteration (the reduced force and
+        tangent, the m x m solve) and the output product: a step needs at least one."""
+        fam = self.vademecum.family
+        rows, vals = fam.load_at(fam.nodes[fam.n_parameters // 2])
+        B, q = np.ascontiguousarray(self.basis[rows]), 0.5 * (self._L_inv @ (vals @ self.basis[rows]))
+        gesv, poly = self._gesv, self.poly
+        C_r = getattr(self, "_outputs", (None, None, None))[2]
+        y = np.empty(0 if C_r is None else C_r.shape[0])
+
+        def floor():
+            f = vals @ B
+            r, K = poly.force_and_tangent(q)
+            r -= f
+            gesv(K, r)
+            if C_r is not None:
+                np.dot(C_r, q, out=y)
+        return floor

@@ -1,0 +1,176 @@
+"""The gate's A/B mode (``tissuebench check --against REF``): the statistics decide as sized, REF
+is found or its absence said, the probe times what it should, and end to end an injected 2x
+slowdown of one unit is flagged while its untouched neighbour holds."""
+from __future__ import annotations
+
+import subprocess
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tissuebench.studies import ab_probe, ab_stats
+from tissuebench.studies.ab_ref import export_ref, file_at_ref, resolve_ref
+from tissuebench.studies.ab_stats import ratio_interval, verdicts
+from tissuebench.studies.latency_ab import SAMPLE_COLUMNS
+
+
+def _samples(rng, factor, rounds=3, blocks=3, steps=50, noise=0.03, slow_process=0.0, slow_block=0.0,
+             median=20e-6):
+    """Synthetic A/B samples: per process and per block a memory-layout mode 1.6x slower with
+    probability ``slow_process`` / ``slow_block``, per block lognormal jitter ``noise``, per step
+    heavy-tailed noise."""
+    rows = []
+    for side, f in (("ref", 1.0), ("head", factor)):
+        for r in range(rounds):
+            mode = 1.6 if rng.random() < slow_process else 1.0
+            for b in range(blocks):
+                block_mode = 1.6 if rng.random() < slow_block else 1.0
+                level = median * f * mode * block_mode * np.exp(rng.normal(0, noise))
+                steps_s = level * (1 + rng.exponential(0.05, steps))
+                rows += [("u", side, r, b, k, s) for k, s in enumerate(steps_s)]
+    return pd.DataFrame(rows, columns=SAMPLE_COLUMNS)
+
+
+def test_the_interval_covers_the_true_ratio():
+    rng = np.random.default_rng(1)
+    for factor in (1.0, 1.3, 2.0):
+        blocks = _samples(rng, factor).groupby(["side", "round", "block"])["haptic_s"].median().rename(
+            "median_s").reset_index()
+        ratio, lo, hi = ratio_interval(blocks[blocks.side == "ref"], blocks[blocks.side == "head"])
+        assert lo <= factor * 1.01 and hi >= factor * 0.99 and abs(ratio / factor - 1) < 0.05
+
+
+def _sequential(rng, factor, max_rounds=8, **noise):
+    """The A/B's rounds as :func:`run_ab` runs them: 3, then one more while undecided."""
+    frames = []
+    for r in range(max_rounds):
+        frames.append(_samples(rng, factor, rounds=1, **noise).assign(round=r))
+        samples = pd.concat(frames, ignore_index=True)
+        if r + 1 >= 3 and verdicts(samples, 1.3, final=False):
+            break
+    return verdicts(samples, 1.3)["u"]
+
+
+@pytest.mark.parametrize("noise", [{}, pytest.param({"slow_block": 1 / 4}, marks=pytest.mark.slow),
+                                   pytest.param({"slow_process": 1 / 6}, marks=pytest.mark.slow),
+                                   pytest.param({"noise": 0.08}, marks=pytest.mark.slow)])
+def test_a_1_3x_slowdown_is_flagged_and_no_change_is_not(noise, monkeypatch):
+    """The decision rule's error rates on synthetic runs with this machine's noise (block jitter
+    3 %; a memory layout 1.6x slower, measured for pod_interp in 2 of 8 copies and in 1 of 6
+    processes; or 8 % jitter, a loaded machine): >= 95 % of 1.3x slowdowns flagged, <= 5 % of
+    identical runs (the issue's 19 of 20 and 1 of 20). Measured with n = 200 and 4000
+    resamples: 200 of 200 and 0 of 200 in every noise model, 3.0-4.1 rounds on average."""
+    monkeypatch.setattr(ab_stats, "N_BOOT", 1000)  # the same rule, a coarser interval: faster
+    rng = np.random.default_rng(7)
+    n = 100
+    flagged = {f: sum(_sequential(rng, f, **noise).regressed for _ in range(n)) for f in (1.0, 1.3)}
+    assert flagged[1.3] >= 0.95 * n and flagged[1.0] <= 0.05 * n, flagged
+
+
+def _blocks(ref, head):
+    """Samples whose block medians are exactly ``ref`` / ``head`` (one block per round)."""
+    rows = [("u", side, r, 0, k, v) for side, values in (("ref", ref), ("head", head))
+            for r, v in enumerate(values) for k in range(3)]
+    return pd.DataFrame(rows, columns=SAMPLE_COLUMNS)
+
+
+def test_verdicts_name_faster_and_undecided_units():
+    v = verdicts(_blocks([2.0, 2.0, 2.1], [1.0, 1.0, 1.05]), 1.3)["u"]
+    assert v.verdict == "faster" and v.decided and not v.regressed and v.ratio == pytest.approx(0.5)
+    straddles = _blocks([1.0, 1.0], [1.0, 1.3])  # the interval [1, 1.3] holds the threshold 1.14
+    assert "u" not in verdicts(straddles, 1.3, final=False)  # the A/B would go on
+    final = verdicts(straddles, 1.3)["u"]
+    assert not final.decided and final.verdict == "holds" and "undecided" in final.text()
+    assert verdicts(_blocks([1.0, 1.0, 1.0], [1.5, 1.5, 1.6]), 1.3)["u"].regressed
+
+
+def _git(cwd, *args):
+    subprocess.run(["git", *args], cwd=cwd, check=True, capture_output=True)
+
+
+@pytest.fixture
+def two_commits(tmp_path):
+    repo = tmp_path / "repo"
+    (repo / "tissuebench").mkdir(parents=True)
+    _git(repo, "init", "-q")
+    _git(repo, "config", "user.email", "t@t")
+    _git(repo, "config", "user.name", "t")
+    for k in (1, 2):
+        (repo / "tissuebench" / "__init__.py").write_text(f"VERSION = {k}\n")
+        (repo / "base.toml").write_text(f"# baseline {k}\n")
+        _git(repo, "add", ".")
+        _git(repo, "commit", "-qm", f"c{k}")
+    return repo
+
+
+def test_ref_is_resolved_exported_and_its_absence_said(two_commits, tmp_path):
+    sha, why = resolve_ref(two_commits, "HEAD~1")
+    assert len(sha) == 40 and why == ""
+    code = export_ref(two_commits, sha, tmp_path / "code")
+    assert (code / "tissuebench" / "__init__.py").read_text() == "VERSION = 1\n"
+    assert file_at_ref(two_commits, sha, two_commits / "base.toml") == "# baseline 1\n"
+    assert file_at_ref(two_commits, sha, two_commits / "missing.toml") == ""
+    assert file_at_ref(two_commits, sha, tmp_path / "outside.toml") is None
+    shallow = tmp_path / "shallow"
+    _git(tmp_path, "clone", "-q", "--depth", "1", f"file://{two_commits}", str(shallow))
+    assert resolve_ref(shallow, "HEAD~1") == (None, "HEAD~1 is not in this clone's history (a shallow clone)")
+    assert resolve_ref(tmp_path, "HEAD")[1].endswith("is not inside a git checkout")
+    assert "not a commit" in resolve_ref(two_commits, "nope")[1]
+    with pytest.raises(ValueError, match="--against = '--upload-pack=x'"):
+        resolve_ref(two_commits, "--upload-pack=x")
+
+
+class _Model:
+    """A model whose step costs ``cost`` seconds of busy work."""
+
+    def __init__(self, cost):
+        self.cost, self.steps = cost, 0
+
+    def step(self, mu):
+        self.steps += 1
+        end = time.perf_counter() + self.cost
+        while time.perf_counter() < end:
+            pass
+        return type("R", (), {"status": "ok"})()
+
+    def outputs(self, res):
+        return {}
+
+
+def test_the_probe_times_the_asked_steps_and_injects_a_calibrated_slowdown():
+    m = _Model(200e-6)
+    seq = [{"x": 0.1 * i} for i in range(7)]
+    plain = ab_probe.time_block(m, seq, lambda model: None, False, steps=40, warmup=5)
+    assert len(plain) == 40 and m.steps == 45
+    slowed = ab_probe.time_block(m, seq, lambda model: None, False, steps=40, warmup=5,
+                                 extra=0.5 * float(np.median(plain)))
+    assert 1.35 < np.median(slowed) / np.median(plain) < 1.8
+
+
+@pytest.mark.slow
+def test_an_injected_2x_slowdown_is_flagged_and_its_neighbour_holds(tmp_path):
+    """End to end on the project's own git checkout: REF = HEAD's commit (the working tree is
+    this code). anm_pod's step made 2x slower on HEAD's side only: flagged; pod_interp: holds."""
+    from tissuebench.reports.gate import HEAD_ROOT, ABSettings, baseline_rows, check
+    from tissuebench.studies.spec import load_spec
+    from tissuebench.studies.sweep import run_sweep
+
+    if resolve_ref(HEAD_ROOT, "HEAD")[0] is None:
+        pytest.skip("not run from a git checkout (the standalone copy): no REF to compare with")
+    from tests.test_check import SPEC
+
+    spec = tmp_path / "gate.toml"
+    spec.write_text(SPEC)
+    out = tmp_path / "res"
+    run_sweep(load_spec(spec), out, progress=False)
+    anm = next(k for k in baseline_rows(out)[0] if k[1] == "anm_pod")
+    result = check(out, None, against="HEAD", ab=ABSettings(2, 4, 3, inject={anm: 2.0}), log=lambda m: None)
+    assert result.latency_mode == "ab" and result.errors_against == "ref"
+    slow = {f.method for f in result.regressions if f.metric == "latency_ab"}
+    assert slow == {"anm_pod"}, [f.line() for f in result.regressions]
+    by_method = {k[1]: v for k, v in result.ab.items()}
+    assert 1.6 < by_method["anm_pod"].ratio < 2.5 and by_method["pod_interp"].verdict == "holds"
+    stored = pd.read_parquet(out / "_gate" / "ab_samples.parquet")
+    assert set(stored["side"]) == {"ref", "head"} and (out / "_gate" / "ab_ratios.png").is_file()

@@ -1,0 +1,79 @@
+"""Executors survive a worker process that dies (issue 26, item 7: a SIGKILLed worker of the
+``processes`` pool gave a BrokenProcessPool traceback), tested with real SIGKILLs."""
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+import threading
+import time
+
+import pytest
+
+from _workers import sleepy
+from tissuebench.studies.executors import execute
+from tissuebench.studies.units import WorkUnit
+
+
+def _units(*options):
+    case = {"id": "c", "name": "cornea_pinch", "resolution": "ci", "backend": "skfem",
+            "training": {"kind": "path"}, "evaluation": {"kind": "path"}}
+    return [WorkUnit(case, "nearest", o, {}, {"name": "t", "hash": "0" * 64}, f"{i:064x}")
+            for i, o in enumerate(options)]
+
+
+def test_7_a_unit_that_kills_its_worker_is_stored_failed_and_the_others_finish():
+    units = _units({"sleep": 0.3}, {"die": True}, {"sleep": 0.3}, {"sleep": 0.1}, {"sleep": 0.1})
+    t0 = time.perf_counter()
+    done = {u.key: o.row for u, o in execute(units, "processes", 2, run=sleepy)}
+    assert sorted(done) == sorted(u.key for u in units)  # every unit once, none lost
+    dead = done[units[1].key]
+    assert dead["unit_status"] == "failed" and "worker process running this unit died" in dead["message"]
+    assert dead["case"] == "c" and dead["method"] == "nearest"  # a full row: the store writes it
+    assert all(done[u.key]["unit_status"] == "ok" for u in units if u is not units[1])
+    assert time.perf_counter() - t0 < 120
+
+
+def test_7_a_worker_killed_from_outside_loses_no_unit():
+    """SIGKILL of a busy worker (not the unit's doing): its unit and the pool's other units in
+    flight run again, all finish ok."""
+    units = _units(*[{"sleep": 1.5, "n": i} for i in range(4)])
+    killed = []
+
+    def kill_one():
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            children = multiprocessing.active_children()
+            busy = [p for p in children if p.pid and p.is_alive()]
+            if len(busy) >= 2:
+                time.sleep(0.5)  # both workers inside their first unit
+                os.kill(busy[0].pid, signal.SIGKILL)
+                killed.append(busy[0].pid)
+                return
+            time.sleep(0.05)
+
+    threading.Thread(target=kill_one, daemon=True).start()
+    done = {u.key: o.row for u, o in execute(units, "processes", 2, run=sleepy)}
+    assert killed, "no worker was killed: nothing was tested"
+    assert sorted(done) == sorted(u.key for u in units)
+    assert all(r["unit_status"] == "ok" for r in done.values()), done
+    assert str(killed[0]) not in {r["message"] for r in done.values()}
+
+
+def test_minor_an_unreachable_scheduler_marks_the_sweep_failed(tmp_path):
+    from tissuebench.cli import main
+    from tissuebench.studies.results import read_sweep_manifest
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('[sweep]\nname = "s"\n[protocol]\nlatency_steps = 5\n[[case]]\nname = "cornea_pinch"\n'
+                    '[[method]]\nname = "nearest"\n')
+    out = tmp_path / "out"
+    assert main(["sweep", str(spec), "--out", str(out), "--quiet", "--executor", "dask", "--scheduler",
+                 "tcp://127.0.0.1:9"]) == 2
+    assert read_sweep_manifest(out)["state"] == "failed" and not (out / ".lock").exists()
+
+
+@pytest.mark.parametrize("name", ["serial", "processes"])
+def test_execute_yields_every_unit_once(name):
+    units = _units({"sleep": 0.0}, {"sleep": 0.0}, {"sleep": 0.0})
+    assert sorted(u.key for u, _ in execute(units, name, 2, run=sleepy)) == sorted(u.key for u in units)

@@ -1,0 +1,149 @@
+"""The regression gate: ``tissuebench check RESULTS [--baseline FILE] [--against REF] [--require R]``.
+
+Three checks of a sweep's results folder, at least one asked for:
+
+* **Errors, exactly.** With ``--against REF`` (a git ref; CI passes the previous commit),
+  REF's code runs the same sweep on this machine (:mod:`tissuebench.studies.ab_ref`) and
+  every unit's error must equal REF's within ``max(error_rtol * error, error_atol)``
+  (defaults 1e-3 and 1e-9), in either direction, unless the baseline file's entry for that
+  unit changed in this commit (a declared change, noted). Same machine and packages make
+  identical code give bit-identical errors, so nothing here depends on where the baseline
+  was written. Without REF (no ``--against``, a shallow clone, no git) the errors are gated
+  against the baseline file (:mod:`.baseline`) by the same rule, and the gate says so.
+  A unit missing or failed, or with more flagged steps (failed, extrapolated, beyond
+  validity, not reached), regresses too.
+* **Latency, A/B in one run** (``--against REF``): every ok unit re-timed with REF's code and
+  with this code in alternating worker processes (:mod:`tissuebench.studies.latency_ab`); a
+  unit regresses when its HEAD/REF median ratio is judged ``slower`` against
+  ``latency_tolerance`` (default 1.3; rule in :mod:`tissuebench.studies.ab_stats`). Without
+  REF the baseline file's ratios are used (**file mode**: the haptic median over the
+  calibration kernel may not exceed the baseline's times ``file_latency_tolerance``, the
+  baseline first raised to ``latency_floor`` calibrations); they move 2-3x between runs for
+  microsecond steps, which is why the A/B exists.
+* **Absolute requirements** (``--require "rate>=500Hz, error<=2%"``, the report's grammar and
+  p99 rule, :mod:`tissuebench.reports.recommend`): every case needs a unit that meets them.
+
+Nothing passes vacuously: a baseline without units, results that share no unit with what
+they are compared with, or an A/B that compared no unit are errors (exit 2); a sweep whose
+units all failed is a regression (exit 1).
+"""
+from __future__ import annotations
+
+import json
+import math
+import tempfile
+from pathlib import Path
+
+import tomlkit
+
+from ...studies.ab_ref import export_ref, file_at_ref, resolve_ref, run_ref_sweep
+from ..recommend import parse_requirement
+from . import checks
+from .baseline import DEFAULTS, BaselineError, load_baseline, unit_identity, update_baseline
+from .io import GateOutputError, read_gate_results, write_ab_artifacts, write_junit
+from .result import ABSettings, CheckResult, Finding
+
+# the folder holding the tissuebench package this process runs: HEAD's side of every A/B
+HEAD_ROOT = Path(__file__).resolve().parents[3]
+
+__all__ = ["check", "baseline_rows", "ABSettings", "CheckResult", "Finding", "BaselineError", "GateOutputError",
+           "load_baseline", "update_baseline", "write_junit"]
+
+
+def baseline_rows(results_dir) -> tuple[dict, list]:
+    """``({identity: baseline unit values}, [(identity, why left out)])`` of a results folder for
+    :func:`.baseline.update_baseline`: failed units and units without an error or a latency
+    are left out, and said. A unit without a reference step has ``latency_per_reference = 0``."""
+    rows, _ = read_gate_results(results_dir)
+    kept, left = {}, []
+    for k, r in rows.items():
+        now = checks.unit_values(r)
+        if r["unit_status"] != "ok":
+            left.append((k, "failed"))
+        elif math.isnan(now["error"]) or not math.isfinite(now["latency_per_calibration"]):
+            left.append((k, "no error or no latency measured"))
+        else:
+            if not math.isfinite(now["latency_per_reference"]):
+                now["latency_per_reference"] = 0.0
+            kept[k] = {"case": k[0], "method": k[1], "options": k[2], **now}
+    return kept, left
+
+
+def check(results_dir, baseline=None, against: str | None = None, require: str | None = None,
+          ab: ABSettings | None = None, log=print, repo=None) -> CheckResult:
+    """Gate a results folder (module docstring). ``repo``: the git checkout REF is taken from
+    (default: the one this package runs from; HEAD's code is always this package). ValueError
+    (exit 2) for bad input and for a gate that would compare nothing."""
+    if baseline is None and against is None and require is None:
+        raise ValueError("check: give --baseline FILE, --against REF or --require REQUIREMENT (or several)")
+    requirement = parse_requirement(require) if require is not None else None
+    rows, metric = read_gate_results(results_dir)
+    defaults, units = load_baseline(baseline) if baseline is not None else (dict(DEFAULTS), [])
+    out = CheckResult()
+    ok_rows = {k: r for k, r in rows.items() if r["unit_status"] == "ok"}
+    if not ok_rows:
+        out.add(("*", "*", "*"), Finding("*", "*", "*", "unit_status", len(rows), 0,
+                                         f"all {len(rows)} units of the sweep failed"))
+    repo = HEAD_ROOT if repo is None else Path(repo)
+    sha, why = resolve_ref(repo, against) if against is not None else (None, "")
+    if against is not None and sha is None:
+        if not units:
+            raise ValueError(f"--against {against}: {why}; and no --baseline to fall back to")
+        out.notes.append(f"--against {against}: {why}: falling back to the baseline file {baseline}")
+    if sha is not None:
+        with tempfile.TemporaryDirectory(prefix="tissuebench-ref.") as tmp:
+            ref_root = export_ref(repo, sha, Path(tmp) / "code")
+            _against_ref(out, results_dir, rows, ok_rows, units, defaults, baseline, repo, sha, against, ref_root,
+                         Path(tmp), ab or ABSettings(), log)
+    elif units:
+        checks.errors_against_baseline(out, rows, units, defaults)
+        checks.latency_from_file(out, rows, units, defaults, "" if against else "no --against: ")
+    if requirement is not None:
+        checks.requirement_met(out, rows, requirement, metric)
+    return out
+
+
+def _against_ref(out, results_dir, rows, ok_rows, units, defaults, baseline, repo, sha, against, ref_root, tmp,
+                 settings, log) -> None:
+    manifest = json.loads((Path(results_dir) / "_sweep.json").read_text())
+    name = f"{against} ({sha[:12]})"
+    ran, why = run_ref_sweep(ref_root, manifest["spec_text"], manifest.get("resolution", "ci"),
+                             sorted({k[0] for k in rows}), tmp / "ref-sweep", log)
+    ref_rows = {}
+    if ran and why:
+        out.notes.append(f"errors: {why}")
+    if ran:
+        try:
+            ref_rows, _ = read_gate_results(tmp / "ref-sweep")
+        except ValueError as exc:
+            ran, why = False, f"its results cannot be read here: {exc}"
+    if ran:
+        checks.errors_against_ref(out, rows, ref_rows, units, defaults, _declared(repo, sha, baseline, units), name)
+    elif units:
+        out.notes.append(f"errors: {name} could not run the sweep ({why}): compared with the baseline file")
+        checks.errors_against_baseline(out, rows, units, defaults)
+    else:
+        raise ValueError(f"--against {against}: REF's sweep did not run ({why}) and there is no --baseline")
+    if ok_rows:
+        samples = checks.latency_ab(out, results_dir, ok_rows, units, defaults, ref_root, HEAD_ROOT, name, settings,
+                                    log)
+        note = write_ab_artifacts(results_dir, samples, out.ab, against, sha)
+        if note:
+            out.notes.append(note)
+
+
+def _declared(repo, sha: str, baseline, units: list) -> set:
+    """Identities whose baseline entry (error, flagged steps) this change adds or edits: the
+    baseline file now against the same file at REF."""
+    if baseline is None:
+        return set()
+    text = file_at_ref(repo, sha, baseline)
+    if text is None:  # a baseline outside the repository: no commit can declare a change
+        return set()
+    old = {}
+    try:
+        for t in (tomlkit.parse(text).unwrap().get("unit", []) if text else []):
+            old[unit_identity(t["case"], t["method"], t["options"])] = (t.get("error"), t.get("flagged_steps"))
+    except Exception:  # REF's file is damaged or of another format: every entry counts as edited
+        old = {}
+    return {u["_identity"] for u in units if old.get(u["_identity"]) != (u["error"], u["flagged_steps"])}

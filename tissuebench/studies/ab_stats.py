@@ -1,0 +1,130 @@
+"""Verdicts of an A/B latency comparison (:mod:`.latency_ab`): HEAD/REF ratio of medians with
+a bootstrap confidence interval, and the decision against a tolerance.
+
+Observations are block medians (one per block of haptic steps, each block on a fresh copy
+of the model, each round a fresh worker process per side). The statistic is the ratio of
+the *lower quartiles* of HEAD's and REF's block medians: what moves a block median apart
+from the code is one-sided (a memory layout that puts a microsecond step 1.6x slower, the
+other core's load, a page fault), while a change of the code moves every block, so the
+lower quartile is the code's speed with the least noise, and stays put unless most blocks
+of a side are disturbed (timeit's reasoning for its minimum, made robust). Its
+confidence interval is a two-stage (hierarchical) percentile bootstrap: rounds (worker
+processes) are resampled, then blocks within each drawn round, because block medians of
+one process share that process's state and are not independent samples of the code's
+speed.
+
+The decision is sized by ``tolerance`` (default 1.3: the slowdown the gate must catch). A
+test "lower bound > tolerance" would flag an actual 1.3x slowdown in only ~5 % of runs (at
+the boundary a one-sided 95 % bound exceeds the truth 5 % of the time), so the threshold is
+the geometric midpoint between no change and the tolerance, ``sqrt(tolerance)`` (1.14 for
+1.3), where the errors of both kinds are balanced. A unit is
+
+* ``slower`` (a regression) when the interval lies above the threshold;
+* ``holds`` when it lies below (``faster`` when it lies below ``1 / threshold``);
+* undecided otherwise: the A/B runs more rounds; when it stops (``max_rounds`` or the time
+  budget) an undecided unit is judged by its point estimate and says so.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+__all__ = ["ABVerdict", "block_medians", "ratio_interval", "verdicts", "decided_units"]
+
+CONFIDENCE = 0.95
+N_BOOT = 4000
+LEVEL_QUANTILE = 0.25  # of the block medians: the statistic (module docstring)
+
+
+@dataclass(frozen=True)
+class ABVerdict:
+    """The A/B outcome of one unit: ratio HEAD/REF of the haptic step level (lower quartile of
+    block medians), its interval, the levels [s], the observations behind them and the verdict."""
+
+    uid: str
+    ratio: float
+    low: float
+    high: float
+    ref_median_s: float  # the side's level: lower quartile of its block medians
+    head_median_s: float
+    rounds: int
+    blocks: int
+    threshold: float
+    verdict: str  # slower | holds | faster
+    decided: bool
+
+    @property
+    def regressed(self) -> bool:
+        return self.verdict == "slower"
+
+    def text(self) -> str:
+        how = "" if self.decided else " (undecided: judged by the estimate)"
+        return (f"HEAD/REF {self.ratio:.3f} [{self.low:.3f}, {self.high:.3f}] ({self.head_median_s * 1e6:.4g} vs "
+                f"{self.ref_median_s * 1e6:.4g} us, {self.rounds} rounds x {self.blocks} blocks){how}")
+
+
+def block_medians(samples: pd.DataFrame) -> pd.DataFrame:
+    """One row per (uid, side, round, block): the block's median haptic step [s]."""
+    return samples.groupby(["uid", "side", "round", "block"], sort=True)["haptic_s"].median().rename(
+        "median_s").reset_index()
+
+
+def _grid(obs: pd.DataFrame) -> np.ndarray:
+    """Block medians of one side as a (rounds, blocks) array (ragged rounds padded by resampling)."""
+    groups = [g["median_s"].to_numpy(float) for _, g in obs.groupby("round", sort=True)]
+    k = max(len(g) for g in groups)
+    return np.vstack([np.resize(g, k) for g in groups])
+
+
+def _boot_medians(grid: np.ndarray, rng, n_boot: int) -> np.ndarray:
+    r, k = grid.shape
+    rows = rng.integers(0, r, size=(n_boot, r))
+    cols = rng.integers(0, k, size=(n_boot, r, k))
+    return np.quantile(grid[rows[:, :, None], cols].reshape(n_boot, r * k), LEVEL_QUANTILE, axis=1)
+
+
+def ratio_interval(ref: pd.DataFrame, head: pd.DataFrame, confidence: float = CONFIDENCE, n_boot: int | None = None,
+                   seed: int = 0) -> tuple[float, float, float]:
+    """``(ratio, low, high)`` of HEAD/REF lower quartiles of block medians (module docstring)."""
+    a, b = _grid(ref), _grid(head)
+    n_boot = n_boot or N_BOOT
+    rng = np.random.default_rng(seed)
+    boot = np.log(_boot_medians(b, rng, n_boot)) - np.log(_boot_medians(a, rng, n_boot))
+    q = (1 - confidence) / 2
+    lo, hi = np.quantile(boot, [q, 1 - q])
+    ratio = float(np.quantile(b, LEVEL_QUANTILE) / np.quantile(a, LEVEL_QUANTILE))
+    return ratio, float(math.exp(lo)), float(math.exp(hi))
+
+
+def verdicts(samples: pd.DataFrame, tolerance: float | dict = 1.3, final: bool = True) -> dict:
+    """``{uid: ABVerdict}`` of every unit with samples on both sides; ``tolerance`` a number or
+    ``{uid: number}``. With ``final=False`` undecided units are left out (the A/B goes on)."""
+    out = {}
+    if samples.empty:
+        return out
+    med = block_medians(samples)
+    for uid, g in med.groupby("uid", sort=True):
+        ref, head = g[g["side"] == "ref"], g[g["side"] == "head"]
+        if ref.empty or head.empty:
+            continue
+        tol = tolerance.get(uid, 1.3) if isinstance(tolerance, dict) else tolerance
+        thr = math.sqrt(float(tol))
+        ratio, lo, hi = ratio_interval(ref, head)
+        decided = lo > thr or hi < thr
+        if not decided and not final:
+            continue
+        slower = lo > thr if decided else ratio > thr
+        verdict = "slower" if slower else ("faster" if (hi if decided else ratio) < 1 / thr else "holds")
+        rounds = int(head["round"].nunique())
+        out[uid] = ABVerdict(uid, ratio, lo, hi, float(np.quantile(ref["median_s"], LEVEL_QUANTILE)),
+                             float(np.quantile(head["median_s"], LEVEL_QUANTILE)),
+                             rounds, len(head) // rounds, thr, verdict, decided)
+    return out
+
+
+def decided_units(tolerance: float | dict = 1.3):
+    """The ``decide`` callback of :func:`.latency_ab.run_ab`: the uids whose interval is clear."""
+    return lambda samples: set(verdicts(samples, tolerance, final=False))

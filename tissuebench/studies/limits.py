@@ -1,0 +1,227 @@
+"""The values a sweep spec may hold, checked when the spec loads (before any work).
+
+Every count of a spec has a named maximum (:data:`LIMITS`), so a typo cannot ask for 10**9
+latency steps or reference samples and run for ever; every other value is checked as the
+code that uses it will read it (``training.every = 0`` would be a slice step of zero,
+``evaluation.mus = []`` an evaluation without a point, ``training.positions = 1`` a lattice
+without a spacing). The options of a method are checked against its constructor: the type
+its signature declares (an integer option is an integer: not ``1.5``, ``"3"`` or ``true``),
+finite numbers, integers at most :data:`MAX_OPTION_INT`, then the constructor itself runs
+(its own range checks: ``n_modes >= 1`` ...). :data:`MAX_UNITS` bounds the units one spec
+expands to (``--max-units`` overrides it); it is counted before the grid is expanded.
+
+Every error is a ValueError ``"<key path> = <value>: <what is expected>"``.
+"""
+from __future__ import annotations
+
+import functools
+import inspect
+import math
+
+from ..cases.schema import is_num, value_text
+
+__all__ = ["LIMITS", "MAX_UNITS", "MAX_OPTION_INT", "check_count", "check_protocol", "check_training",
+           "check_evaluation", "check_option_values"]
+
+LIMITS = {
+    # protocol
+    "latency_steps": 100_000, "warmup": 100_000, "blas_threads": 256, "reference_samples": 1_000,
+    "seed": 2 ** 32 - 1,
+    # training
+    "every": 10_000, "repeat": 100, "positions": 1_000, "load_steps": 10_000, "runs": 100,
+    # evaluation
+    "held_out": 1_000, "beyond": 100, "mus": 1_000, "steps_per_length": 10_000, "count": 10_000,
+    "trajectory_steps": 1_000_000,  # t_end / dt of a trajectory evaluation
+}
+MAX_UNITS = 10_000
+MAX_OPTION_INT = 1_000_000  # an integer option (modes, segments, iterations) beyond it is a typo
+_PROTOCOL_MIN = {"latency_steps": 1, "warmup": 0, "blas_threads": 0, "reference_samples": 1, "seed": 0}
+
+
+def _fail(path, value, what):
+    raise ValueError(f"{path} = {value_text(value)}: {what}")
+
+
+def check_count(path, value, name, lo=1):
+    """``value`` an integer in ``[lo, LIMITS[name]]`` (not a bool, not a float)."""
+    hi = LIMITS[name]
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        _fail(path, value, f"expected an integer from {lo} to {hi} (the maximum LIMITS[{name!r}] of "
+              "tissuebench.studies.limits)")
+    return value
+
+
+def check_protocol(path, protocol: dict) -> None:
+    for k, v in protocol.items():
+        check_count(f"{path}.{k}", v, k, _PROTOCOL_MIN[k])
+
+
+def _numbers(path, value, name, lo=1, positive=False):
+    """A list of ``lo`` .. ``LIMITS[name]`` finite numbers (> 0 with ``positive``)."""
+    if not isinstance(value, list) or not lo <= len(value) <= LIMITS[name]:
+        _fail(path, value, f"expected a list of {lo} to {LIMITS[name]} numbers (LIMITS[{name!r}])")
+    for i, x in enumerate(value):
+        if not is_num(x) or (positive and x <= 0):
+            _fail(f"{path}[{i}]", x, "expected a finite number" + (" > 0" if positive else ""))
+    return value
+
+
+def _mu_tables(path, value, name, scene, lo=1):
+    """A list of ``lo`` .. ``LIMITS[name]`` parameter tables, each one the scene accepts."""
+    if not isinstance(value, list) or not lo <= len(value) <= LIMITS[name]:
+        _fail(path, value, f"expected a list of {lo} to {LIMITS[name]} parameter tables (LIMITS[{name!r}])")
+    for i, mu in enumerate(value):
+        if not isinstance(mu, dict):
+            _fail(f"{path}[{i}]", mu, "expected a table of scene parameters")
+        _at(f"{path}[{i}]", scene, mu)
+    return value
+
+
+def _at(path, scene, mu):
+    try:
+        return scene.at(mu)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{path}: {exc}") from None
+
+
+def _needs_position(path, kind, scene):
+    if "position" not in scene.parameters:
+        _fail(f"{path}.kind", kind, f"needs a scene with a [parameters.position] table; {scene.name!r} has none")
+
+
+def _needs_dynamics(path, kind, scene):
+    if scene.analysis.get("type") != "dynamic":
+        _fail(f"{path}.kind", kind, f"needs a dynamic scene; {scene.name!r} is {scene.analysis.get('type')!r}")
+
+
+def check_training(path, training: dict, scene) -> None:
+    """The values of a case's ``training`` table (its keys are already known to the kind)."""
+    kind = training["kind"]
+    if "every" in training:
+        check_count(f"{path}.every", training["every"], "every")
+    if "repeat" in training:
+        check_count(f"{path}.repeat", training["repeat"], "repeat")
+    if kind == "positions":
+        _needs_position(path, kind, scene)
+        positions = training.get("positions", 5)
+        if isinstance(positions, list):
+            _numbers(f"{path}.positions", positions, "positions", lo=2)
+            if len(set(positions)) != len(positions):
+                _fail(f"{path}.positions", positions, "positions must be distinct")
+        else:
+            check_count(f"{path}.positions", positions, "positions", lo=2)  # one point has no spacing
+        if "load_steps" in training:
+            check_count(f"{path}.load_steps", training["load_steps"], "load_steps")
+        mu = {k: training[k] for k in ("max_load_factor", "load_steps") if k in training}
+        lo, _ = scene.parameters["position"]["range"]
+        _at(path, scene, {**mu, "position": lo})
+    if kind == "trajectory":
+        _needs_dynamics(path, kind, scene)
+        if "runs" in training:
+            _mu_tables(f"{path}.runs", training["runs"], "runs", scene, lo=0)
+
+
+def check_evaluation(path, evaluation: dict, scene) -> None:
+    """The values of a case's ``evaluation`` table (its keys are already known to the kind)."""
+    kind = evaluation["kind"]
+    if "every" in evaluation:
+        check_count(f"{path}.every", evaluation["every"], "every")
+    if "beyond" in evaluation:
+        _numbers(f"{path}.beyond", evaluation["beyond"], "beyond", lo=0, positive=True)
+    if kind == "positions":
+        _needs_position(path, kind, scene)
+        held = evaluation.get("held_out")
+        if isinstance(held, list):
+            _numbers(f"{path}.held_out", held, "held_out")
+            for i, s in enumerate(held):
+                _at(f"{path}.held_out[{i}]", scene, {"position": s})
+        elif held is not None:
+            check_count(f"{path}.held_out", held, "held_out")
+    if kind == "trajectory":
+        _needs_dynamics(path, kind, scene)
+        mu = {k: evaluation[k] for k in ("t_end", "load_scale") if k in evaluation}
+        run = _at(path, scene, mu)
+        steps = run.analysis["t_end"] / run.analysis["dt"]
+        if not steps <= LIMITS["trajectory_steps"]:
+            _fail(f"{path}.t_end", run.analysis["t_end"], f"{steps:.3g} time steps of dt = {run.analysis['dt']:g}; "
+                  f"at most {LIMITS['trajectory_steps']} (LIMITS['trajectory_steps'])")
+    if kind == "map":
+        _mu_tables(f"{path}.mus", evaluation.get("mus"), "mus", scene)
+    if "steps_per_length" in evaluation:
+        check_count(f"{path}.steps_per_length", evaluation["steps_per_length"], "steps_per_length")
+    if "count" in evaluation:
+        check_count(f"{path}.count", evaluation["count"], "count")
+
+
+# ------------------------------------------------------------------------------ method options
+def _declared(param) -> str:
+    """The kind of value an option takes: 'bool', 'int', 'float', 'str' or '' (anything),
+    from its annotation (``int | None`` ...) or, without one, its default."""
+    note, default = param.annotation, param.default
+    text = note if isinstance(note, str) else getattr(note, "__name__", "") if note is not inspect.Parameter.empty \
+        else ""
+    for kind in ("bool", "int", "float", "str"):
+        if kind in text.replace(" ", "").split("|"):
+            return kind
+    if isinstance(default, bool):
+        return "bool"
+    for kind, typ in (("int", int), ("float", float), ("str", str)):
+        if isinstance(default, typ):
+            return kind
+    return ""
+
+
+def _nullable(param) -> bool:
+    note = param.annotation if isinstance(param.annotation, str) else ""
+    return param.default is None or "None" in note
+
+
+def _finite(path, value):
+    if isinstance(value, float) and not math.isfinite(value):
+        _fail(path, value, "expected a finite number")
+    if isinstance(value, list):
+        for i, x in enumerate(value):
+            _finite(f"{path}[{i}]", x)
+    if isinstance(value, dict):
+        for k, x in value.items():
+            _finite(f"{path}.{k}", x)
+
+
+def _check_value(path, name, value, param):
+    kind = _declared(param)
+    _finite(f"{path}.{name}", value)
+    if value is None and _nullable(param):
+        return
+    if kind == "bool" and not isinstance(value, bool):
+        _fail(f"{path}.{name}", value, "expected true or false")
+    if kind == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            _fail(f"{path}.{name}", value, "expected an integer")
+        limit = 2 ** 63 - 1 if "seed" in name else MAX_OPTION_INT
+        if abs(value) > limit:
+            _fail(f"{path}.{name}", value, f"expected an integer of at most {limit} in magnitude")
+    if kind == "float" and (isinstance(value, bool) or not is_num(value)):
+        _fail(f"{path}.{name}", value, "expected a finite number")
+    if kind == "str" and not isinstance(value, str):
+        _fail(f"{path}.{name}", value, "expected a string")
+
+
+@functools.lru_cache(maxsize=None)
+def _parameters(cls) -> dict:
+    return dict(inspect.signature(cls.__init__).parameters)
+
+
+def check_option_values(path, cls, options: dict, construct: bool = True) -> None:
+    """The values of one option set of method ``cls`` (module docstring); ``path`` names the
+    spec entry (``method[0].grid``). ``construct=False``: the declared types only."""
+    params = _parameters(cls)
+    for name, value in options.items():
+        if name in params:
+            _check_value(path, name, value, params[name])
+    if not construct:
+        return
+    try:
+        cls(**options)
+    except Exception as exc:  # noqa: BLE001 - a constructor refusing a value (whatever it raises) is bad input
+        shown = ", ".join(f"{k} = {value_text(v)}" for k, v in sorted(options.items()))
+        raise ValueError(f"{path}: method {cls.name!r} refuses the options {{{shown}}}: {exc}") from None
