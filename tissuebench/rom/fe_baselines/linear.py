@@ -95,6 +95,11 @@ class LinearStaticModel(FeModel):
         out, node = self._mu(mu)
         return StepResult(self._solve(self._rhs(out["load_factor"], node)), "ok", mu=out)
 
+    def floor_ops(self):
+        """The step's unavoidable arithmetic: one back-substitution with the offline factor."""
+        b, solve = self.f1.copy(), self._solve
+        return lambda: solve(b)
+
 
 class CondensedLinearModel(LinearStaticModel):
     """Bro-Nielsen condensation: ``q`` = the inputs (loads on the loaded dofs, the moving
@@ -148,6 +153,16 @@ class CondensedLinearModel(LinearStaticModel):
             Y[:, len(self._loaded):] += D_fixed[:, self._moving].toarray()
         self._Y, self._C_ff = np.ascontiguousarray(Y), C_ff
         self.info.update(outputs=len(names), compliance_bytes=int(Y.nbytes))
+
+    def floor_ops(self):
+        """The step's unavoidable arithmetic: the compliance product ``Y z`` (with no output, the
+        inputs ``lam f``)."""
+        from ..online import matvec_floor
+
+        if getattr(self, "_Y", None) is not None:
+            return matvec_floor(self._Y)
+        f, z = self._f1_loaded, np.empty(len(self._f1_loaded))
+        return lambda: np.multiply(f, 0.5, out=z)
 
     def outputs(self, result) -> dict:
         names = getattr(self, "_outputs", ((),))[0]

@@ -20,7 +20,7 @@ import numpy as np
 
 from ...refsolvers.dynamics import SecondOrderSystem, make_integrator
 from ...refsolvers.newton import newton_solve
-from ...refsolvers.sparse_direct import NGSOLVE_MIN_DOFS
+from ...refsolvers.sparse_direct import NGSOLVE_MIN_DOFS, factorized
 from ..base import StepResult, check_parameters
 from .common import DeadLoads, FeModel
 
@@ -96,6 +96,24 @@ class NewtonPathModel(FeModel):
             return StepResult(None, "failed", f"{self.name}: {res.message}", {"iterations": iterations}, mu=out)
         self._u = res.u
         return StepResult(res.u[self.fmap.free], "ok", "", {"iterations": iterations}, mu=out)
+
+    def floor_ops(self):
+        """The step's unavoidable arithmetic: one Newton iteration at the current state (the
+        force and tangent assembled, the tangent factorised and solved); a converged step
+        takes at least one."""
+        be, free = self.backend, self.fmap.free
+        solver = be.make_linear_solver(self.options["linear_solver"], **_solver_options(be, self.options))
+
+        def floor():
+            f, K = be.internal_force_and_tangent(self._u)
+            solver.solve(K[free][:, free], f[free])
+        return floor
+
+
+def _solver_options(backend, options) -> dict:
+    if options["linear_solver"] != "amg-cg":
+        return {}
+    return {"coords": backend.problem.nodes, "free_dofs": backend.problem.free_dofs}
 
 
 def integrator_choice(who, integrator, scene) -> tuple[str, dict]:
@@ -199,3 +217,24 @@ class TrajectoryModel(FeModel):
         if not rep.converged:
             return StepResult(None, "failed", f"{self.name}: {rep.message}", {"iterations": rep.iterations}, mu=out)
         return StepResult(integ.u, "ok", "", {"fixed": integ.uc, "iterations": rep.iterations}, mu=out)
+
+    def floor_ops(self):
+        """The step's unavoidable arithmetic, built at its first call (the step size is known once
+        the model has been started): a linear system, one solve with a factorised effective
+        matrix ``M / dt^2 + K`` (the integrators' own has the same pattern and cost); a nonlinear
+        one, an iteration of Newton: the tangent assembled at the current state, factorised, solved."""
+        sys, state = self.system, {}
+
+        def floor():
+            if "dt" not in state:
+                state["dt"] = self._integ.dt if self._integ is not None else self._pending[2]
+                state["b"] = np.ones(len(sys.free))
+                if sys.linear:
+                    state["solve"] = factorized(sys.M_ff / state["dt"] ** 2 + sys.K0_ff)
+            if sys.linear:
+                state["solve"](state["b"])
+                return
+            u = self._integ.full_u() if self._integ is not None else np.zeros(sys.n)
+            J = sys.M_ff / state["dt"] ** 2 + sys.K_t(u[sys.free], None, u[sys.fixed])
+            factorized(J)(state["b"])
+        return floor
