@@ -120,3 +120,18 @@ def test_19_a_cache_folder_that_is_a_file_or_empty_lists_nothing(tmp_path, monke
     assert (tmp_path / "references").read_text() == "not a folder"
     shutil.rmtree(tmp_path)
     assert main(["cache", "ls"]) == 0 and "0 reference runs" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("edit", [{"wall_s": 10 ** 400}, {"plan": []}, {"files": {"fields.npz": 1}}, {"key": None},
+                                  {"components": "xyz"}])
+def test_a_resealed_meta_with_hostile_values_is_a_miss(tmp_path, scenes, edit):
+    """Found by the 10 000-example fuzzing: an integer beyond the float range in a resealed meta."""
+    scene = scenes[0]
+    cached_solve(scene, cache=tmp_path)
+    entry = _entry(tmp_path, scene)
+    meta = json.loads((entry / "meta.json").read_text())
+    meta.update(edit)
+    (entry / "meta.json").write_text(json.dumps(meta))
+    _reseal(entry, files=False)
+    with pytest.warns(UserWarning, match="corrupted"):
+        assert not cached_solve(scene, cache=tmp_path)[1]

@@ -4,8 +4,8 @@ runs, identical code in <= 1 of 20), measured, not assumed.
 A small sweep (ci meshes) holds a microsecond unit (ANM-POD on the liver, 9 modes, order
 6), a sub-millisecond one (skinning-cubature on the dynamic cube) and two untouched
 microsecond units (POD with interpolated coefficients; POD-Galerkin). Each gate run re-times
-all four A/B against the project's own HEAD commit exactly as ``tissuebench check
---against`` does (:func:`tissuebench.studies.latency_ab.run_ab` with the gate's decision
+all four A/B, both sides running the project's HEAD commit (exported once), exactly as
+``tissuebench check --against`` does (:func:`tissuebench.studies.latency_ab.run_ab` with the gate's decision
 rule), with a calibrated 1.3x slowdown injected on HEAD's side into the first two (a busy
 wait of 0.3x the unit's own warm median after every step). The counts and the wall time
 per gate run are printed and written to ``$TISSUEBENCH_GATE_POWER_OUT`` (JSON) when set::
@@ -87,12 +87,14 @@ def test_gate_power(tmp_path):
     units = ab_units(out, rows)
     method = dict(zip(rows["unit_key"], rows["method"]))
     inject = {u.uid: 1.3 for u in units if method[u.uid] in INJECTED}
+    # both sides run the same exported commit (identical code; HEAD's side carries the injection):
+    # a working tree edited while the benchmark runs cannot leak into it
     ref_root = export_ref(HEAD_ROOT, sha, tmp_path / "ref")
     flagged = {m: 0 for m in method.values()}
     walls, rounds = [], []
     for _ in range(runs):
         t0 = time.perf_counter()
-        samples, failures = run_ab(units, ref_root, HEAD_ROOT, decided_units(1.3), inject=inject, log=lambda m: None)
+        samples, failures = run_ab(units, ref_root, ref_root, decided_units(1.3), inject=inject, log=lambda m: None)
         walls.append(time.perf_counter() - t0)
         assert not failures
         for uid, v in verdicts(samples, 1.3).items():

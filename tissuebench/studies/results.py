@@ -26,7 +26,6 @@ checks ``_sweep.json`` (:class:`SweepManifestError` names the file and the key).
 from __future__ import annotations
 
 import json
-import math
 import os
 import platform
 import re
@@ -38,6 +37,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from ..cases.schema import is_num
 from .schema import LATENCY_COLUMNS, OUTPUT_COLUMNS, POINT_COLUMNS, UNIT_COLUMNS, conform
 from .store import write_json_atomic
 
@@ -269,7 +269,7 @@ def _single_copies(found: list, root: Path, stray: list) -> list:
     return sorted(keep, key=lambda it: str(it[0]))
 
 
-def _read_dataset(root: Path, dataset: str, foreign) -> pd.DataFrame:
+def _read_dataset(root: Path, dataset: str, foreign, as_frame: bool = True) -> pd.DataFrame | None:
     files, stray = _scan(root, dataset)
     columns = _DATASETS[dataset]
     found = []
@@ -285,12 +285,15 @@ def _read_dataset(root: Path, dataset: str, foreign) -> pd.DataFrame:
             continue
         # partition values as pyarrow's hive partitioning reads them (URI-decoded)
         found.append((path, unquote(path.parent.parent.name[5:]), unquote(path.parent.name[7:]), table))
+    kept = _single_copies(found, root, stray)
+    _report_foreign(stray, foreign)
+    if not as_frame:
+        return None
     tables = []
-    for _, case, method, table in _single_copies(found, root, stray):
+    for _, case, method, table in kept:
         n = table.num_rows
         table = table.append_column("case", pa.array([case] * n, pa.string()))
         tables.append(table.append_column("method", pa.array([method] * n, pa.string())))
-    _report_foreign(stray, foreign)
     if not tables:
         return pd.DataFrame()
     df = pa.concat_tables(tables, promote_options="default").to_pandas()
@@ -320,7 +323,7 @@ def foreign_files(root) -> list:
     """``(path, why)`` of every file in a results folder's datasets that the readers ignore."""
     out: list = []
     for dataset in _DATASETS:
-        _read_dataset(Path(root), dataset, out)
+        _read_dataset(Path(root), dataset, out, as_frame=False)
     return out
 
 
@@ -365,7 +368,7 @@ def _is_count(v):
 
 
 def _is_seconds(v):
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+    return is_num(v) and v >= 0  # is_num: not a bool, finite, no integer beyond the float range
 
 
 def _is_hash(v):

@@ -69,15 +69,19 @@ def _plan(units, store, resume, log):
 
 
 def check_same_spec(out: Path, spec: SweepSpec, units, store: ResultsStore) -> None:
-    """Refuse to resume into a folder holding units this spec does not plan (module docstring)."""
-    planned = {u.identity for u in units}
-    foreign = [(k, ident) for k, ident in store.finished().items() if ident not in planned]
-    if not foreign:
-        return
+    """Refuse to resume into a folder holding units this spec does not plan (module docstring);
+    a folder of the same spec (its ``_sweep.json`` has this spec's hash: another ``--cases``
+    selection of it) is this spec's."""
     try:
         stored = read_sweep_manifest(out, missing_ok=True).get("spec_hash", "unknown (no _sweep.json)")
     except SweepManifestError as exc:
         stored = f"unknown ({exc})"
+    if stored == spec.hash:
+        return
+    planned = {u.identity for u in units}
+    foreign = [(k, ident) for k, ident in store.finished().items() if ident not in planned]
+    if not foreign:
+        return
     key, (case, method, options) = foreign[0]
     raise ValueError(f"--resume: results folder {out} holds {len(foreign)} units that spec {spec.name!r} (hash "
                      f"{spec.hash[:16]}) does not plan, e.g. {case} {method} {options}; they were written by the "
@@ -96,15 +100,15 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
     t_start = time.perf_counter()
     store = ResultsStore(out)
     store.acquire()
-    state = "running"
+    state = None  # the folder's manifest is this sweep's once written: then failed until it finishes
     try:
         store.clean_temporaries()
         if resume:
             check_same_spec(out, spec, units, store)
         pending, skipped, stale = _plan(units, store, resume, log if progress else (lambda *_: None))
         summary = SweepSummary(out, len(units), skipped=[u.key for u in skipped], recomputed=[u.key for u, _ in stale])
-        store.write_manifest(_manifest(spec, units, executor, state))
-        state = "failed"  # until it finishes
+        store.write_manifest(_manifest(spec, units, executor, "running"))
+        state = "failed"
         _execute(spec, units, pending, skipped, stale, store, summary, executor, workers, scheduler, progress)
         write_derived(out, spec.error_metric)
         summary.wall_s = time.perf_counter() - t_start
@@ -112,7 +116,7 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
         store.write_manifest(_manifest(spec, units, executor, state, summary))
         return summary
     except KeyboardInterrupt:
-        state = "interrupted"
+        state = state and "interrupted"
         raise
     finally:
         if state in ("failed", "interrupted"):

@@ -192,8 +192,8 @@ def _asked_versus_done(unit: WorkUnit, model, evaluation, history) -> tuple[list
     notes, label = [], unit.label
     asked, built = unit.options.get("n_modes"), int(model.n_reduced)
     if isinstance(asked, int) and not isinstance(asked, bool) and built < asked:
-        notes.append(f"n_modes = {asked} asked, the model has {built} reduced coordinates (the training set or the "
-                     "parent model spans no more)")
+        notes.append(f"n_modes = {asked} asked, the built model has {built} reduced coordinates (what the training "
+                     "set spans, or the method's own stop: see model_info)")
         label = f"{label} ({built} built)"
     warmup = int(unit.protocol.get("warmup", 0))
     if warmup:

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import os
 import re
 import shutil
@@ -38,6 +37,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ...cases.schema import is_num
 from ..store import code_hash, package_versions
 from .plan import ModelPlan
 from .result import ReferenceResult
@@ -119,7 +119,7 @@ def _meta_checksum(meta: dict) -> str:
 
 
 def _finite_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    return is_num(v)  # not a bool, finite, no integer beyond the float range (math.isfinite would overflow)
 
 
 def _check_meta(entry: Path) -> tuple[dict | None, str]:
