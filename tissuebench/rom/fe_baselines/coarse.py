@@ -41,10 +41,10 @@ from ...refsolvers.mesh import node_layout
 from ...refsolvers.remesh import mean_edge_length, remesh
 from ..base import RomMethod, Training, register
 from .common import DeadLoads, FieldMap, check_choice, contact_load, contact_nodes_of, intact_backend, scene_of
-from .corotational import corotational_backend
+from .corotational import corotational_backend, roundoff_force
 from .linear import is_dynamic, linear_static_model
 from .stepping import (NewtonPathModel, TrajectoryModel, dynamic_system, integrator_choice, load_history,
-                       newton_options)
+                       newton_options, with_atol)
 
 __all__ = ["CoarseFe", "coarse_scene", "coarse_problem", "nodal_map"]
 
@@ -248,8 +248,10 @@ class CoarseFe(RomMethod):
         fmap = FieldMap(cpb, fine, T)
         be = make_backend(type(fine_be), cpb)
         follower = fine_be.external_tangent(np.zeros(fine.ndof), 1.0) is not None
+        atol = None
         if self.model == "corotational":
             be = corotational_backend(be)
+            atol = 10.0 * roundoff_force(be)  # the corotational force's round-off floor (see corotational.py)
         loaded = be if follower else DeadLoads(be, fmap.to_solve(fine_be.external_force(np.zeros(fine.ndof), 1.0)))
         info = {"physics": self.model, "coarsening": self.coarsening, "mesh": how,
                 "n_dof": int(cpb.ndof), "n_cells": int(cpb.mesh.n_cells), "fine_n_dof": int(fine.ndof),
@@ -257,17 +259,20 @@ class CoarseFe(RomMethod):
                 "max_clip_distance": far, "loads": "scene's (follower)" if follower else "T^T f (transferred)"}
         contact = None if follower else _contact(fine, fmap)
         if is_dynamic(training, scene):
-            integ = integrator_choice(self.name, self.integrator, scene)
+            name, options = integrator_choice(self.name, self.integrator, scene)
             linear = self.model == "linear" or (self.model == "full" and cpb.material.is_linear)
             history = load_history(training, scene)
-            system = dynamic_system(loaded, training, integ[0], linear, history)
-            return TrajectoryModel(self.name, system, integ, fmap, info, history)
+            system = dynamic_system(loaded, training, name, linear, history)
+            options = options if atol is None else with_atol(name, options, atol)
+            return TrajectoryModel(self.name, system, (name, options), fmap, info, history)
         if self.model == "linear" or cpb.material.is_linear:
             model = linear_static_model(self.name, loaded, fmap, info, contact=contact)
         else:
             opts = newton_options(self.name, self.rtol, self.max_iterations, self.min_increment, self.linear_solver,
                                   len(fmap.free))
             info["linear_solver"] = opts["linear_solver"]
+            if atol is not None:
+                opts["atol"] = info["newton_atol"] = atol
             model = NewtonPathModel(self.name, loaded, fmap, info, opts, contact)
         model.contact_nodes = contact_nodes_of(scene, fine) if contact else None
         return model

@@ -23,21 +23,41 @@ sparse Cholesky from 1000 unknowns, SuperLU below; "amg-cg"), ``integrator``.
 """
 from __future__ import annotations
 
+import numpy as np
+
 from ...refsolvers.backends import make_backend
 from ...refsolvers.corotational import Corotational, small_strain_moduli
 from ..base import RomMethod, Training, register
 from .common import FieldMap, contact_nodes_of, intact_backend, replace_material, scene_of
 from .linear import _contact_of, is_dynamic
 from .stepping import (NewtonPathModel, TrajectoryModel, dynamic_system, integrator_choice, load_history,
-                       newton_options)
+                       newton_options, with_atol)
 
-__all__ = ["CorotationalFe", "corotational_backend"]
+__all__ = ["CorotationalFe", "corotational_backend", "roundoff_force"]
 
 
 def corotational_backend(backend):
     """A scikit-fem backend of ``backend.problem`` with the corotational material of its small-strain moduli."""
     E, nu = small_strain_moduli(backend.problem.material)
     return make_backend("skfem", replace_material(backend.problem, Corotational(E, nu)))
+
+
+def roundoff_force(backend, seed: int = 0) -> float:
+    """The round-off floor [force] of the corotational internal force on the free dofs.
+
+    ``P = 2 mu (F - R) + ...`` cancels to the size of the strain, so at small displacement the
+    force carries an absolute error of about ``mu eps`` per unit area, far above a relative
+    Newton tolerance of the load there (the liver's first time step, 0.02 N: ||r|| stalled at
+    3.8e-12 N against 1.9e-12 N). Measured here as ``|f_int(u) - K(0) u|`` at a random ``u`` of
+    1e-9 x the body's size (the quadratic term is ~1e-9 of the linear one there); Newton's
+    absolute tolerance is ten times it."""
+    pb = backend.problem
+    free = pb.free_dofs
+    u = np.zeros(pb.ndof)
+    size = float(np.linalg.norm(np.ptp(pb.nodes, axis=0)))
+    u[free] = 1e-9 * size * np.random.default_rng(seed).standard_normal(len(free))
+    r = backend.internal_force(u) - backend.tangent(np.zeros(pb.ndof)) @ u
+    return float(np.linalg.norm(r[free]))
 
 
 @register
@@ -61,13 +81,16 @@ class CorotationalFe(RomMethod):
         fmap = FieldMap(be.problem)
         info = {"physics": "corotational", "coarsening": 1.0, "n_dof": int(be.ndof), "E": E, "nu": nu,
                 "backend": "skfem"}
+        atol = 10.0 * roundoff_force(be)
+        info["newton_atol"] = atol
         if is_dynamic(training, scene):
-            integ = integrator_choice(self.name, self.integrator, scene)
+            name, options = integrator_choice(self.name, self.integrator, scene)
             history = load_history(training, scene)
-            system = dynamic_system(be, training, integ[0], False, history)
-            return TrajectoryModel(self.name, system, integ, fmap, info, history)
+            system = dynamic_system(be, training, name, False, history)
+            return TrajectoryModel(self.name, system, (name, with_atol(name, options, atol)), fmap, info, history)
         opts = newton_options(self.name, self.rtol, self.max_iterations, self.min_increment, self.linear_solver,
                               len(fmap.free))
+        opts["atol"] = atol
         info["linear_solver"] = opts["linear_solver"]
         contact = _contact_of(be.problem)
         model = NewtonPathModel(self.name, be, fmap, info, opts, contact)

@@ -25,7 +25,7 @@ from ..base import StepResult, check_parameters
 from .common import DeadLoads, FeModel
 
 __all__ = ["NewtonPathModel", "TrajectoryModel", "newton_options", "dynamic_system", "integrator_choice",
-           "load_history"]
+           "load_history", "with_atol"]
 
 
 def newton_options(who, rtol, max_iterations, min_increment, linear_solver, n_free) -> dict:
@@ -110,6 +110,13 @@ class NewtonPathModel(FeModel):
         return floor
 
 
+def with_atol(name, options: dict, atol: float) -> dict:
+    """Integrator ``options`` with Newton's absolute force tolerance ``newton_atol`` (implicit schemes)."""
+    if not make_integrator(name).implicit or "newton_atol" in options:
+        return dict(options)
+    return {**options, "newton_atol": float(atol)}
+
+
 def _solver_options(backend, options) -> dict:
     if options["linear_solver"] != "amg-cg":
         return {}
@@ -176,7 +183,7 @@ class TrajectoryModel(FeModel):
         self.system, (self.integrator_name, self.integrator_options) = system, integrator
         self.history = history
         self.info.update(integrator=self.integrator_name, integrator_options=dict(self.integrator_options))
-        self._integ = self._pending = None
+        self._integ = self._pending = self._stopped = None
 
     def start(self, mu0=None, state0=None, dt=None) -> None:
         """Prepare a run at ``dt`` from ``state0`` (default rest); the integrator is bound at the first
@@ -186,7 +193,7 @@ class TrajectoryModel(FeModel):
         u0 = v0 = None
         if state0 is not None:
             u0, v0 = self._initial(state0.get("u")), self._initial(state0.get("v"))
-        self._pending, self._integ = (u0, v0, float(dt)), None
+        self._pending, self._integ, self._stopped = (u0, v0, float(dt)), None, None
 
     def _initial(self, x):
         if x is None:
@@ -209,12 +216,15 @@ class TrajectoryModel(FeModel):
             self._integ = make_integrator(self.integrator_name, **self.integrator_options)
             self._integ.start(self.system, u0, v0, dt, t - dt)
         integ = self._integ
+        if self._stopped is not None:  # a failed step left the state behind: the run has ended there
+            return StepResult(None, "failed", self._stopped, {"iterations": 0}, mu=dict(mu))
         if abs(t - (integ.t + integ.dt)) > 1e-6 * integ.dt:
             raise ValueError(f"{self.name}.step: mu['time'] = {t!r} is not the next step {integ.t + integ.dt!r} "
                              f"(dt = {integ.dt!r})")
         out = {"time": t, "load_factor": float(mu["load_factor"]) if "load_factor" in mu else float(self.history(t))}
         rep = integ.step()
         if not rep.converged:
+            self._stopped = f"{self.name}: stopped at t = {integ.t + integ.dt:.6g}: {rep.message}"
             return StepResult(None, "failed", f"{self.name}: {rep.message}", {"iterations": rep.iterations}, mu=out)
         return StepResult(integ.u, "ok", "", {"fixed": integ.uc, "iterations": rep.iterations}, mu=out)
 
