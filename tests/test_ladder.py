@@ -145,3 +145,10 @@ def test_versus_baselines_says_whether_a_rom_beats_the_best_practitioner_baselin
     text = versus_baselines(_ranked([("anm_pod", 0.03, 1e-5), ("corotational_fe", 0.001, 0.5)]))
     assert text.startswith("Neither a ROM nor a practitioner baseline meets it")
     assert versus_baselines(_ranked([("anm_pod", 0.001, 1e-5)])) is None
+
+
+def test_a_coarse_mesh_in_time_costs_its_rmse():
+    units = pd.DataFrame([{**_unit("t", "coarse_fe", '{"coarsening":2}', "co", x_name="time"), "rmse_rel": 0.2}])
+    t = ladder_table(units, _points("co", np.array([0.1, 0.2, 0.3]), [0.05, 3.5, 0.1]))
+    text = ladder_statements(t, "t")[0]
+    assert "costs 20 % (relative RMSE over the run; pointwise up to 350 %)" in text, text
