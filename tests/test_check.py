@@ -16,25 +16,8 @@ from tissuebench.reports.gate import BaselineError, baseline_rows, check, load_b
 from tissuebench.studies.spec import load_spec
 from tissuebench.studies.sweep import run_sweep
 
-SPEC = """
-[sweep]
-name = "gate"
-[protocol]
-latency_steps = 200
-warmup = 20
-reference_samples = 1
-[[case]]
-name = "cornea_pinch"
-training = { kind = "path", every = 2 }
-evaluation = { kind = "path", beyond = [2.0] }
-[[method]]
-name = "anm_pod"
-options = { eps = 1e-6, max_segments = 1 }
-list = [{ n_modes = 4, order = 6 }]
-[[method]]
-name = "pod_interp"
-grid = { n_modes = [4] }
-"""
+from _gate_spec import SPEC
+
 HEADER = "# gate test baseline: a comment that --update-baseline must keep\n"
 
 

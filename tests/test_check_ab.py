@@ -159,7 +159,7 @@ def test_an_injected_2x_slowdown_is_flagged_and_its_neighbour_holds(tmp_path):
 
     if resolve_ref(HEAD_ROOT, "HEAD")[0] is None:
         pytest.skip("not run from a git checkout (the standalone copy): no REF to compare with")
-    from tests.test_check import SPEC
+    from _gate_spec import SPEC
 
     spec = tmp_path / "gate.toml"
     spec.write_text(SPEC)

@@ -17,7 +17,7 @@ from tissuebench.refsolvers import Dirichlet, FollowerPressure, MooneyRivlin, Pr
 from tissuebench.refsolvers.backends import make_backend
 from tissuebench.refsolvers.dynamics import SecondOrderSystem, integrate
 from tissuebench.rom import METHODS, StepResult, Training, make_method
-from tissuebench.rom.wsc import (Subspace, bgbc_cubature, full_cubature, furthest_point_sampling, resolve_count,
+from tissuebench.rom.wsc import (Subspace, full_cubature, furthest_point_sampling, rbf_cubature, resolve_count,
                                  skinning_weights)
 from tissuebench.rom.wsc.cubature import cell_centroids
 from tissuebench.rom.wsc.reduced import CubatureForces
@@ -119,14 +119,14 @@ def test_full_cubature_is_the_exact_reduced_force_and_tangent(small_model):
     assert np.abs(f2 - f).max() <= 1e-14 * np.abs(f).max()
 
 
-def test_bgbc_rule_integrates_volume_and_samples_are_spread(small_model):
+def test_rbf_rule_integrates_volume_and_samples_are_spread(small_model):
     pb, be, _ = small_model
     vol = be.cell_kernel().volumes
     cen = cell_centroids(pb.mesh.points, pb.mesh.cells)
-    cub = bgbc_cubature(cen, vol, 40, seed=0)
+    cub = rbf_cubature(cen, vol, 40, seed=0)
     assert cub.size == 40 and len(np.unique(cub.cells)) == 40
     assert (cub.weights * vol[cub.cells]).sum() == pytest.approx(vol.sum(), rel=1e-12)  # int alpha_j sums to |Omega|
-    exact = bgbc_cubature(cen, vol, pb.mesh.n_cells)
+    exact = rbf_cubature(cen, vol, pb.mesh.n_cells)
     assert np.allclose(exact.weights, 1.0)
 
 

@@ -8,8 +8,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tissuebench.cases.scene import CATALOGUE_DIR, list_cases
+from tissuebench.cases.scene import CATALOGUE_DIR, list_cases, load
 from tissuebench.cli import main
+from tissuebench.reports.run_files import write_result
 from tissuebench.studies.run import run_case
 
 
@@ -106,7 +107,7 @@ def test_a_run_that_fails_midway_leaves_nothing(tmp_path, monkeypatch):
     monkeypatch.setattr(plots, "plot_deformed", broken)
     out = tmp_path / "res"
     with pytest.raises(RuntimeError, match="renderer crashed"):
-        run_case("cornea_pinch", out=out, progress=False)
+        write_result(run_case("cornea_pinch", progress=False), load("cornea_pinch"), out)
     assert list(tmp_path.iterdir()) == []  # neither the folder nor a temporary sibling
 
 

@@ -28,6 +28,7 @@ from tissuebench.cases.meshes import box_mesh
 from tissuebench.cases.scene import CATALOGUE_DIR, load
 from tissuebench.cli import main
 from tissuebench.refsolvers.mesh import Mesh
+from tissuebench.reports.run_files import write_result
 from tissuebench.studies.run import default_out, progress_bar, run_case, safe_name
 from tissuebench.studies.store import clean_leftovers
 
@@ -331,7 +332,7 @@ def test_dynamic_runs_write_a_paraview_time_series(tmp_path, case, monkeypatch):
     pv = pytest.importorskip("pyvista")
     monkeypatch.setattr("tissuebench.reports.plots.plot_deformed", lambda *a, **k: "stub")
     out = tmp_path / case
-    run_case(case, out=out, progress=False)
+    write_result(run_case(case, progress=False), load(case), out)
     fields = np.load(out / "fields.npz", allow_pickle=False)
     reader = pv.get_reader(str(out / "motion.pvd"))
     assert np.allclose(reader.time_values, fields["steps"], rtol=0, atol=0)

@@ -110,7 +110,7 @@ def test_presets_load_and_expand_at_both_resolutions():
         assert ci and paper
         assert len({u.key for u in ci}) == len(ci)  # every unit has its own key
     anm = [u for u in expand_units(load_spec("anm_pod", resolution="paper")) if u.case["id"] == "liver_palpation"]
-    assert len(anm) == 150 and {u.case["resolution"] for u in anm} == {"paper"}
+    assert len([u for u in anm if u.method == "anm_pod"]) == 150 and {u.case["resolution"] for u in anm} == {"paper"}
 
 
 def test_case_mesh_overrides_the_builder_parameters_at_its_resolution(tmp_path):
@@ -370,8 +370,9 @@ def test_cases_option_keeps_only_the_named_cases():
     spec = load_spec("anm_pod", resolution="paper", only=["liver_palpation", "liver_palpation-heldout"])
     units = expand_units(spec)
     assert {u.case["id"] for u in units} == {"liver_palpation", "liver_palpation-heldout"}
-    # the anm_pod paper grid; held out: anm_pod x2, pod_linear x2, nearest, pod_interp x2
-    assert len(units) == 150 + 2 + 2 + 1 + 2
+    # the anm_pod paper grid; held out: anm_pod x2, pod_linear x2, nearest, pod_interp x2; the
+    # practitioner baselines on the path: linear_fe x2, corotational_fe, coarse_fe x4
+    assert len(units) == 150 + 2 + 2 + 1 + 2 + 7
     with pytest.raises(ValueError, match="--cases = 'nope': not a case id"):
         load_spec("anm_pod", only=["nope"])
 

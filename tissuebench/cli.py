@@ -179,14 +179,16 @@ def _run(args) -> int:
 
 
 def _run_scene(scene, args, out) -> int:
+    from .reports.run_files import write_result
     from .studies.describe import paper_comparison
     from .studies.run import run_case
 
     if scene.is_fe and scene.mesh_info.get("fallback"):
         print(f"tissuebench: note: {scene.mesh_info.get('reason', 'built-in fallback shape used')}",
               file=sys.stderr)
-    result = run_case(scene, args.backend, args.resolution, args.variant, out, args.force,
-                      progress=not args.quiet, linear_solver=args.linear_solver)
+    result = run_case(scene, args.backend, args.resolution, args.variant, progress=not args.quiet,
+                      linear_solver=args.linear_solver)
+    write_result(result, scene, Path(out), args.force)
     t = result.table
     monitors = [m["name"] for m in scene.monitors if m["name"] in t]
     cols = [c for c in ("step", "load_factor", "time", "newton_iterations", "converged", "wall_s") if c in t]

@@ -33,6 +33,7 @@ import pandas as pd
 from ..studies.store import git_commit, package_versions
 from .extremes import extremes_table
 from .format import seconds
+from .ladder import ladder_section, versus_baselines
 from .paper import paper_rows
 from .plotly_figures import error_figure, pareto_figure
 from .recommend import LATENCY_STATISTIC, parse_requirement
@@ -73,6 +74,7 @@ def _case_section(data, case, index, requirement, figures, tables):
                "n_units": len(units), "n_plotted": len(pareto_data),
                "n_failed": int((units["unit_status"] != "ok").sum()),
                "pareto_csv": f"pareto_{part}.csv", "error_csv": f"error_{part}.csv", "recommendation": rec,
+               "versus": versus_baselines(rec["ranked"]),
                "ranking": ranking_table(f"ranking_{part}", rec["ranked"]),
                "extremes": extremes_table_view(f"extremes_{part}", ext),
                "offline": offline_table(f"offline_{part}", units), "radius": radius_table(f"radius_{part}", units),
@@ -263,11 +265,14 @@ def write_report(results_dir, out_html, require: str | None = None, case: str | 
     backends = backends_table("backends", data.backends) if data.backends is not None else None
     if backends is not None:
         tables.append(backends)
+    ladder = ladder_section(data, Table)
+    tables += ladder["tables"] if ladder else []
     tables.append(Table("units", [], [], data.units))
     context = {"title": f"tissuebench report: {data.manifest.get('spec_name', data.root.name)}",
                "data_folder": f"{out_html.stem}_data", "requirement": requirement, "require_text": requirement.text,
                "error_metric": data.error_metric, "latency_statistic": LATENCY_STATISTIC, "sections": sections,
-               "papers": papers, "anchors": anchors, "backends": backends, "calibration": calibration(data.units),
+               "papers": papers, "ladder": ladder, "anchors": anchors, "backends": backends,
+               "calibration": calibration(data.units),
                "provenance": provenance_rows(data.manifest, data.units),
                "spec_text": data.manifest.get("spec_text", ""),
                "description": _description(data.manifest), "notes": data.notes, "results_dir": str(data.root),

@@ -358,7 +358,7 @@ class _PodNewtonOnline(_PodOnline):
 
     def start(self, mu0=None, state0=None, dt=None) -> None:
         """Forget the warm start (next step starts from q = 0)."""
-        self._q = np.zeros(self.n_reduced)
+        self._q, self._lam = np.zeros(self.n_reduced), 0.0
 
     def _residual_and_tangent(self, q, lam):
         be, free, Phi = self.backend, self.free_dofs, self.basis
@@ -375,13 +375,13 @@ class _PodNewtonOnline(_PodOnline):
         return r, Phi.T @ (K[free][:, free] @ Phi), scale
 
     def floor_ops(self):
-        """One Newton iteration: the full internal force and tangent at a state of the envelope,
-        their projection and the reduced solve (a step needs at least one; it takes a few)."""
-        lam = self._envelope.get("load_factor", (0.0, 1.0))[1]
-        q = np.zeros(self.n_reduced)
+        """One Newton iteration: the full internal force and tangent at the last converged state
+        (a state the model reached: q = 0 at the envelope's end can be a tangled configuration
+        when the load is a prescribed motion, e.g. the cube's 90 degree twist), their projection
+        and the reduced solve (a step needs at least one; it takes a few)."""
 
         def floor():
-            r, K_r, _ = self._residual_and_tangent(q, lam)
+            r, K_r, _ = self._residual_and_tangent(self._q, self._lam)
             np.linalg.solve(K_r, r)
         return floor
 
@@ -397,7 +397,7 @@ class _PodNewtonOnline(_PodOnline):
             if not np.isfinite(norms[-1]):
                 break
             if norms[-1] <= self.rtol * scale + self._atol:
-                self._q = q
+                self._q, self._lam = q, lam
                 return StepResult(q.copy(), *self._status(lam), info={"iterations": it, "residual_norms": norms},
                                   mu={"load_factor": lam})
             if it == self.max_iterations:

@@ -33,7 +33,8 @@ The case entry's ``evaluation`` table has a ``kind`` (default: the training's):
                 path's last load factor. ``load_scale`` and ``max_load_factor`` reach the
                 model as its load factor (``load_scale * last load factor``).
 ``contact_nodes`` (the surface vademecums, ``pgd`` and ``pgd_svk``, whose model knows its
-                contact nodes) ``count`` contact nodes of the model, evenly spaced through
+                contact nodes, and the practitioner baselines, whose ``contact_nodes`` are the
+                same anterior-surface list) ``count`` contact nodes of the model, evenly spaced through
                 its list; per node the intact scene (no ``[cut]``) with its point load moved
                 onto that node, the full reference path (SVK Newton where the scene is SVK):
                 one point per (node, load factor), ``mu = {node, load_factor}``.
@@ -296,7 +297,7 @@ def contact_scene(scene, node: int):
 def _contact_nodes(scene, case, spec, model):
     """Per contact node of the model: the reference path of the intact scene loaded there."""
     family = getattr(getattr(model, "vademecum", None), "family", None)
-    nodes = None if family is None else family.nodes
+    nodes = getattr(model, "contact_nodes", None) if family is None else family.nodes  # or a baseline's
     if nodes is None:
         raise ValueError(f"evaluation.kind = 'contact_nodes' needs a surface vademecum (pgd, pgd_svk on a 3D "
                          f"scene); {model.name!r} has no contact nodes")

@@ -1,6 +1,7 @@
-"""Reference runs of catalogue cases, stored with provenance (``tissuebench run``).
+"""Reference runs of catalogue cases (``tissuebench run``).
 
-:func:`run_case` solves a scene with :func:`tissuebench.refsolvers.solve` and writes,
+:func:`run_case` solves a scene with :func:`tissuebench.refsolvers.solve`, with a progress
+bar; the CLI then stores it with :func:`tissuebench.reports.run_files.write_result`,
 atomically (a failed run leaves nothing behind), into one folder:
 
 - ``results.parquet``: one row per load increment or time step (case, backend, step,
@@ -19,13 +20,11 @@ import hashlib
 import re
 from pathlib import Path
 
-import numpy as np
 
 from ..cases.scene import Scene, load
 from .reference import ReferenceResult, solve
-from .store import atomic_directory, check_output_location, clean_leftovers, provenance, write_json_atomic
 
-__all__ = ["run_case", "scene_hash", "write_result", "progress_bar", "default_out", "safe_name"]
+__all__ = ["run_case", "scene_hash", "progress_bar", "default_out", "safe_name"]
 
 
 def scene_hash(scene) -> str:
@@ -73,20 +72,13 @@ def safe_name(text: str) -> str:
 
 
 def run_case(case, backend: str = "skfem", resolution: str = "ci", variant: str | None = None,
-             out: Path | None = None, overwrite: bool = False, progress: bool = True,
-             linear_solver: str = "auto") -> ReferenceResult:
-    """Solve catalogue ``case`` (name, scene file or loaded :class:`Scene`) and, with
-    ``out``, store it (``resolution`` and ``variant`` apply to a name or a file).
-
-    The output location is checked before any work: FileExistsError when ``out`` exists and
-    ``overwrite`` is False, ValueError when it cannot be written (a file, an unwritable
-    parent); what killed runs left beside it is cleaned. A numerical failure is the result's
-    ``status``, still written.
-    """
+             progress: bool = True, linear_solver: str = "auto") -> ReferenceResult:
+    """Solve catalogue ``case`` (name, scene file or loaded :class:`Scene`; ``resolution`` and
+    ``variant`` apply to a name or a file). A numerical failure is the result's ``status``.
+    Store it with :func:`tissuebench.reports.run_files.write_result` (check the output
+    location with :func:`.store.check_output_location` before calling this: no work is
+    wasted on a folder that cannot be written)."""
     scene = case if isinstance(case, Scene) else load(case, resolution=resolution, variant=variant)
-    if out is not None:
-        clean_leftovers(out)
-        check_output_location(out, overwrite)
     bar, update = (progress_bar(f"{scene.name} [{backend}, {resolution}]", scene.analysis["type"],
                                 scene.units.get("time", "s")) if progress else (None, None))
     try:
@@ -94,50 +86,4 @@ def run_case(case, backend: str = "skfem", resolution: str = "ci", variant: str 
     finally:
         if bar is not None:
             bar.close()
-    if out is not None:
-        write_result(result, scene, Path(out), overwrite)
     return result
-
-
-def write_line_vtu(result, path: Path) -> Path:
-    """The final state of a 1D model on its line cells (VTU), one point array per component."""
-    import meshio
-
-    U = result.final_displacement
-    meshio.Mesh(result.points, [("line", result.cells)],
-                point_data={c: U[:, i] for i, c in enumerate(result.components)}).write(path)
-    return Path(path)
-
-
-def write_result(result: ReferenceResult, scene, out: Path, overwrite: bool = False) -> Path:
-    """Write the files of a run into ``out`` atomically (see the module docstring)."""
-    from .describe import paper_comparison
-    from ..reports.figures import plot_line_state, plot_monitors
-    from ..reports.plots import plot_deformed, write_time_series, write_vtu
-
-    with atomic_directory(out, overwrite) as tmp:
-        result.table.to_parquet(tmp / "results.parquet", index=False)
-        np.savez_compressed(tmp / "fields.npz", points=result.points, cells=result.cells,
-                            steps=result.steps, displacement=result.displacement,
-                            components=np.array(result.components))
-        files = {}
-        if result.plan.analysis == "dynamic":
-            write_time_series(result.points, result.cells, result.cell_type, result.components, result.steps,
-                              result.displacement, tmp)
-            files["motion.pvd"] = f"ParaView time series, {len(result.steps)} stored states"
-        if result.cell_type == "line":
-            write_line_vtu(result, tmp / "deformed.vtu")
-            plot_line_state(result, tmp / "deformed.png")
-        else:
-            mesh, u = result.problem.mesh, result.final_displacement.ravel()
-            write_vtu(mesh, u, tmp / "deformed.vtu")
-            files["deformed.png"] = "rendered by " + plot_deformed(
-                mesh, u, tmp / "deformed.png",
-                title=f"{result.case} ({result.backend}, {result.resolution}): {result.status}")
-        plot_monitors(result, tmp / "monitors.png")
-        write_json_atomic(tmp / "manifest.json", provenance(
-            case=result.case, variant=result.variant, resolution=result.resolution, backend=result.backend,
-            scene_file=str(scene.path), scene_hash=scene_hash(scene), status=result.status, ok=result.ok,
-            message=result.message, wall_s=result.wall_s, plan=result.plan.reasons, info=result.info,
-            files=files, paper_comparison=paper_comparison(scene, result.table).to_dict("records")))
-    return out

@@ -223,6 +223,7 @@ def write_derived(out: Path, error_metric: str = "max_rel_l2") -> Path | None:
     if units.empty:
         return None
     from ..reports.sweep_plots import plot_pareto, plot_radius
+    from .ladder import write_ladder
 
     cols = ["case", "method", "label", "options", "unit_key", "unit_status", error_metric, "haptic_median_s",
             "haptic_p99_s", "reconstruct_median_s", "reference_step_s", "speedup", "n_reduced"]
@@ -238,6 +239,7 @@ def write_derived(out: Path, error_metric: str = "max_rel_l2") -> Path | None:
         plot_pareto(pareto, tmp, paper_points(out))
         plot_radius(radius, tmp)
         plot_trends(out, units, error_metric, tmp)
+        write_ladder(out, units, tmp)  # _derived/ladder.parquet, ladder_<case>.png
         if final.exists():
             old = out / "._derived.old"
             shutil.rmtree(old, ignore_errors=True)

@@ -183,6 +183,8 @@ def build_training(case: dict, scene=None) -> Training:
     scene = scene or case_scene(case)
     spec = dict(case["training"])
     kind = spec.pop("kind")
+    # the scene travels with every training: the practitioner baselines (rom.fe_baselines) rebuild it
+    # on a coarser mesh and read its integrator
     info = {"case": scene.name, "variant": scene.variant, "resolution": scene.resolution,
-            "backend": case["backend"], "training_kind": kind, "scene_hash": scene.content_hash()}
+            "backend": case["backend"], "training_kind": kind, "scene_hash": scene.content_hash(), "scene": scene}
     return _BUILDERS[kind](scene, case, spec, info)

@@ -185,7 +185,7 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
             "calibration_s": calib, "haptic_per_calibration": h.median / calib, **blas_info(),
             "floor_s": lat["floor"].median, "efficiency": lat["floor"].median / h.median,
             "offline_s": offline, "build_peak_bytes": int(peak), "model_bytes": _nbytes(model),
-            "scene_hash": scene.content_hash(),
+            "scene_hash": scene.content_hash(), "kind": model.kind,  # the built model's (a baseline's varies)
             **{k: evaluation.info.get(k) for k in ("reference_status", "reference_message",
                                                      "reference_energy_growth", "reference_limit", "x_scale",
                                                      "x_unit")}, **energy,

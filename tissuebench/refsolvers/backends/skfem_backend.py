@@ -77,6 +77,19 @@ def _tl_element_tangents(F, S, CC, grad, dx):
     return K.reshape(e, 3 * n, 3 * n)
 
 
+def _pk1_element_tangents(A, grad, dx):
+    """Element tangents ``K_aibk = sum_q dx g_aJ A_iJkL g_bL`` from ``A = dP/dF`` (e, q, 3, 3, 3, 3),
+    as ``B^T A B`` with ``B`` (3 n_loc, 9) per quadrature point: batched matrix products instead of
+    one six-index einsum (which took ~0.1 s for 128 Q1 cells; materials that give dP/dF themselves:
+    Guccione's fibre part, the corotational material)."""
+    e, q, n = grad.shape[:3]
+    # B[(a, i), (i', J)] = delta_ii' g_aJ
+    B = np.einsum("eqaJ,ik->eqaikJ", grad, np.eye(3)).reshape(e * q, 3 * n, 9)
+    D = (A * dx[:, :, None, None, None, None]).reshape(e * q, 9, 9)
+    K = np.matmul(np.matmul(B, D), B.transpose(0, 2, 1))
+    return K.reshape(e, q, 3 * n, 3 * n).sum(axis=1)
+
+
 class _CellKernel:
     """Shape-function values/gradients of one scalar basis, in tissuebench node numbering."""
 
@@ -126,10 +139,9 @@ class SkfemCellKernel(CellKernel):
     def forces_and_tangents(self, u_loc):
         F = self.deformation_gradient(u_loc)
         P, A = self.material.stress_and_tangent(F)
-        Ke = np.einsum("eqaJ,eqiJkL,eqbL->eaibk", self._G, A, self.grad, optimize=True)
+        Ke = _pk1_element_tangents(A, self.grad, self.dx)
         fe = np.einsum("eqiJ,eqaJ->eai", P, self._G, optimize=True)
-        n = Ke.shape[1] * 3
-        return fe.reshape(len(fe), -1), Ke.reshape(len(Ke), n, n)
+        return fe.reshape(len(fe), -1), Ke
 
 
 class SkfemBackend(Backend):
@@ -198,9 +210,7 @@ class SkfemBackend(Backend):
             P, Ke = F @ S, _tl_element_tangents(F, S, CC, self._k.grad, self._k.dx)
         else:  # the material gives dP/dF itself
             P, A = mat.stress_and_tangent(F)
-            Ke = np.einsum("eqaJ,eqiJkL,eqbL->eaibk", G, A, self._k.grad, optimize=True)
-            n = Ke.shape[1] * 3
-            Ke = Ke.reshape(len(Ke), n, n)
+            Ke = _pk1_element_tangents(A, self._k.grad, self._k.dx)
         fe = np.einsum("eqiJ,eqaJ->eai", P, G, optimize=True)
         return fe.reshape(len(fe), -1), Ke
 

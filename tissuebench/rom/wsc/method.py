@@ -1,8 +1,8 @@
 """``"wsc"``: the weighted-skinning + cubature ROM as a registered trajectory method.
 
 Offline (:meth:`Wsc.build`): handles by furthest-point sampling, skinning weights, the
-subspace and its Dirichlet part, the cubature rule (``bgbc`` without snapshots, ``nnls``
-from training trajectories, ``full``), the reduced mass ``U^T M U`` and the reduced loads.
+subspace and its Dirichlet part, the cubature rule (``bgbc``, the paper's, and ``rbf``, ours,
+without snapshots; ``nnls`` from training trajectories; ``full``), the reduced mass ``U^T M U`` and the reduced loads.
 Online (:class:`WscModel`): ``start`` projects the initial state and factorises the step
 matrix for ``dt``; ``step({"time", "load_factor"})`` advances one implicit step in the
 subspace; the step result carries the full reduced vector ``q`` (``u = U q``, prescribed
@@ -15,19 +15,20 @@ import time
 import numpy as np
 
 from ..base import RomMethod, Training, register
-from .cubature import bgbc_cubature, cell_centroids, full_cubature
+from .cubature import bgbc_cubature, cell_centroids, full_cubature, rbf_cubature
 from .handles import furthest_point_sampling, resolve_count
 from .loads import ReducedLoads
 from .nnls import nnls_cubature
 from .reduced import CubatureForces
-from .stepper import SCHEMES, SOLVERS, ReducedStepper, make_scheme
+from .linsolve import KINDS, PRECISIONS
+from .stepper import HISTORIES, PREDICTORS, SCHEMES, SOLVERS, ReducedStepper, make_scheme
 from .model import WscModel
 from .subspace import Subspace
 from .weights import skinning_weights
 
 __all__ = ["Wsc", "WscModel", "CUBATURES"]
 
-CUBATURES = ("bgbc", "nnls", "full")
+CUBATURES = ("bgbc", "rbf", "nnls", "full")
 
 
 def _positive(name, value, integer=False):
@@ -54,12 +55,14 @@ class Wsc(RomMethod):
         handle -- 3 free dofs on a planar face -- dominates the layers next to the face
         and the subspace cannot follow the deformation there: projection error of the ci
         tension history with 10 handles 2.5 % against 0.5 %).
-    cubature : {"bgbc", "nnls", "full"}
-        Cubature rule (see :mod:`.cubature`, :mod:`.nnls`).
+    cubature : {"bgbc", "rbf", "nnls", "full"}
+        Cubature rule (see :mod:`.cubature`, :mod:`.nnls`): ``bgbc`` the paper's (biharmonic
+        coordinates, libigl; at least 4 sample elements), ``rbf`` ours (normalised radial basis
+        functions), ``nnls`` fitted to training forces, ``full`` every element.
     cubature_elements : int or float
         Sample elements (budget), or a fraction of the elements (paper: 5-7.5 %).
     cubature_support : float
-        BGBC weight-function radius in units of the samples' covering radius (> 1).
+        ``rbf`` weight-function radius in units of the samples' covering radius (> 1).
     nnls_tol : float or None
         Largest accepted relative fit error of the NNLS rule on held-out snapshots (None:
         any, reported only).
@@ -67,8 +70,16 @@ class Wsc(RomMethod):
         Reduced time integrator (the paper's: backward Euler); ``alpha`` for HHT.
     solver : {"lbfgs", "newton"}
     rtol, max_iter, memory : Newton/L-BFGS tolerance, iteration cap, L-BFGS pairs.
-    linear_solver : {"auto", "dense", "sparse"}
-        Solves with the step matrix (auto: dense inverse up to 5000 reduced dofs).
+    linear_solver : {"auto", "dense", "cholesky", "sparse"}
+        Solves with the step matrix (:mod:`.linsolve`; auto: the fastest, timed at build).
+    solve_precision : {"single", "double"}
+        Of the dense step-matrix operator (single: accepted when it recovers seeded solutions to
+        1e-2; it preconditions, the residuals stay in double).
+    predictor : {"explicit", "linearised"}
+        Start of the L-BFGS iteration (:mod:`.stepper`): the explicit Taylor predictor, or one
+        linearised Newton step from the last state (one solve, no evaluation).
+    lbfgs_history : {"step", "run"}
+        L-BFGS pairs kept within a step, or carried from one step to the next.
     on_max_iter : {"fail", "accept"}
         A step that reaches ``max_iter`` fails (default), or is kept with its residual
         reported (``info["converged"] = False``): the paper stops its iteration "when the
@@ -88,7 +99,8 @@ class Wsc(RomMethod):
     def __init__(self, handles=0.03, support=2.0, cubature="bgbc", cubature_elements=0.0625,
                  cubature_support=2.0, nnls_tol=0.05, integrator="backward_euler", alpha=-0.05,
                  solver="lbfgs", rtol=1e-6, max_iter=50, memory=8, linear_solver="auto",
-                 on_max_iter="fail", boundary_support=0.1, track_energy=False, seed=0):
+                 on_max_iter="fail", boundary_support=0.1, track_energy=False, seed=0, solve_precision="single",
+                 predictor="explicit", lbfgs_history="run"):
         if isinstance(handles, bool) or not isinstance(handles, (int, float, np.integer, np.floating)) \
                 or not handles > 0:
             raise ValueError(f"wsc option handles must be a count >= 1 or a fraction in (0, 1), got {handles!r}")
@@ -108,8 +120,14 @@ class Wsc(RomMethod):
             raise ValueError(f"wsc option integrator = {integrator!r}: expected one of {SCHEMES}")
         if solver not in SOLVERS:
             raise ValueError(f"wsc option solver = {solver!r}: expected one of {SOLVERS}")
-        if linear_solver not in ("auto", "dense", "sparse"):
-            raise ValueError(f"wsc option linear_solver = {linear_solver!r}: expected auto, dense or sparse")
+        if linear_solver not in KINDS:
+            raise ValueError(f"wsc option linear_solver = {linear_solver!r}: expected one of {KINDS}")
+        if solve_precision not in PRECISIONS:
+            raise ValueError(f"wsc option solve_precision = {solve_precision!r}: expected one of {PRECISIONS}")
+        if predictor not in PREDICTORS:
+            raise ValueError(f"wsc option predictor = {predictor!r}: expected one of {PREDICTORS}")
+        if lbfgs_history not in HISTORIES:
+            raise ValueError(f"wsc option lbfgs_history = {lbfgs_history!r}: expected one of {HISTORIES}")
         if on_max_iter not in ("fail", "accept"):
             raise ValueError(f"wsc option on_max_iter = {on_max_iter!r}: expected 'fail' or 'accept'")
         if nnls_tol is not None:
@@ -121,7 +139,8 @@ class Wsc(RomMethod):
                             rtol=_positive("rtol", rtol), max_iter=_positive("max_iter", max_iter, True),
                             memory=_positive("memory", memory, True), linear_solver=linear_solver,
                             on_max_iter=on_max_iter, boundary_support=float(boundary_support),
-                            track_energy=bool(track_energy), seed=int(seed))
+                            track_energy=bool(track_energy), seed=int(seed), solve_precision=solve_precision,
+                            predictor=predictor, lbfgs_history=lbfgs_history)
 
     # ------------------------------------------------------------------ offline
     def build(self, training: Training) -> "WscModel":
@@ -163,20 +182,22 @@ class Wsc(RomMethod):
         M_q = sub.reduced_matrix(M)
         loads = ReducedLoads(sub, be)
         forces = CubatureForces(sub, be, cub)
-        linear = o["linear_solver"]
-        if linear == "auto":
-            # measured (cube, 3006 dofs): dense inverse 2.2 ms per solve, sparse LU 6.4 ms (80 % fill)
-            linear = "dense" if sub.n_z <= 5000 else "sparse"
         stepper = ReducedStepper(sub, forces, M_q, loads, self.scheme, o["solver"], o["rtol"], o["max_iter"],
-                                 o["memory"], linear, accept_unconverged=o["on_max_iter"] == "accept")
+                                 o["memory"], o["linear_solver"], accept_unconverged=o["on_max_iter"] == "accept",
+                                 precision=o["solve_precision"], predictor=o["predictor"],
+                                 history=o["lbfgs_history"])
         timings["operators_s"] = time.perf_counter() - tic
         info = {"handles": k, "boundary_handles": len(groups), "n_q": sub.n_q, "n_z": sub.n_z,
                 "covering_radius": fps.covering_radius, "separation": fps.separation, "support_radius": radius,
                 "cubature": cub.scheme, "cubature_elements": cub.size, "cubature_info": cub.info,
-                "linear_solver": linear, "offline": timings, "handle_vertices": fps.indices,
+                "offline": timings, "handle_vertices": fps.indices,
                 "mesh": {"vertices": mesh.n_vertices, "cells": mesh.n_cells}}
         model = WscModel(sub, stepper, pb, info, M, track_energy=o["track_energy"], dt=training.dt,
                          envelope=_envelope(training) if cub.scheme == "nnls" else {})
+        info["linear_solver"] = o["linear_solver"]  # the kind built, once start has factorised (model.start)
+        if o["solver"] == "lbfgs" and training.dt is not None:  # factorised offline, at rest (start reuses it)
+            H, _ = stepper.step_matrix(training.dt, sub.q_of(np.zeros(sub.n_z), model.prescribed_q(0.0)))
+            info["step_matrix"], info["linear_solver"] = H.info, H.kind
         if training.outputs:
             model.attach_outputs(training.outputs)
         return model
@@ -186,9 +207,17 @@ class Wsc(RomMethod):
         if o["cubature"] == "full":
             return full_cubature(pb.mesh.n_cells)
         volumes = be.cell_kernel().volumes
-        centroids = cell_centroids(pb.mesh.points, pb.mesh.cells)
         if o["cubature"] == "bgbc":
-            return bgbc_cubature(centroids, volumes, budget, o["seed"], o["cubature_support"])
+            if pb.mesh.cell_type != "tetra":
+                raise ValueError(f"wsc cubature = 'bgbc' needs a tetrahedral mesh (libigl's biharmonic coordinates), "
+                                 f"got {pb.mesh.cell_type!r}; use cubature = 'rbf'")
+            if budget < 4:
+                raise ValueError(f"wsc cubature = 'bgbc' needs cubature_elements >= 4 (affine functions must be "
+                                 f"pinned), got {o['cubature_elements']!r} ({budget} elements)")
+            return bgbc_cubature(pb.mesh.points, pb.mesh.cells, volumes, budget, o["seed"])
+        centroids = cell_centroids(pb.mesh.points, pb.mesh.cells)
+        if o["cubature"] == "rbf":
+            return rbf_cubature(centroids, volumes, budget, o["seed"], o["cubature_support"])
         return nnls_cubature(sub, be, training, budget, centroids, o["nnls_tol"], o["seed"])
 
 

@@ -69,6 +69,8 @@ class WscModel(OnlineModel):
             z0, qb0 = self.project(state0["u"])
             v0, vb0 = self.project(state0.get("v", np.zeros(self.sub.ndof)))
         self.stepper.start(z0, v0, qb0, vb0, lam0, self._dt)
+        if self.stepper.H is not None:  # what the measured choice built (linsolve)
+            self.info["step_matrix"], self.info["linear_solver"] = self.stepper.H.info, self.stepper.H.kind
         self.reaction_work, self._support0 = 0.0, None
         if self.track_energy:
             self._support0 = self.stepper.support_force()
@@ -97,6 +99,20 @@ class WscModel(OnlineModel):
             status = "extrapolation"
         note = "" if info.get("converged", True) else f"kept unconverged (on_max_iter='accept'): {info['message']}"
         return StepResult(self.stepper.q.copy(), status, note, info, mu)
+
+    def floor_ops(self):
+        """The arithmetic an implicit reduced step cannot avoid (wsc paper §2.3): one cubature
+        evaluation of the reduced force at the current state and one solve with the step
+        matrix the measured choice built; the default floor (:meth:`OnlineModel.floor_ops`)
+        before a start or with the Newton solver (no stored step matrix)."""
+        st = self.stepper
+        if not self.started or st.H is None:
+            return super().floor_ops()
+        q = st.q.copy()
+
+        def floor():
+            return st.H.solve(st.f_z(q)[2])
+        return floor
 
     # ------------------------------------------------------------------ outputs
     def output_map(self):

@@ -9,7 +9,10 @@ For sample elements ``e`` with weights ``w_e`` (:mod:`.cubature`)::
 ``U_e q`` is gathered through the skinning weights of the element nodes: the blended
 affine map of node i, ``B_i = sum_j w_ij A_j`` (a sparse (a m) x k product with the
 12 entries of every A_j), applied to ``[1, X_i]``; the force goes back the same way,
-``f_A[j] = sum_i w_e w_ij [1, X_i] (x) f_i``. No full-size vector is formed. Element
+``f_A[j] = sum_i w_e w_ij [1, X_i] (x) f_i``. No full-size vector is formed; the blended
+maps are formed once per distinct node of the samples (a node shared by sample elements --
+paper cube, 2820 samples: 11 280 element nodes, 7143 distinct -- is blended once, and its
+weighted element forces are summed before they are projected). Element
 energies, force vectors and tangents come from the backend's
 :meth:`~tissuebench.refsolvers.backends.base.Backend.cell_kernel`.
 """
@@ -41,21 +44,26 @@ class CubatureForces:
         self.m, self.a = cell_nodes.shape
         self.n_q = subspace.n_q
         self.phi = sp.csr_matrix(subspace.phi[cell_nodes.ravel()])  # (m a, 4 k)
-        self.W = sp.csr_matrix(subspace.weights[cell_nodes.ravel()])  # (m a, k)
-        self.Xt = np.column_stack([np.ones(self.m * self.a), subspace.nodes[cell_nodes.ravel()]])  # (m a, 4)
+        nodes, self.row_node = np.unique(cell_nodes.ravel(), return_inverse=True)  # distinct nodes, (m a,)
+        self.W = sp.csr_matrix(subspace.weights[nodes])  # (n_u, k)
+        self.WT = sp.csr_matrix(self.W.T)  # (k, n_u)
+        self.Xt = np.column_stack([np.ones(len(nodes)), subspace.nodes[nodes]])  # (n_u, 4)
         w_rows = np.repeat(cubature.weights, self.a)
-        self.WT_w = sp.csr_matrix((sp.diags(w_rows) @ self.W).T)  # (k, m a)
+        # weighted sum of the element-node forces onto the distinct nodes, (n_u, m a)
+        self.gather_w = sp.csr_matrix((w_rows, (self.row_node, np.arange(len(w_rows)))),
+                                      shape=(len(nodes), len(w_rows)))
         self.w = cubature.weights
 
     def local(self, q) -> np.ndarray:
         """Element displacements ``U_e q``, shape (m, 3 a)."""
         B = (self.W @ np.asarray(q).reshape(-1, 12)).reshape(-1, 4, 3)  # blended affine maps
-        return np.einsum("rb,rbc->rc", self.Xt, B).reshape(self.m, -1)
+        return np.einsum("rb,rbc->rc", self.Xt, B)[self.row_node].reshape(self.m, -1)
 
     def project(self, fe) -> np.ndarray:
         """``sum_e w_e U_e^T f_e`` of element force vectors (m, 3 a): the reduced force (n_q,)."""
-        G = (self.Xt[:, :, None] * fe.reshape(-1, 1, 3)).reshape(-1, 12)
-        return (self.WT_w @ G).ravel()
+        f = self.gather_w @ fe.reshape(-1, 3)  # (n_u, 3)
+        G = (self.Xt[:, :, None] * f[:, None, :]).reshape(-1, 12)
+        return (self.WT @ G).ravel()
 
     def energy_and_force(self, q):
         """(E [energy], f_q (n_q,) [force]) at q."""

@@ -1,19 +1,15 @@
-"""Time-stepping kinematics of the reduced dynamics and the factorised step matrix.
+"""Time-stepping kinematics of the reduced dynamics.
 
 A scheme is written ``a1 = c_m (u1 - u~)``, ``v1 = v(u1)`` (backward Euler: ``v1 = (u1 -
 u0)/dt``, ``a1 = (v1 - v0)/dt``; Newmark (beta, gamma); HHT-alpha with Hilber's weights), so
-one step is the minimisation of an incremental potential (:mod:`.stepper`).
+one step is the minimisation of an incremental potential (:mod:`.stepper`). The solves
+with the step matrix are :mod:`.linsolve`.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-import scipy.linalg as sla
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
-
-__all__ = ["SCHEMES", "Scheme", "make_scheme", "StepMatrix"]
+__all__ = ["SCHEMES", "Scheme", "make_scheme"]
 
 @dataclass(frozen=True)
 class Scheme:
@@ -55,19 +51,3 @@ def make_scheme(name: str, alpha: float = -0.05) -> Scheme:
 
 
 SCHEMES = ("backward_euler", "newmark", "hht")
-
-
-class StepMatrix:
-    """Solves with ``H = c_m M_z + (1 + alpha) K_z`` (dense inverse or sparse LU)."""
-
-    def __init__(self, H, kind):
-        self.kind = kind
-        if kind == "dense":
-            c, low = sla.cho_factor(H, lower=False, check_finite=False)
-            self.inv = sla.cho_solve((c, low), np.eye(len(H)), check_finite=False)
-            self.inv = 0.5 * (self.inv + self.inv.T)
-        else:
-            self.lu = spla.splu(sp.csc_matrix(H), permc_spec="MMD_AT_PLUS_A")
-
-    def solve(self, b):
-        return self.inv @ b if self.kind == "dense" else self.lu.solve(b)

@@ -16,10 +16,25 @@ is the gradient of the incremental potential::
 
 Solvers: ``"newton"`` (cubature force and tangent every iteration, dense solve) and
 ``"lbfgs"`` (default): L-BFGS on Phi with the inverse of the step matrix
-``c_m M_z + (1 + alpha) K_z`` at the start state (cubature tangent, factorised in
-``start``) as initial Hessian, Armijo backtracking on the cubature energy; each
-iteration is one cubature energy + force evaluation and one solve with the stored
-factorisation (the tangent is not re-assembled online).
+``H = c_m M_z + (1 + alpha) K_z`` at the start state (cubature tangent, factorised in
+``start``, :mod:`.linsolve`) as initial Hessian, Armijo backtracking on the cubature
+energy; each iteration is one cubature energy + force evaluation and one solve with the
+stored operator (the tangent is not re-assembled online).
+
+Where the iteration starts (``predictor``): ``"explicit"`` (default), ``z_n + dt v_n + dt^2/2
+a_n``; ``"linearised"``, one step of the start-state Newton from ``z_n`` with the force
+linearised about the last converged state (no evaluation; one solve), ``z_n - B^-1 [c_m M_z
+(z_n - z~) + lin + (1 + alpha)(f_z,n + K_zb (q_b1 - q_b,n))]``, ``K_zb`` the start-state
+coupling to the prescribed boundary dofs. The L-BFGS pairs (``history``) are kept within a
+step (``"step"``) or carried from step to step (``"run"``, default): the curvature of the
+stretched state then corrects the rest-state step matrix, the full step is accepted
+without backtracking and fewer iterations are needed. Measured on the paper cube (364
+handles, 2820 BGBC elements, 200 steps, rtol 1e-3; cubature evaluations / iterations per
+step): explicit + step 2.65 / 1.28, explicit + run 2.12 / 1.10, linearised + step 2.69 /
+1.57, linearised + run 2.50 / 1.36 (the trajectories agree to 2e-4; with states converged
+to rtol only, no predictor meets the tolerance by itself: about two evaluations a step).
+The products of ``M_z`` with z, v, a are carried along with the state (the kinematics are
+linear) and :mod:`.lbfgs` carries ``M_z (z - z~)``: one ``M_z`` product per iteration.
 """
 from __future__ import annotations
 
@@ -30,12 +45,16 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .schemes import SCHEMES, Scheme, StepMatrix, make_scheme  # noqa: F401  (re-exported)
+from .lbfgs import lbfgs, two_loop
+from .linsolve import StepMatrix
+from .schemes import SCHEMES, Scheme, make_scheme  # noqa: F401  (re-exported)
 from .subspace import regularised
 
-__all__ = ["SCHEMES", "SOLVERS", "Scheme", "ReducedStepper", "make_scheme"]
+__all__ = ["SCHEMES", "SOLVERS", "PREDICTORS", "HISTORIES", "Scheme", "ReducedStepper", "make_scheme"]
 
 SOLVERS = ("lbfgs", "newton")
+PREDICTORS = ("explicit", "linearised")
+HISTORIES = ("step", "run")
 
 
 class ReducedStepper:
@@ -55,17 +74,26 @@ class ReducedStepper:
     max_iter : int
     memory : int
         L-BFGS pairs kept.
-    linear_solver : {"dense", "sparse"}
+    linear_solver : {"auto", "dense", "cholesky", "sparse"}
+        Kind of the step-matrix operator (:class:`~.linsolve.StepMatrix`).
+    precision : {"single", "double"}
+        Of the step-matrix operator.
+    predictor : {"explicit", "linearised"}
+        Start of the iteration (module docstring; Newton always starts from the explicit one).
+    history : {"step", "run"}
+        L-BFGS pairs kept within a step, or from one step to the next.
     accept_unconverged : bool
         Keep a step that reaches ``max_iter`` (finite state, residual reported) instead of failing.
     """
 
     def __init__(self, subspace, forces, mass_q, loads, scheme, solver="lbfgs", rtol=1e-6, max_iter=50,
-                 memory=8, linear_solver="dense", accept_unconverged=False):
+                 memory=8, linear_solver="auto", accept_unconverged=False, precision="single",
+                 predictor="explicit", history="run"):
         self.accept_unconverged = bool(accept_unconverged)
         self.sub, self.forces, self.loads, self.scheme = subspace, forces, loads, scheme
         self.solver, self.rtol, self.max_iter, self.memory = solver, rtol, int(max_iter), int(memory)
-        self.linear_solver = linear_solver
+        self.linear_solver, self.precision = linear_solver, precision
+        self.predictor, self.history = (predictor, history) if solver == "lbfgs" else ("explicit", "step")
         T = subspace.T
         nb = 12 * subspace.n_groups
         L = sp.csr_matrix((np.ones(nb), (subspace.bnd, np.arange(nb))), shape=(subspace.n_q, nb))
@@ -87,15 +115,16 @@ class ReducedStepper:
         return lam * self.sub.z_of(f)
 
     def step_matrix(self, dt, q):
-        """The factorised ``c_m M_z + (1 + alpha) K_z(q)`` (cached per dt)."""
+        """(``c_m M_z + (1 + alpha) K_z(q)`` as a :class:`StepMatrix`, ``(1 + alpha) K_zb(q)``
+        dense (n_z, 12 n_groups)), cached per dt."""
         key = float(dt)
         if key not in self._H:
             _, K = self.forces.force_and_tangent(q)
-            T = self.sub.T
+            T, w = self.sub.T, 1.0 + self.scheme.alpha
             K_z = T.T @ (T.T @ K.T).T
-            H = regularised(self.scheme.c_m(dt) * self.M_z.toarray() + (1.0 + self.scheme.alpha) * np.asarray(K_z))
-            self._H[key] = StepMatrix(sp.csr_matrix(H) if self.linear_solver == "sparse" else H,
-                                       self.linear_solver)
+            H = regularised(self.scheme.c_m(dt) * self.M_z.toarray() + w * np.asarray(K_z))
+            K_zb = w * np.asarray(T.T @ K[:, self.sub.bnd]) if len(self.sub.bnd) else np.zeros((self.sub.n_z, 0))
+            self._H[key] = (StepMatrix(H, self.linear_solver, self.precision), K_zb)
         return self._H[key]
 
     # ------------------------------------------------------------------ run
@@ -110,7 +139,9 @@ class ReducedStepper:
         self.fext = self.external_z(lam0, q)
         rhs = self.fext - self.fz - (self.M_zb @ self.ab if self.M_zb.shape[1] else 0.0)
         self.a = spla.spsolve(sp.csc_matrix(regularised(self.M_z)), rhs) if np.any(rhs) else np.zeros_like(self.z)
-        self.H = self.step_matrix(self.dt, q) if self.solver == "lbfgs" else None
+        self.Mz, self.Mv, self.Ma = (self.M_z @ x for x in (self.z, self.v, self.a))  # carried along (docstring)
+        self._pairs = ([], [])  # L-BFGS (s, y) pairs, kept from step to step with history = "run"
+        self.H, self.K_zb = self.step_matrix(self.dt, q) if self.solver == "lbfgs" else (None, None)
         self.q = q
 
     def step(self, lam1, qb1):
@@ -118,107 +149,63 @@ class ReducedStepper:
 
         Returns ``(ok, message, info)``; on failure the state is unchanged.
         """
-        sch, dt = self.scheme, self.dt
+        sch, dt, al = self.scheme, self.dt, self.scheme.alpha
         vb1, ab1 = sch.kinematics(dt, qb1, self.qb, self.vb, self.ab)
         fext1 = self.external_z(lam1, self.q)
-        al = sch.alpha
         lin = (self.M_zb @ ab1 if self.M_zb.shape[1] else 0.0) - al * (self.fz - self.fext) - (1.0 + al) * fext1
         zt = sch.predicted(dt, self.z, self.v, self.a)
+        Mzt = sch.predicted(dt, self.Mz, self.Mv, self.Ma)
         c_m = sch.c_m(dt)
-        z = self.z + dt * self.v + 0.5 * dt * dt * self.a
         # the force scale of the step; |f_q| includes the support reaction on the prescribed
         # boundary dofs, which keeps the scale when the free forces balance (a held stretch)
-        r_ref = max(np.linalg.norm(self.fz), self.fq_norm, np.linalg.norm(fext1), np.linalg.norm(self.M_z @ self.a),
-                    1e-300)
-        run = self._lbfgs if self.solver == "lbfgs" else self._newton
-        ok, z, E, fz, info = run(z, zt, c_m, lin, qb1, r_ref)
+        r_ref = max(np.linalg.norm(self.fz), self.fq_norm, np.linalg.norm(fext1), np.linalg.norm(self.Ma), 1e-300)
+        pairs = tuple(list(p) for p in self._pairs)
+        if self.solver == "lbfgs":
+            ok, z, Mdz, extra, info = self._lbfgs(zt, Mzt, c_m, lin, qb1, r_ref)
+        else:
+            ok, z, extra, info = self._newton(self.z + dt * self.v + 0.5 * dt * dt * self.a, zt, c_m, lin, qb1,
+                                              r_ref)
+            Mdz = self.M_z @ (z - zt)
         if not ok:
+            self._pairs = pairs
             return False, info["message"], info
+        E, fz, self.fq_norm = extra
         v1, a1 = sch.kinematics(dt, z, self.z, self.v, self.a)
+        Mz1 = Mzt + Mdz
+        self.Mv, self.Ma = sch.kinematics(dt, Mz1, self.Mz, self.Mv, self.Ma)
+        self.Mz = Mz1
         self.z, self.v, self.a, self.E, self.fz, self.fext = z, v1, a1, E, fz, fext1
-        self.fq_norm = info.pop("fq_norm", self.fq_norm)
         self.qb, self.vb, self.ab = qb1, vb1, ab1
         self.q = self.sub.q_of(z, qb1)
         return True, "", info
 
     # ------------------------------------------------------------------ solvers
-    def _phi(self, z, zt, c_m, lin, qb1):
-        """(Phi, gradient, E, f_z) at z."""
-        al = self.scheme.alpha
-        E, fq, fz = self.f_z(self.sub.q_of(z, qb1))
-        self._last_fq_norm = float(np.linalg.norm(fq))
-        dz = z - zt
-        Mdz = self.M_z @ dz
-        phi = 0.5 * c_m * dz @ Mdz + lin @ z + (1.0 + al) * E
-        return phi, c_m * Mdz + lin + (1.0 + al) * fz, E, fz
+    def _lbfgs(self, zt, Mzt, c_m, lin, qb1, r_ref):
+        al, dt = self.scheme.alpha, self.dt
+        starts = []
+        if self.predictor == "linearised":
+            g_n = c_m * (self.Mz - Mzt) + lin + (1.0 + al) * self.fz + self.K_zb @ (qb1 - self.qb)
+            dz = two_loop(g_n, *self._pairs, self.H.solve)
+            starts.append((self.z - dz, self.Mz - Mzt - self.M_z @ dz))
+        # the explicit predictor; after one that inverts an element, the last state moved with its
+        # velocity, the last state (their M_z products from the state's: no product computed)
+        h = 0.5 * dt * dt
+        for z, Mz in ((self.z + dt * self.v + h * self.a, self.Mz + dt * self.Mv + h * self.Ma),
+                      (self.z + dt * self.v, self.Mz + dt * self.Mv), (self.z, self.Mz)):
+            starts.append((z, Mz - Mzt))
 
-    def _lbfgs(self, z, zt, c_m, lin, qb1, r_ref):
-        tic = time.perf_counter()
-        # a predictor that inverts an element (non-finite energy) falls back to the last state
-        for start in (z, self.z + self.dt * self.v, self.z):
-            phi, g, E, fz = self._phi(start, zt, c_m, lin, qb1)
-            if np.isfinite(phi):
-                z = start
-                break
-        fq_norm = self._last_fq_norm
-        tol = self.rtol * max(r_ref, np.linalg.norm(g))
-        S, Y, evals = [], [], 1
-        for it in range(self.max_iter + 1):
-            gn = float(np.linalg.norm(g))
-            if not np.isfinite(phi) or not np.isfinite(gn):
-                return False, z, E, fz, {"message": f"non-finite energy or force (an inverted element?) at "
-                                                    f"iteration {it}", "iterations": it, "evaluations": evals}
-            if gn <= tol:
-                return True, z, E, fz, {"iterations": it, "evaluations": evals, "residual": gn, "converged": True,
-                                        "solve_s": time.perf_counter() - tic, "fq_norm": fq_norm}
-            if it == self.max_iter:
-                break
-            d = -self._two_loop(g, S, Y)
-            slope = g @ d
-            if slope >= 0:  # not a descent direction: restart from the step matrix
-                S, Y = [], []
-                d = -self.H.solve(g)
-                slope = g @ d
-            s = 1.0
-            for _ in range(12):
-                z1 = z + s * d
-                phi1, g1, E1, fz1 = self._phi(z1, zt, c_m, lin, qb1)
-                evals += 1
-                # Armijo, with a slack at the round-off of Phi: near convergence the true
-                # decrease falls below the rounding of the summed element energies
-                slack = 1e-12 * max(abs(phi), abs(phi1)) if np.isfinite(phi1) else 0.0
-                if np.isfinite(phi1) and phi1 <= phi + 1e-4 * s * slope + slack:
-                    break
-                s *= 0.5
-            else:
-                return False, z, E, fz, {"message": f"line search failed at iteration {it} "
-                                                    f"(|R| = {gn:.3e}, tolerance {tol:.3e})",
-                                         "iterations": it, "evaluations": evals}
-            sk, yk = z1 - z, g1 - g
-            if yk @ sk > 1e-12 * np.linalg.norm(yk) * np.linalg.norm(sk):
-                S.append(sk)
-                Y.append(yk)
-                if len(S) > self.memory:
-                    S.pop(0)
-                    Y.pop(0)
-            z, phi, g, E, fz, fq_norm = z1, phi1, g1, E1, fz1, self._last_fq_norm
-        info = {"message": f"L-BFGS did not converge in {self.max_iter} iterations (|R| = {gn:.3e}, tolerance "
-                           f"{tol:.3e})", "iterations": self.max_iter, "evaluations": evals, "residual": gn,
-                "converged": False, "solve_s": time.perf_counter() - tic}
-        return self.accept_unconverged, z, E, fz, info
+        def evaluate(z, Mdz):
+            """(Phi, gradient, (E, f_z, |f_q|)) at z, from Mdz = M_z (z - z~)."""
+            E, fq, fz = self.f_z(self.sub.q_of(z, qb1))
+            phi = 0.5 * c_m * (z - zt) @ Mdz + lin @ z + (1.0 + al) * E
+            return phi, c_m * Mdz + lin + (1.0 + al) * fz, (E, fz, float(np.linalg.norm(fq)))
 
-    def _two_loop(self, g, S, Y):
-        q = g.copy()
-        alphas = []
-        for s, y in zip(reversed(S), reversed(Y)):
-            rho = 1.0 / (y @ s)
-            a = rho * (s @ q)
-            q -= a * y
-            alphas.append((rho, a))
-        r = self.H.solve(q)
-        for (s, y), (rho, a) in zip(zip(S, Y), reversed(alphas)):
-            r += s * (a - rho * (y @ r))
-        return r
+        S, Y = self._pairs if self.history == "run" else ([], [])
+        ok, z, Mdz, extra, info = lbfgs(evaluate, starts, self.H.solve, self.M_z.dot,
+                                        lambda g0: self.rtol * max(r_ref, g0), self.max_iter, S, Y, self.memory)
+        if not ok and info.get("converged") is False and self.accept_unconverged:
+            ok = True  # the paper's capped iteration: kept, its residual reported
+        return ok, z, Mdz, extra, info
 
     def _newton(self, z, zt, c_m, lin, qb1, r_ref):
         tic = time.perf_counter()
@@ -234,11 +221,12 @@ class ReducedStepper:
             if it == 0:
                 tol = self.rtol * max(r_ref, gn)
             if not np.isfinite(gn):
-                return False, z, np.nan, fz, {"message": f"non-finite residual at iteration {it}", "iterations": it}
+                return False, z, None, {"message": f"non-finite residual at iteration {it}", "iterations": it}
             if gn <= tol or small_step:  # the step-size test of the full-order Newton (utol = 1e-12)
                 E = self.forces.energy_and_force(q)[0]
-                return True, z, E, fz, {"iterations": it, "evaluations": it + 1, "residual": gn, "converged": True,
-                                        "solve_s": time.perf_counter() - tic, "fq_norm": float(np.linalg.norm(fq))}
+                return True, z, (E, fz, float(np.linalg.norm(fq))), {
+                    "iterations": it, "evaluations": it + 1, "residual": gn, "converged": True,
+                    "solve_s": time.perf_counter() - tic}
             if it == self.max_iter:
                 break
             K_z = (T.T @ (T.T @ K.T).T)
@@ -248,13 +236,13 @@ class ReducedStepper:
                 z = z - dz
                 small_step = np.linalg.norm(dz) <= 1e-12 * max(np.linalg.norm(z), 1e-300)
             except (np.linalg.LinAlgError, ValueError) as exc:
-                return False, z, np.nan, fz, {"message": f"singular Newton matrix: {exc}", "iterations": it}
+                return False, z, None, {"message": f"singular Newton matrix: {exc}", "iterations": it}
         info = {"message": f"Newton did not converge in {self.max_iter} iterations (|R| = {gn:.3e}, tolerance "
                            f"{tol:.3e})", "iterations": self.max_iter, "residual": gn, "converged": False}
         if self.accept_unconverged:  # the last iterate's energy and force (not checked further)
             E, fq = self.forces.energy_and_force(self.sub.q_of(z, qb1))
-            return True, z, E, self.sub.z_of(fq), info
-        return False, z, np.nan, fz, info
+            return True, z, (E, self.sub.z_of(fq), float(np.linalg.norm(fq))), info
+        return False, z, None, info
 
     # ------------------------------------------------------------------ energy
     def energies(self):

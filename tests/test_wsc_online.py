@@ -1,0 +1,100 @@
+"""The online step of the skinning-cubature ROM: step-matrix solves, predictors, L-BFGS history.
+
+Verification (issue 31): every step-matrix kind and precision solves the same system (double
+to round-off, single to its stated tolerance), ``auto`` keeps the fastest it measured, single
+precision is refused where it would change the solutions; the predictors and L-BFGS histories
+converge to the same trajectory (within the step tolerance); the mass products carried along
+with the state equal the products recomputed.
+"""
+import numpy as np
+import pytest
+
+from tissuebench.cases import load
+from tissuebench.refsolvers.backends import make_backend
+from tissuebench.rom import Training, make_method
+from tissuebench.rom.wsc.linsolve import SINGLE_TOL, StepMatrix
+
+
+def _spd(n, cond, seed=0):
+    rng = np.random.default_rng(seed)
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    return (Q * np.geomspace(1.0, cond, n)) @ Q.T
+
+
+@pytest.mark.parametrize("kind", ["dense", "cholesky", "sparse"])
+@pytest.mark.parametrize("precision", ["single", "double"])
+def test_every_kind_solves_the_system(kind, precision):
+    H = _spd(80, 1e3)
+    b = np.random.default_rng(1).standard_normal(80)
+    exact = np.linalg.solve(H, b)
+    op = StepMatrix(H, kind, precision)
+    x = op.solve(b)
+    assert x.dtype == np.float64 and x.shape == (80,)
+    single = precision == "single" and kind != "sparse"
+    assert op.info["precision"] == ("single" if single else "double") and op.kind == kind
+    assert np.linalg.norm(x - exact) / np.linalg.norm(exact) <= (1e-4 if single else 1e-11)
+
+
+def test_auto_keeps_the_fastest_measured_and_bad_options_are_refused():
+    op = StepMatrix(_spd(120, 1e2), "auto", "single")  # a dense matrix: SuperLU not tried
+    cost = op.info["solve_ms"]
+    assert set(cost) == {"dense", "cholesky"} and op.kind == min(cost, key=cost.get) and "sparse_skipped" in op.info
+    banded = np.diag(np.full(300, 4.0)) + np.diag(np.full(299, -1.0), 1) + np.diag(np.full(299, -1.0), -1)
+    cost = StepMatrix(banded, "auto").info["solve_ms"]
+    assert set(cost) == {"dense", "cholesky", "sparse"}
+    with pytest.raises(ValueError, match="kind = 'lu'"):
+        StepMatrix(np.eye(3), "lu")
+    with pytest.raises(ValueError, match="precision = 'half'"):
+        StepMatrix(np.eye(3), "dense", "half")
+
+
+def test_single_precision_is_refused_where_it_changes_the_solutions():
+    op = StepMatrix(_spd(60, 1e13), "dense", "single")
+    assert op.precision == "double" and "single_refused" in op.info and op.info["single_error"] > SINGLE_TOL
+    assert StepMatrix(_spd(60, 1e2), "dense", "single").info["single_error"] < 1e-5
+
+
+@pytest.fixture(scope="module")
+def cube():
+    scene = load("cube_tension_twist", resolution="ci", variant="tension_dynamic")
+    return scene, make_backend("skfem", scene.to_problem())
+
+
+def _run(scene, be, n, **options):
+    dt = float(scene.analysis["dt"])
+    model = make_method("wsc", handles=10, cubature_elements=100, rtol=1e-6, **options).build(
+        Training(backend=be, dt=dt))
+    model.start()
+    out = [model.step({"time": k * dt, "load_factor": float(scene.history(k * dt))}) for k in range(1, n + 1)]
+    assert all(r.ok for r in out), [r.message for r in out if not r.ok][:1]
+    return model, np.array([model.reconstruct(r) for r in out]), np.mean([r.info["evaluations"] for r in out])
+
+
+def test_predictors_histories_and_precisions_reach_the_same_trajectory(cube):
+    """ci cube, 10 handles, 100 BGBC elements, 80 steps of the pull, rtol 1e-6: every variant
+    within 1e-5 (relative, whole history) of explicit / step / double."""
+    scene, be = cube
+    base_model, base, base_evals = _run(scene, be, 80, predictor="explicit", lbfgs_history="step",
+                                        solve_precision="double", linear_solver="dense")
+    assert base_model.info["step_matrix"]["precision"] == "double"
+    evals = {}
+    for pred in ("explicit", "linearised"):
+        for hist in ("step", "run"):
+            model, U, evals[pred, hist] = _run(scene, be, 80, predictor=pred, lbfgs_history=hist)
+            assert np.linalg.norm(U - base) <= 1e-5 * np.linalg.norm(base), (pred, hist)
+            st = model.stepper  # the carried mass products are the products
+            for x, Mx in ((st.z, st.Mz), (st.v, st.Mv), (st.a, st.Ma)):
+                assert np.linalg.norm(st.M_z @ x - Mx) <= 1e-9 * np.linalg.norm(Mx)
+    print("evaluations per step:", evals, "explicit/step/double:", base_evals)
+    assert evals["explicit", "run"] < evals["explicit", "step"]
+
+
+def test_bad_online_options_are_refused():
+    with pytest.raises(ValueError, match="predictor = 'taylor'"):
+        make_method("wsc", predictor="taylor")
+    with pytest.raises(ValueError, match="lbfgs_history = 'all'"):
+        make_method("wsc", lbfgs_history="all")
+    with pytest.raises(ValueError, match="solve_precision = 'half'"):
+        make_method("wsc", solve_precision="half")
+    with pytest.raises(ValueError, match="linear_solver = 'lu'"):
+        make_method("wsc", linear_solver="lu")

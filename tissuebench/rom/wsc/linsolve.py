@@ -1,0 +1,164 @@
+"""Solves with the step matrix ``H = c_m M_z + (1 + alpha) K_z`` (the L-BFGS initial inverse
+Hessian and the linearised predictor of :mod:`.stepper`), the kind chosen by measured cost.
+
+Kinds (``H`` symmetric positive definite, dense, n = free reduced dofs):
+
+* ``"dense"``: the inverse from the Cholesky factor (LAPACK potrf + potri), applied with
+  BLAS symv, which reads the upper triangle only (n^2 / 2 entries a solve).
+* ``"cholesky"``: the Cholesky factor, two triangular solves a solve (potrs).
+* ``"sparse"``: SuperLU of the sparse ``H`` (its fill decides).
+
+The dense kinds factor the Jacobi-scaled ``D H D`` (``D = diag(H)^-1/2``; the affine
+coordinates of a handle -- translation, and gradients multiplied by coordinates -- differ in
+scale by the body's size), so the rounding of a single-precision operator acts on the
+scaled matrix. A solve reads the whole operator, so its cost is memory traffic (paper cube, 364 handles,
+n = 4374, one core: stored full inverse 16 ms (gemv), symmetric inverse 8 ms, the same in
+single precision 3.7 ms, potrs 32 ms: the triangular solves do not stream). ``"auto"``
+builds every kind and keeps the fastest by its fastest of timed solves taken in turns
+(``info`` keeps the measured costs), instead of a fixed size threshold; SuperLU is tried only for a matrix at
+most ``SPARSE_MAX_DENSITY`` dense.
+
+Precision ``"single"`` stores the operator in float32 (half the traffic). It is accepted
+when it recovers seeded solutions ``x`` from ``H x`` to ``SINGLE_TOL`` (relative; every
+eigendirection present, so a stiff direction lost to rounding shows), else the operator
+stays in double and ``info`` says why (ci cube, 10 handles: 1.1e-4). The
+operator only preconditions L-BFGS and predicts; every residual the convergence test sees
+is computed in double, so the converged state does not depend on it beyond the tolerance.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from scipy.linalg import blas, lapack
+
+__all__ = ["KINDS", "PRECISIONS", "SINGLE_TOL", "SPARSE_MAX_DENSITY", "StepMatrix"]
+
+KINDS = ("auto", "dense", "cholesky", "sparse")
+PRECISIONS = ("single", "double")
+#: ``auto`` times SuperLU only for a step matrix at most this dense (paper cube, 364 handles:
+#: 24 % dense, SuperLU 24-31 ms a solve against 2.7 ms for the single-precision inverse, and
+#: its factorisation takes longer than the dense one)
+SPARSE_MAX_DENSITY = 0.1
+#: largest relative error of single-precision solutions that is accepted: the operator is a
+#: preconditioner, a 1 % error changes the L-BFGS path, not the converged state; the check is
+#: there for a stiff direction lost to rounding (errors of order 1; condition numbers past ~1e6)
+SINGLE_TOL = 1e-2
+
+
+class _Dense:
+    """``H^-1 = D Hs^-1 D`` applied with symv, ``Hs`` the factored matrix (see :class:`StepMatrix`)."""
+
+    def __init__(self, c, d, dtype):
+        inv, info = lapack.dpotri(c, lower=0)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"potri failed (info {info})")
+        self.a, self.d = np.asfortranarray(np.triu(inv).astype(dtype)), d
+        self.symv = blas.ssymv if dtype == np.float32 else blas.dsymv
+        self.dtype = dtype
+
+    def solve(self, b):
+        return self.d * self.symv(1.0, self.a, (self.d * b).astype(self.dtype, copy=False), lower=0)
+
+
+class _Cholesky:
+    def __init__(self, c, d, dtype):
+        self.c, self.d = np.asfortranarray(np.triu(c).astype(dtype)), d
+        self.potrs = lapack.spotrs if dtype == np.float32 else lapack.dpotrs
+        self.dtype = dtype
+
+    def solve(self, b):
+        x, info = self.potrs(self.c, (self.d * b).astype(self.dtype, copy=False), lower=0)
+        return self.d * x
+
+
+class _Sparse:
+    def __init__(self, H):
+        self.lu = spla.splu(sp.csc_matrix(H), permc_spec="MMD_AT_PLUS_A")
+
+    def solve(self, b):
+        return self.lu.solve(np.asarray(b, dtype=float))
+
+
+def _fastest_solve_s(ops, rhs) -> dict:
+    """The fastest of ``len(rhs)`` timed solves of every operator, taken in turns (a load spike
+    on a shared machine then hits every candidate alike, and the minimum ignores it)."""
+    times = {name: [] for name in ops}
+    for op in ops.values():
+        op.solve(rhs[0])
+    for b in rhs:
+        for name, op in ops.items():
+            t0 = time.perf_counter()
+            op.solve(b)
+            times[name].append(time.perf_counter() - t0)
+    return {name: float(min(t)) for name, t in times.items()}
+
+
+class StepMatrix:
+    """Solves with a symmetric positive definite ``H`` (see the module docstring).
+
+    Parameters
+    ----------
+    H : (n, n) array
+    kind : {"auto", "dense", "cholesky", "sparse"}
+    precision : {"single", "double"}
+        Of the dense operators (SuperLU is double).
+    timing_solves : int
+        Timed solves per candidate when ``kind = "auto"`` (the fastest counts).
+
+    Attributes
+    ----------
+    kind, precision : str
+        What was built.
+    info : dict
+        ``solve_ms`` per candidate (auto), ``single_error`` (relative error of the
+        single-precision solutions), ``kind``, ``precision``, ``n``, ``build_s``.
+    """
+
+    def __init__(self, H, kind="auto", precision="single", timing_solves=15):
+        if kind not in KINDS:
+            raise ValueError(f"step-matrix kind = {kind!r}: expected one of {KINDS}")
+        if precision not in PRECISIONS:
+            raise ValueError(f"step-matrix precision = {precision!r}: expected one of {PRECISIONS}")
+        tic = time.perf_counter()
+        H = np.asarray(H, dtype=float)
+        d = 1.0 / np.sqrt(np.diag(H))  # Jacobi scaling: the affine coordinates' scales differ by the body size
+        c = sla.cho_factor(d[:, None] * H * d[None, :], lower=False, check_finite=False)[0]
+        rng = np.random.default_rng(0)
+        rhs = rng.standard_normal((max(3, int(timing_solves)), len(H)))
+        exact = rng.standard_normal((3, len(H)))  # solutions with every eigendirection present
+        self.info = {}
+        dtype = np.float64
+        if precision == "single":
+            trial = _Dense(c, d, np.float32)
+            err = max(np.linalg.norm(trial.solve(H @ x) - x) / np.linalg.norm(x) for x in exact)
+            self.info["single_error"] = float(err)
+            if err <= SINGLE_TOL:
+                dtype = np.float32
+            else:
+                self.info["single_refused"] = f"single-precision solutions off by {err:.1e} (> {SINGLE_TOL:g})"
+        self.precision = "single" if dtype == np.float32 else "double"
+        build = {"dense": lambda: _Dense(c, d, dtype), "cholesky": lambda: _Cholesky(c, d, dtype),
+                 "sparse": lambda: _Sparse(H)}
+        density = np.count_nonzero(H) / H.size
+        if kind == "auto":
+            if density > SPARSE_MAX_DENSITY:  # not worth its factorisation time (module docstring)
+                build.pop("sparse")
+                self.info["sparse_skipped"] = f"density {density:.2f} > {SPARSE_MAX_DENSITY}"
+            ops = {name: make() for name, make in build.items()}
+            cost = _fastest_solve_s(ops, rhs)
+            kind = min(cost, key=cost.get)
+            self.info["solve_ms"] = {name: round(1e3 * s, 4) for name, s in cost.items()}
+            self._op = ops[kind]
+        else:
+            self._op = build[kind]()
+        self.kind = kind
+        self.info.update(kind=kind, precision=self.precision if kind != "sparse" else "double", n=len(H),
+                         build_s=round(time.perf_counter() - tic, 4))
+
+    def solve(self, b) -> np.ndarray:
+        """``H^{-1} b`` (n,) in double precision."""
+        return self._op.solve(b)
