@@ -202,11 +202,12 @@ def test_tiny_time_step_is_refused_naming_dt(tmp_path):
         load(tmp_path / "bad.toml")
 
 
-@pytest.mark.parametrize("mu, named", [({"t_end": 1e9}, r"mu.t_end = 1000000000.0: t_end / dt = 8e\+11"),
-                                       ({"load_steps": 10 ** 9}, r"mu.load_steps = 1000000000: expected an integer")])
-def test_parameter_overrides_are_bounded_like_the_scene(mu, named):
+@pytest.mark.parametrize("scene, mu, named", [
+    ("wave_block", {"t_end": 1e9}, r"mu.t_end = 1000000000.0: t_end / dt = 8e\+11"),
+    ("cornea_pinch", {"load_steps": 10 ** 9}, r"mu.load_steps = 1000000000: expected an integer")])
+def test_parameter_overrides_are_bounded_like_the_scene(scene, mu, named):
     with pytest.raises(ValueError, match=named):
-        load("wave_block").at(mu)
+        load(scene).at(mu)
 
 
 # ------------------------------------------------------------------------------ output locations

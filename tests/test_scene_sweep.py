@@ -93,10 +93,14 @@ def test_the_spec_of_a_static_scene(tmp_path):
     text, left_out = scene_spec_text(scene, "scene.toml")
     raw = tomllib.loads(text)
     assert raw["sweep"]["error_metric"] == "max_rel_l2_in_envelope"
-    [case] = raw["case"]
+    case, operators = raw["case"]  # the practitioner baselines (issue 28) also learn the operators
     assert case["training"] == {"kind": "path", "every": 2}
     assert case["evaluation"] == {"kind": "path", "held_out": True, "beyond": [1.25, 1.5, 2.0]}
-    assert {m["name"] for m in raw["method"]} == {"nearest", "pod_interp", "pod_linear", "pod_newton"}
+    assert operators["training"] == {"kind": "operators"} and operators["evaluation"]["kind"] == "contact_nodes"
+    methods = {m["name"]: m["cases"] for m in raw["method"]}
+    assert set(methods) == {"nearest", "pod_interp", "pod_linear", "pod_newton", "linear_fe", "corotational_fe",
+                            "coarse_fe"}
+    assert all(methods[m] == ["path", "operators"] for m in ("linear_fe", "corotational_fe", "coarse_fe"))
     why = dict(left_out)
     assert "'neo_hookean' is not polynomial" in why["anm_pod"] and "needs a dynamic scene" in why["wsc"]
     assert "[parameters.position]" in why["podi"]
