@@ -93,14 +93,15 @@ def test_the_spec_of_a_static_scene(tmp_path):
     text, left_out = scene_spec_text(scene, "scene.toml")
     raw = tomllib.loads(text)
     assert raw["sweep"]["error_metric"] == "max_rel_l2_in_envelope"
-    case, operators = raw["case"]  # the practitioner baselines (issue 28) also learn the operators
+    # the practitioner baselines (issue 28) run once, on the path: no vademecum applies here whose
+    # contact nodes they could be measured at
+    [case] = raw["case"]
     assert case["training"] == {"kind": "path", "every": 2}
     assert case["evaluation"] == {"kind": "path", "held_out": True, "beyond": [1.25, 1.5, 2.0]}
-    assert operators["training"] == {"kind": "operators"} and operators["evaluation"]["kind"] == "contact_nodes"
     methods = {m["name"]: m["cases"] for m in raw["method"]}
     assert set(methods) == {"nearest", "pod_interp", "pod_linear", "pod_newton", "linear_fe", "corotational_fe",
                             "coarse_fe"}
-    assert all(methods[m] == ["path", "operators"] for m in ("linear_fe", "corotational_fe", "coarse_fe"))
+    assert all(methods[m] == ["path"] for m in ("linear_fe", "corotational_fe", "coarse_fe"))
     why = dict(left_out)
     assert "'neo_hookean' is not polynomial" in why["anm_pod"] and "needs a dynamic scene" in why["wsc"]
     assert "[parameters.position]" in why["podi"]
@@ -116,7 +117,25 @@ def test_the_spec_of_a_dynamic_scene_is_held_out(case, variant, held):
     text, _ = scene_spec_text(load(case, variant=variant), case, variant)
     raw = tomllib.loads(text)
     assert all(c["evaluation"] == pytest.approx(held) for c in raw["case"])
-    assert {m["name"] for m in raw["method"]} >= {"wsc", "nearest"}
+    methods = {m["name"]: m["cases"] for m in raw["method"]}
+    assert set(methods) >= {"wsc", "nearest", "linear_fe"} and methods["linear_fe"] == ["trajectory"]
+
+
+def test_the_baselines_join_the_contact_nodes_only_beside_a_vademecum():
+    """A practitioner baseline runs once (its first case), and at the contact nodes only where a
+    point-load vademecum (pgd) is measured there: the nodes are the vademecum's."""
+    from tissuebench.studies.scene_spec import _baselines_once
+
+    cases = [{"id": "path", "evaluation": {"kind": "path"}},
+             {"id": "operators", "evaluation": {"kind": "contact_nodes", "count": 3}}]
+    alone = _baselines_once([("linear_fe", ["path", "operators"], {}, {}, {})], cases)
+    assert alone == [("linear_fe", ["path"], {}, {}, {})]
+    beside = _baselines_once([("pgd", ["operators"], {}, {}, {}), ("linear_fe", ["path", "operators"], {}, {}, {})],
+                             cases)
+    assert beside[1][1] == ["path", "operators"]
+    dynamic = [{"id": "trajectory", "evaluation": {"kind": "trajectory"}},
+               {"id": "operators", "evaluation": {"kind": "trajectory"}}]
+    assert _baselines_once([("coarse_fe", ["trajectory", "operators"], {}, {}, {})], dynamic)[0][1] == ["trajectory"]
 
 
 def _kidney(folder: Path, size: float) -> Path:
@@ -144,7 +163,8 @@ def test_a_new_users_organ_from_mesh_file_to_report(tmp_path, capsys, monkeypatc
     spec = tmp_path / "kidney.spec.toml"
     assert spec.is_file() and load_spec(spec).cases[0]["evaluation"]["held_out"] is True
     units = read_units(tmp_path / "kidney")
-    assert len(units) == 8 and (units["unit_status"] == "ok").all() and not units["seen"].any()
+    # 8 ROM units and the 3 practitioner baselines on the path (issue 28)
+    assert len(units) == 11 and (units["unit_status"] == "ok").all() and not units["seen"].any()
     assert (units["n_seen"] == 0).all()  # held out: no evaluation point is a training state
     points = read_points(tmp_path / "kidney")
     assert (points.loc[points["x"] > 1.0 + 1e-9, "has_reference"]).any()  # the continued reference

@@ -99,6 +99,8 @@ def ladder_table(units: pd.DataFrame, points: pd.DataFrame) -> pd.DataFrame:
         x_name = group["x_name"].dropna()
         x_name = x_name.iloc[0] if len(x_name) else ""
         case_pts = points[points["unit_key"].isin(group["unit_key"])] if len(points) else points
+        if "beyond" in case_pts:  # along the path only: past it (the continued reference) is the validity radius's
+            case_pts = case_pts[~case_pts["beyond"].fillna(False).astype(bool)]
         grouped = len(case_pts) and case_pts["group"].notna().any()  # positions, contact nodes: not one path
         if x_name not in _LADDER_X or grouped:
             continue

@@ -30,6 +30,7 @@ from pathlib import Path
 
 from ..rom import METHODS
 from .applicability import evaluation_why_not, load_scale_why_not, why_not
+from .ladder import RUNG_METHODS
 
 __all__ = ["METHOD_OPTIONS", "scene_cases", "scene_spec_text", "write_scene_spec"]
 
@@ -85,6 +86,24 @@ def _method_options(name: str, scene) -> tuple[dict, dict, dict]:
     return fixed, dict(grid), dict(protocol)
 
 
+def _baselines_once(methods: list, cases: list[dict]) -> list:
+    """A practitioner baseline (:data:`~tissuebench.studies.ladder.RUNG_METHODS`) learns nothing
+    from its training: it runs in the first case it fits (the path, the trajectory), not again on
+    the operators; at contact nodes only beside a point-load vademecum, whose accessible nodes
+    (a layered cornea dome's anterior surface) it is measured on."""
+    contact = {c["id"] for c in cases if c["evaluation"]["kind"] == "contact_nodes"}
+    vademecum = any(set(fits) & contact for name, fits, *_ in methods
+                    if METHODS[name].applies.point_load and name not in RUNG_METHODS)
+    kept = []
+    for name, fits, *rest in methods:
+        if name in RUNG_METHODS:
+            fits = [f for f in fits if f not in contact or vademecum]
+            fits = [f for f in fits if f not in contact][:1] + [f for f in fits if f in contact]
+        if fits:
+            kept.append((name, fits, *rest))
+    return kept
+
+
 def _toml(value) -> str:
     if isinstance(value, dict):
         return "{ " + ", ".join(f"{k} = {_toml(v)}" for k, v in value.items()) + " }"
@@ -119,8 +138,10 @@ def scene_spec_text(scene, scene_name: str, variant: str | None = None,
                 f"learns from {list(cls.training_kinds)} training"]
             left_out.append((name, "; ".join(distinct)))
             continue
-        used.update(fits)
         methods.append((name, fits, fixed, grid, protocol))
+    methods = _baselines_once(methods, cases)
+    for _, fits, *_ in methods:
+        used.update(fits)
     lines = [_MARKER + ": every registered method that applies to",
              f"# {scene.name}, with a held-out evaluation (no recommendation rests on data a method has seen).",
              "# Edit it and run it again with `tissuebench sweep THIS_FILE --out FOLDER`.",
