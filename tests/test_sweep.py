@@ -104,7 +104,7 @@ def test_bad_specs_are_refused_naming_the_key(tmp_path, edit, message):
 
 def test_presets_load_and_expand_at_both_resolutions():
     names = [n for n, _ in list_presets()]
-    assert {"anm_pod", "interpolation", "pod_cube"} <= set(names)
+    assert {"anm_pod", "interpolation", "pod_cube", "scaling"} <= set(names)
     for name in names:
         ci, paper = expand_units(load_spec(name)), expand_units(load_spec(name, resolution="paper"))
         assert ci and paper

@@ -34,6 +34,7 @@ from ..studies.store import git_commit, package_versions
 from .extremes import extremes_table
 from .format import seconds
 from .ladder import ladder_section, versus_baselines
+from .scaling import scaling_section
 from .paper import paper_rows
 from .plotly_figures import error_figure, pareto_figure
 from .recommend import LATENCY_STATISTIC, parse_requirement
@@ -267,11 +268,13 @@ def write_report(results_dir, out_html, require: str | None = None, case: str | 
         tables.append(backends)
     ladder = ladder_section(data, Table)
     tables += ladder["tables"] if ladder else []
+    scaling = scaling_section(data, Table)  # cost versus size (studies/scaling.py)
+    tables += scaling["tables"] if scaling else []
     tables.append(Table("units", [], [], data.units))
     context = {"title": f"tissuebench report: {data.manifest.get('spec_name', data.root.name)}",
                "data_folder": f"{out_html.stem}_data", "requirement": requirement, "require_text": requirement.text,
                "error_metric": data.error_metric, "latency_statistic": LATENCY_STATISTIC, "sections": sections,
-               "papers": papers, "ladder": ladder, "anchors": anchors, "backends": backends,
+               "papers": papers, "ladder": ladder, "scaling": scaling, "anchors": anchors, "backends": backends,
                "calibration": calibration(data.units),
                "provenance": provenance_rows(data.manifest, data.units),
                "spec_text": data.manifest.get("spec_text", ""),

@@ -392,7 +392,8 @@ _MANIFEST_KEYS = {"spec_name": (_is_str, "a string"), "spec_source": (_is_str, "
 _CASE_KEYS = {"id": _is_str, "name": _is_str, "resolution": lambda v: v in ("ci", "paper"), "backend": _is_str,
               "variant": lambda v: v is None or isinstance(v, str), "training": lambda v: isinstance(v, dict),
               "evaluation": lambda v: isinstance(v, dict), "mu": lambda v: isinstance(v, dict),
-              "mesh": lambda v: isinstance(v, dict), "paper_points": lambda v: isinstance(v, list)}
+              "mesh": lambda v: isinstance(v, dict), "paper_points": lambda v: isinstance(v, list),
+              "scaling_group": _is_str}
 _POINT_KEYS = {"label": _is_str, "step_ms": _is_seconds, "error": _is_seconds}
 _UNIT_KEYS = {"key": lambda v: isinstance(v, str) and _SAFE.fullmatch(v) is not None, "case": _is_str,
               "method": _is_str, "label": _is_str}

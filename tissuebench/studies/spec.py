@@ -22,6 +22,7 @@ a grid of options, the protocol and the error metric of the derived tables::
     backend = "skfem"                 # variant, resolution, mu = {nu = 0.499} (Scene.at) optional
     mesh = { paper = { divisions = [40, 7, 7] } }   # optional: builder parameters per resolution
     paper_points = [{ label = "paper 74/1880", step_ms = 10.7, error = 0.218 }]  # optional, on the Pareto plot
+    scaling_group = "liver"           # optional: this scene on several meshes (studies.scaling)
     training = { kind = "path" }      # path | positions | trajectory | operators (studies.training)
     evaluation = { kind = "path", beyond = [2.0] }   # default: the training's kind (studies.evaluation)
 
@@ -56,6 +57,7 @@ from ..rom import METHODS, method_class
 from .applicability import evaluation_why_not, why_not
 from .evaluation import EVALUATION_KINDS
 from .limits import MAX_UNITS, check_evaluation, check_option_values, check_protocol, check_training
+from .scaling import check_group_name, check_scaling_groups
 from .training import TRAINING_KINDS, case_scene
 from .units import DEFAULT_PROTOCOL, WorkUnit, options_text, unit_key
 
@@ -66,7 +68,8 @@ ERROR_METRICS = ("max_rel_l2", "mean_rel_l2", "rmse_rel", "max_rel_l2_in_envelop
 _TOP = {"sweep", "protocol", "case", "method"}
 _SWEEP = {"name", "description", "resolution", "error_metric"}
 _NAME = re.compile(r"[^/\\\x00-\x1f\x7f]{1,100}")  # a spec name is part of a folder name: no separator
-_CASE = {"name", "id", "variant", "backend", "resolution", "training", "evaluation", "mu", "mesh", "paper_points"}
+_CASE = {"name", "id", "variant", "backend", "resolution", "training", "evaluation", "mu", "mesh", "paper_points",
+         "scaling_group"}
 # a published configuration drawn beside ours on the case's Pareto plot (paper resolution)
 _PAPER_POINT = {"label": c_str, "step_ms": c_pos, "error": c_nonneg}
 _METHOD = {"name", "cases", "options", "grid", "list", "paper", "protocol"}
@@ -171,6 +174,8 @@ def _check_case(i, c, resolution, default_resolution, folder: Path | None = None
             _fail(f"{path}.paper_points", points, "expected a non-empty array of tables {label, step_ms, error}")
         entry["paper_points"] = [check_table(f"{path}.paper_points[{j}]", dict(p) if isinstance(p, dict) else p,
                                              _PAPER_POINT, required=tuple(_PAPER_POINT)) for j, p in enumerate(points)]
+    if "scaling_group" in c:  # one scene on several meshes: the cost-versus-size fits (studies/scaling.py)
+        entry["scaling_group"] = check_group_name(f"{path}.scaling_group", c["scaling_group"])
     scene = _named(path, case_scene, entry)  # the scene must load and take the mu (their errors name the key)
     check_training(f"{path}.training", training, scene)
     check_evaluation(f"{path}.evaluation", evaluation, scene, training)
@@ -358,6 +363,7 @@ def load_spec(spec_or_preset, resolution: str | None = None, only: list | None =
     ids = [c["id"] for c in cases]
     if len(set(ids)) != len(ids):
         _fail("case", ids, "case ids must be unique (give `id` to a case listed twice)")
+    check_scaling_groups(cases)
     raw_methods = raw.get("method", [])
     if not isinstance(raw_methods, list) or not raw_methods:
         raise ValueError(f"method: a sweep needs at least one [[method]] ({path})")

@@ -224,6 +224,7 @@ def write_derived(out: Path, error_metric: str = "max_rel_l2") -> Path | None:
         return None
     from ..reports.sweep_plots import plot_pareto, plot_radius
     from .ladder import write_ladder
+    from .scaling import write_scaling
 
     cols = ["case", "method", "label", "options", "unit_key", "unit_status", error_metric, "haptic_median_s",
             "haptic_p99_s", "reconstruct_median_s", "reference_step_s", "speedup", "n_reduced"]
@@ -240,6 +241,7 @@ def write_derived(out: Path, error_metric: str = "max_rel_l2") -> Path | None:
         plot_radius(radius, tmp)
         plot_trends(out, units, error_metric, tmp)
         write_ladder(out, units, tmp)  # _derived/ladder.parquet, ladder_<case>.png
+        write_scaling(out, units, tmp, error_metric)  # _derived/scaling.parquet, scaling_<quantity>.png
         if final.exists():
             old = out / "._derived.old"
             shutil.rmtree(old, ignore_errors=True)
