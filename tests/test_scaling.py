@@ -172,7 +172,7 @@ def test_scaling_preset_at_ci(tmp_path):
     step = table[table["quantity"] == "haptic_median_s"].set_index(["scaling_group", "label"])["exponent"]
     for key in [("cube-static", "pod_linear n_modes=3"), ("cube-static", "pod_interp interpolation=linear n_modes=3"),
                 ("cube-static", "nearest")]:
-        assert abs(step[key]) < 0.2, (key, step[key])
+        assert step[key] < 0.3, (key, step[key])  # 10x the dofs: < 2x the step (microseconds: noisy)
     # the steps that solve the full system grow with it
     assert step[("cube-static", "pod_newton n_modes=3")] > 0.5
     assert step[("cube-static", "corotational_fe")] > 0.5

@@ -57,6 +57,7 @@ def plot_scaling(table, points, folder) -> list[Path]:
         for ax, group in zip(axes[0], groups):
             in_group = table["scaling_group"] == group
             rows = table[in_group & ((table["quantity"] == q) | ((table["method"] == REFERENCE) & (q in _TIME)))]
+            n_sizes = points.loc[points["scaling_group"] == group, "n_dof"].nunique()
             for _, r in rows.iterrows():
                 p = points[(points["scaling_group"] == group) & (points["method"] == r["method"])
                            & (points["options"] == r["options"]) & (points["quantity"] == r["quantity"])]
@@ -66,7 +67,8 @@ def plot_scaling(table, points, folder) -> list[Path]:
                 if not keep.any():
                     continue
                 style = dict(color="k", ls="--", lw=2.0) if r["method"] == REFERENCE else dict(ls="-", lw=1.2)
-                ax.plot(p["n_dof"].to_numpy(float)[keep], y[keep], marker="o", ms=3.5, label=f"{r['label']}: "
+                fewer = f" ({int(r['n_sizes'])} sizes)" if r["n_sizes"] < n_sizes else ""
+                ax.plot(p["n_dof"].to_numpy(float)[keep], y[keep], marker="o", ms=3.5, label=f"{r['label']}{fewer}: "
                         f"{exponent_text(r)}", **style)
             ax.set_xscale("log")
             ax.set_yscale("log")

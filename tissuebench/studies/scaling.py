@@ -75,7 +75,7 @@ def check_scaling_groups(cases: list) -> None:
                     raise ValueError(f"case[{i}].scaling_group = {name!r}: case {c['id']!r} differs from "
                                      f"{first['id']!r} of the same group in {key} ({c.get(key)!r} against "
                                      f"{first.get(key)!r}); the cases of a group differ only in mesh")
-            mesh = json.dumps(c.get("mesh", {}).get(c["resolution"], {}), sort_keys=True)
+            mesh = json.dumps(c.get("mesh", {}).get(c["resolution"], {}), sort_keys=True, default=str)
             if mesh in meshes:
                 raise ValueError(f"case[{i}].scaling_group = {name!r}: case {c['id']!r} has the same mesh at "
                                  f"resolution {c['resolution']!r} as {meshes[mesh]!r} ({mesh}); the cases of a "
