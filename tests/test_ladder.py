@@ -9,6 +9,7 @@ import pytest
 from tissuebench.studies.ladder import ladder_statements, ladder_table, rung_of
 from tissuebench.studies.results import read_points, read_units
 from tissuebench.studies.spec import load_spec
+from tissuebench.reports.derived_figures import draw_derived
 from tissuebench.studies.sweep import run_sweep
 
 
@@ -91,7 +92,7 @@ def sweep(tmp_path_factory):
     spec = folder / "ladder.toml"
     spec.write_text(SPEC)
     out = folder / "out"
-    run_sweep(load_spec(spec), out, progress=False)
+    run_sweep(load_spec(spec), out, progress=False, figures=draw_derived)
     return out
 
 
