@@ -32,7 +32,10 @@ def draw_derived(out: Path, units: pd.DataFrame, tables: dict, folder: Path, err
     radius = plot_radius(tables["radius"], folder)
     written += [radius] if radius is not None else []
     written += plot_trends(out, units, error_metric, folder)
-    written += plot_ladder(tables["ladder"], read_points(out), folder)
+    points = read_points(out)
+    if "beyond" in points:  # the ladder is along the path, as its table (the continuation is the radius's)
+        points = points[~points["beyond"].fillna(False).astype(bool)]
+    written += plot_ladder(tables["ladder"], points, folder)
     return written
 
 

@@ -137,7 +137,8 @@ def _first(rung) -> str:
         return None
     if rung["within_1pct_to"] > 0:
         return f"up to {_at(rung['x_name'], rung['within_1pct_to'])}"
-    return f"not even at the first point ({_at(rung['x_name'], rung['first_above_1pct'])}: {_pct(rung['max_error'])})"
+    # the table keeps the max, not the first point's error: name the point only (the max follows)
+    return f"not even at the first point ({_at(rung['x_name'], rung['first_above_1pct'])})"
 
 
 def ladder_statements(table: pd.DataFrame, case: str) -> list[str]:
