@@ -9,6 +9,7 @@ import pytest
 from tissuebench.studies.ladder import ladder_statements, ladder_table, rung_of
 from tissuebench.studies.results import read_points, read_units
 from tissuebench.studies.spec import load_spec
+from tissuebench.reports.derived_figures import draw_derived
 from tissuebench.studies.sweep import run_sweep
 
 
@@ -91,7 +92,7 @@ def sweep(tmp_path_factory):
     spec = folder / "ladder.toml"
     spec.write_text(SPEC)
     out = folder / "out"
-    run_sweep(load_spec(spec), out, progress=False)
+    run_sweep(load_spec(spec), out, progress=False, figures=draw_derived)
     return out
 
 
@@ -152,3 +153,14 @@ def test_a_coarse_mesh_in_time_costs_its_rmse():
     t = ladder_table(units, _points("co", np.array([0.1, 0.2, 0.3]), [0.05, 3.5, 0.1]))
     text = ladder_statements(t, "t")[0]
     assert "costs 20 % (relative RMSE over the run; pointwise up to 350 %)" in text, text
+
+
+def test_a_rung_over_1_percent_from_the_first_point_is_not_quoted_at_its_max():
+    """The kidney of issue 27: linear elasticity 3 % at the first point, 37.6 % at the path's end;
+    the sentence names the first point and gives the max as the max, not as the first point's."""
+    x = [0.1, 0.3, 0.5]
+    units = pd.DataFrame([_unit("k", "linear_fe", "{}", "lin")])
+    t = ladder_table(units, _points("lin", x, [0.03, 0.2, 0.376]))
+    text = ladder_statements(t, "k")[0]
+    assert "within 1 % not even at the first point (load factor 0.1), within 5 % up to load factor 0.1" in text
+    assert "(max 37.6 % over the path)" in text and "0.1: 37.6" not in text

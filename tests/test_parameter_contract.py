@@ -197,3 +197,31 @@ def test_analysis_parameters_of_the_other_analysis_are_refused():
     for key, value in (("max_load_factor", 2.0), ("load_steps", 3)):
         with pytest.raises(ValueError, match=f"mu.{key}"):
             dynamic.at({key: value})
+
+
+_TRAJECTORY_BASES = [({"name": "frame_2dof", "training": {"kind": "trajectory"}}, {"kind": "trajectory"}),
+                     ({"name": "wave_block", "variant": "linear", "training": {"kind": "trajectory"}},
+                      {"kind": "trajectory"})]
+
+
+@pytest.mark.parametrize("method", [m for m in sorted(METHODS) if "trajectory" in METHODS[m].training_kinds])
+def test_a_trajectory_model_follows_load_scale(method):
+    """Every method that learns a trajectory, on a trajectory (the test above takes each method's
+    first base, a static path for the practitioner baselines): at another load amplitude the
+    result changes or is flagged (the trajectory baselines stepped the training's load history
+    and returned it at load_scale 0.75 with status ok, 33 % off, until the ci gate saw it)."""
+    options = _OPTIONS.get(method, {})
+    for case, evaluation in _TRAJECTORY_BASES:
+        base = _entry(case, evaluation)
+        if not why_not(method, case_scene(base), "trajectory", options):
+            break
+    else:
+        pytest.skip(f"{method}: no trajectory base case applies")
+    base_fields, statuses = _run(base, method, options)
+    assert all(s in ("ok", "initial") for s in statuses), f"{method}: the base case does not run: {statuses[:3]}"
+    fields, statuses = _run({**base, "evaluation": {"kind": "trajectory", "load_scale": 0.5}}, method, options)
+    flagged = any(s not in ("ok", "initial") for s in statuses)
+    assert flagged or _differs(fields, base_fields), f"{method}: load_scale 0.5 returned the training's answer, ok"
+    if method == "linear_fe" and not flagged:  # linear: exactly half the training's response
+        half = [None if f is None else 0.5 * f for f in base_fields]
+        assert not _differs(fields, half)

@@ -163,8 +163,9 @@ def test_a_new_users_organ_from_mesh_file_to_report(tmp_path, capsys, monkeypatc
     spec = tmp_path / "kidney.spec.toml"
     assert spec.is_file() and load_spec(spec).cases[0]["evaluation"]["held_out"] is True
     units = read_units(tmp_path / "kidney")
-    # 8 ROM units and the 3 practitioner baselines on the path (issue 28)
-    assert len(units) == 11 and (units["unit_status"] == "ok").all() and not units["seen"].any()
+    # 8 ROM units and the practitioner baselines on the path (issue 28): linear (condensed or not),
+    # corotational, a 2x coarser mesh
+    assert len(units) == 12 and (units["unit_status"] == "ok").all() and not units["seen"].any()
     assert (units["n_seen"] == 0).all()  # held out: no evaluation point is a training state
     points = read_points(tmp_path / "kidney")
     assert (points.loc[points["x"] > 1.0 + 1e-9, "has_reference"]).any()  # the continued reference

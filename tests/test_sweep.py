@@ -17,6 +17,7 @@ from tissuebench.cli import main
 from tissuebench.studies.results import ResultsStore, SweepLocked, read_latency, read_points, read_units
 from tissuebench.studies.schema import UNIT_COLUMNS
 from tissuebench.studies.spec import expand_units, list_presets, load_spec
+from tissuebench.reports.derived_figures import draw_derived
 from tissuebench.studies.sweep import run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -60,7 +61,7 @@ def serial(tmp_path_factory):
     folder = tmp_path_factory.mktemp("sweep")
     spec = write_spec(folder)
     out = folder / "serial"
-    summary = run_sweep(load_spec(spec), out, progress=False)
+    summary = run_sweep(load_spec(spec), out, progress=False, figures=draw_derived)
     return spec, out, summary
 
 

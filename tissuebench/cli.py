@@ -201,6 +201,7 @@ def _run_scene(scene, args, out) -> int:
 
 
 def _sweep(args, preset=None) -> int:
+    from .reports.derived_figures import draw_derived
     from .studies.run import safe_name
     from .studies.spec import list_presets, load_spec
     from .studies.sweep import run_sweep
@@ -228,7 +229,7 @@ def _sweep(args, preset=None) -> int:
     resume_hint = f"tissuebench sweep {source} --out {out} --resume"
     try:
         summary = run_sweep(spec, out, args.executor, args.workers, args.scheduler, args.resume,
-                            progress=not args.quiet, log=log)
+                            progress=not args.quiet, log=log, figures=draw_derived)
     except KeyboardInterrupt:
         print(f"tissuebench: interrupted; finished units are stored in {out}. Resume with: {resume_hint}",
               file=sys.stderr)

@@ -13,7 +13,8 @@ per gate run are printed and written to ``$TISSUEBENCH_GATE_POWER_OUT`` (JSON) w
     TISSUEBENCH_GATE_POWER_RUNS=20 pytest -n 0 -m "slow or not slow" -s \\
         tests/benchmarks/test_bench_gate_power.py          # tox -e gate-power
 
-The default (3 runs) only shows the mechanism; the assertion bounds are the issue's at 20.
+Without TISSUEBENCH_GATE_POWER_RUNS it skips (minutes of A/B per run); the assertion bounds are
+the issue's at 20 runs, a run or two only shows the mechanism.
 """
 from __future__ import annotations
 
@@ -77,7 +78,10 @@ def test_gate_power(tmp_path):
     sha, why = resolve_ref(HEAD_ROOT, "HEAD")
     if sha is None:
         pytest.skip(f"no git history to take REF from: {why}")
-    runs = int(os.environ.get("TISSUEBENCH_GATE_POWER_RUNS", "3"))
+    if "TISSUEBENCH_GATE_POWER_RUNS" not in os.environ:  # minutes of A/B: a measurement, not a CI test
+        pytest.skip("the gate's power benchmark runs with TISSUEBENCH_GATE_POWER_RUNS=N (tox -e gate-power); "
+                    "CI keeps the mechanism by tests/test_check_ab.py (synthetic power, 2x end to end)")
+    runs = int(os.environ["TISSUEBENCH_GATE_POWER_RUNS"])
     spec = tmp_path / "power.toml"
     spec.write_text(SPEC)
     out = tmp_path / "res"

@@ -18,10 +18,11 @@ evaluation point (the store's ``_points``) gives, per rung,
 
 :func:`ladder_statements` turns a case's rungs into what the scene requires ("up to load factor
 0.5 linear elasticity is within 1 %; beyond, geometric nonlinearity is required ...; a 2x
-coarser mesh costs 24 %"), the report's "Fidelity ladder" section. :func:`write_ladder` writes
-``_derived/ladder.parquet`` and one figure per case (``ladder_<case>.png``: each rung's error
-along the path with the 1 % and 5 % lines); the harness calls it from
-:func:`~tissuebench.studies.sweep.write_derived`. A path or trajectory case without any rung
+coarser mesh costs 24 %"), the report's "Fidelity ladder" section.
+:func:`~tissuebench.studies.sweep.write_derived` writes :func:`ladder_table` to
+``_derived/ladder.parquet``; its figures (``ladder_<case>.png``: each rung's error along the
+path with the 1 % and 5 % lines) are the reports layer's (:mod:`tissuebench.reports.ladder`).
+A path or trajectory case without any rung
 gets one row ``rung = "none"`` saying so.
 """
 from __future__ import annotations
@@ -34,7 +35,7 @@ import pandas as pd
 
 from .metrics import validity_radius
 
-__all__ = ["RUNG_METHODS", "LADDER_COLUMNS", "rung_of", "ladder_table", "ladder_statements", "write_ladder"]
+__all__ = ["RUNG_METHODS", "LADDER_COLUMNS", "rung_of", "ladder_table", "ladder_statements"]
 
 RUNG_METHODS = ("linear_fe", "corotational_fe", "coarse_fe")
 LADDER_COLUMNS = ["case", "case_name", "variant", "resolution", "x_name", "rung", "physics", "coarsening",
@@ -136,7 +137,8 @@ def _first(rung) -> str:
         return None
     if rung["within_1pct_to"] > 0:
         return f"up to {_at(rung['x_name'], rung['within_1pct_to'])}"
-    return f"not even at the first point ({_at(rung['x_name'], rung['first_above_1pct'])}: {_pct(rung['max_error'])})"
+    # the table keeps the max, not the first point's error: name the point only (the max follows)
+    return f"not even at the first point ({_at(rung['x_name'], rung['first_above_1pct'])})"
 
 
 def ladder_statements(table: pd.DataFrame, case: str) -> list[str]:
@@ -175,18 +177,3 @@ def ladder_statements(table: pd.DataFrame, case: str) -> list[str]:
             cost = f"{_pct(r['max_error'])} (max over the {span}; {_pct(r['final_error'])} at its end)"
         out.append(f"A {r['coarsening']:g}x coarser mesh{achieved} ({r['physics']} model) costs {cost}.")
     return out
-
-
-def write_ladder(out, units: pd.DataFrame, folder) -> list:
-    """``ladder.parquet`` and the ``ladder_<case>.png`` figures into ``folder`` (the sweep's
-    ``_derived`` being written); returns the paths written."""
-    from pathlib import Path
-
-    from ..reports.ladder import plot_ladder
-    from .results import read_points
-
-    points = read_points(out)
-    table = ladder_table(units, points)
-    path = Path(folder) / "ladder.parquet"
-    table.to_parquet(path, index=False)
-    return [path] + plot_ladder(table, points, folder)

@@ -115,7 +115,9 @@ def summarise_points(points: pd.DataFrame, outputs: pd.DataFrame, evaluation, fi
     past = points["beyond"].astype(bool) if "beyond" in points else pd.Series(False, index=points.index)
     has_ref = points["has_reference"] & (points["status"] != "initial") & ~past
     rel = points.loc[has_ref, "rel_l2"].to_numpy(float)
-    ok = points.loc[has_ref, "status"].isin(["ok"]).to_numpy()
+    # inside the envelope: every point the model did not flag as outside it; a step that failed
+    # there counts (its rel_l2 is inf), so a unit that fails on its own range is never "accurate"
+    inside = ~points.loc[has_ref, "status"].isin(["extrapolation", "beyond_validity"]).to_numpy()
     num = den = 0.0
     for p, u, use in zip(evaluation.points, fields, has_ref.to_numpy()):
         if not use:
@@ -130,7 +132,7 @@ def summarise_points(points: pd.DataFrame, outputs: pd.DataFrame, evaluation, fi
            "n_beyond_reference": int((points["has_reference"] & past).sum()),
            "max_rel_l2": float(rel.max()) if rel.size else np.nan,
            "mean_rel_l2": float(rel.mean()) if rel.size else np.nan,
-           "max_rel_l2_in_envelope": float(rel[ok].max()) if ok.any() else np.nan,
+           "max_rel_l2_in_envelope": float(rel[inside].max()) if inside.any() else np.nan,
            "rmse_rel": float(np.sqrt(num / den)) if den > 0 else np.nan,
            "max_monitor_rel_error": float(outputs["rel_error"].max()) if len(outputs) else np.nan,
            "x_name": evaluation.x_name}

@@ -18,9 +18,9 @@ case's units: each times it in its own process) is a row of its own, ``method = 
 ``n_dof`` is the case's reference field size (the store's ``n_dof``: every unit of a case has
 the same).
 
-:func:`write_scaling` writes ``_derived/scaling.parquet`` (:data:`SCALING_COLUMNS`) and the
-figures of :mod:`tissuebench.reports.scaling` when the sweep has a group with cases of at least
-2 sizes; the harness calls it from :func:`~tissuebench.studies.sweep.write_derived`.
+:func:`~tissuebench.studies.sweep.write_derived` writes the table as ``_derived/scaling.parquet``
+(:data:`SCALING_COLUMNS`) when the sweep has a group with cases of at least 2 sizes; the reports
+layer draws it (``reports/scaling.py``: ``scaling_<quantity>.png`` and the report's section).
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ import pandas as pd
 from scipy import stats
 
 __all__ = ["QUANTITIES", "SCALING_COLUMNS", "REFERENCE", "check_group_name", "check_scaling_groups",
-           "fit_exponent", "group_sizes", "scaling_groups", "scaling_points", "scaling_table", "write_scaling"]
+           "fit_exponent", "group_sizes", "scaling_groups", "scaling_points", "scaling_table"]
 
 # unit columns fitted against n_dof ("error" stands for the sweep's error metric column)
 QUANTITIES = ("offline_s", "model_bytes", "haptic_median_s", "haptic_p99_s", "reconstruct_median_s", "error")
@@ -179,22 +179,3 @@ def scaling_table(units: pd.DataFrame, cases: list, error_metric: str = "max_rel
                      "value_at_min": float(grp["value"].iloc[0]), "value_at_max": float(grp["value"].iloc[-1]),
                      "cases": ",".join(grp["case"])})
     return pd.DataFrame(rows, columns=SCALING_COLUMNS)
-
-
-def write_scaling(out, units: pd.DataFrame, folder, error_metric: str = "max_rel_l2") -> list:
-    """``scaling.parquet`` and the ``scaling_<quantity>.png`` figures into ``folder`` (the sweep's
-    ``_derived`` being written) when a group has cases of at least 2 sizes; returns the paths
-    written (none otherwise)."""
-    from pathlib import Path
-
-    from ..reports.scaling import plot_scaling
-    from .results import read_sweep_manifest
-
-    cases = read_sweep_manifest(out, missing_ok=True).get("cases", [])
-    points = scaling_points(units, cases, error_metric)
-    if points.empty:
-        return []
-    table = scaling_table(units, cases, error_metric)
-    path = Path(folder) / "scaling.parquet"
-    table.to_parquet(path, index=False)
-    return [path] + plot_scaling(table, points, folder)

@@ -49,6 +49,10 @@ METHOD_OPTIONS = {
     "pgd_cutting": ({}, {"n_modes": [6]}, {}),
     "wsc": ({"rtol": 1e-3}, {"handles": [0.03, 0.05], "cubature_elements": [0.1]}, {}),
     "pgd_direct": ({"n_nodes": 50, "margin": 0.25}, {"pod_modes": [3, 8]}, {}),
+    # the practitioner baselines: a Newton solve per step (seconds on an organ) is timed on 20 steps
+    "linear_fe": ({}, {}, {}),
+    "corotational_fe": ({}, {}, {"latency_steps": 20, "warmup": 2}),
+    "coarse_fe": ({}, {"coarsening": [2]}, {"latency_steps": 20, "warmup": 2}),
 }
 _HELD_OUT_SCALE = 0.75  # a trajectory measured at another load amplitude than it learnt
 _MARKER = "# Written by `tissuebench sweep --scene ... --all-methods`"
@@ -83,6 +87,8 @@ def _method_options(name: str, scene) -> tuple[dict, dict, dict]:
         fixed["integrator"] = "central_difference" if METHODS[name].note(scene) else "hht"
     if name == "wsc":
         fixed["cubature"] = "bgbc"
+    if name == "linear_fe" and scene.analysis["type"] == "static":  # and Bro-Nielsen's condensed step
+        grid["condensed"] = [False, True]
     return fixed, dict(grid), dict(protocol)
 
 

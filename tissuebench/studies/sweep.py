@@ -4,8 +4,10 @@
 before any work, takes the folder's lock, skips the units already stored under the same
 key (``resume``), recomputes those whose key changed (code, scene, mesh file, versions,
 protocol: said unit by unit), runs the rest on an executor, writes each unit as it
-finishes, and finally writes the derived tables (Pareto front and validity radii per
-scene) and their plots into ``_derived/``. A unit that raises is a failed row, and the
+finishes, and finally writes the derived tables (Pareto front, validity radii, fidelity
+ladder) into ``_derived/``, with the figures drawn by the ``figures`` callable the caller
+passes (the reports layer's :func:`~tissuebench.reports.derived_figures.draw_derived`: the
+CLI passes it; this layer never imports ``reports``). A unit that raises is a failed row, and the
 sweep goes on. Ctrl-C stops after releasing the lock, saying how to resume.
 """
 from __future__ import annotations
@@ -22,8 +24,7 @@ import pandas as pd
 from .executors import check_executor, execute
 from .reference.cache import PROGRESS_ENV
 from .metrics import TOLERANCES, pareto_front
-from .results import (ResultsStore, SweepManifestError, read_latency, read_outputs, read_points, read_sweep_manifest,
-                      read_units)
+from .results import ResultsStore, SweepManifestError, read_points, read_sweep_manifest, read_units
 from .spec import SweepSpec, expand_units
 from .store import _writable, check_output_location, provenance
 
@@ -91,8 +92,9 @@ def check_same_spec(out: Path, spec: SweepSpec, units, store: ResultsStore) -> N
 
 
 def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | None = None,
-              scheduler: str | None = None, resume: bool = False, progress: bool = True, log=print) -> SweepSummary:
-    """Run a sweep into results folder ``out`` (module docstring)."""
+              scheduler: str | None = None, resume: bool = False, progress: bool = True, log=print,
+              figures=None) -> SweepSummary:
+    """Run a sweep into results folder ``out`` (module docstring); ``figures``: see :func:`write_derived`."""
     out = Path(out)
     check_executor(executor, workers, scheduler)
     check_output_folder(out, resume)
@@ -117,7 +119,7 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
         store.write_manifest(_manifest(spec, units, executor, "running"))
         state = "failed"
         _execute(spec, units, pending, skipped, stale, store, summary, executor, workers, scheduler, progress)
-        write_derived(out, spec.error_metric)
+        write_derived(out, spec.error_metric, figures)
         summary.wall_s = time.perf_counter() - t_start
         state = "finished"
         store.write_manifest(_manifest(spec, units, executor, state, summary))
@@ -193,21 +195,6 @@ def _line(done, total, unit, row, error_metric="max_rel_l2") -> str:
             f"{row['n_failed']} failed")
 
 
-def plot_trends(out: Path, units, error_metric: str, folder: Path) -> list[Path]:
-    """The grid-following figures of :mod:`~tissuebench.reports.trend_plots` and
-    :mod:`~tissuebench.reports.point_plots` into ``folder``."""
-    from ..reports.point_plots import plot_latency, plot_point_errors
-    from ..reports.trend_plots import plot_case_trends, plot_histories, plot_option_trends, plot_spectra
-
-    cases = read_sweep_manifest(out, missing_ok=True).get("cases", [])
-    outputs, points = read_outputs(out), read_points(out)
-    return (plot_histories(units, points, outputs, folder, error_metric)
-            + plot_spectra(units, outputs, folder, error_metric) + plot_option_trends(units, folder, error_metric)
-            + plot_case_trends(units, cases, folder, error_metric)
-            + plot_point_errors(units, points, folder, error_metric)
-            + plot_latency(units, read_latency(out), folder, error_metric))
-
-
 def paper_points(out: Path) -> pd.DataFrame:
     """The published points of the sweep's paper-resolution cases (``case.paper_points``):
     columns case, label, step_ms, error (empty when none)."""
@@ -217,14 +204,19 @@ def paper_points(out: Path) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["case", "label", "step_ms", "error"])
 
 
-def write_derived(out: Path, error_metric: str = "max_rel_l2") -> Path | None:
-    """``_derived/pareto.parquet``, ``radius.parquet`` and the plots, replaced atomically."""
+def write_derived(out: Path, error_metric: str = "max_rel_l2", figures=None) -> Path | None:
+    """``_derived/pareto.parquet``, ``radius.parquet``, ``ladder.parquet`` (``scaling.parquet`` when
+    the sweep has a scaling group at 2 sizes or more) and, when ``figures`` is
+    given, its figures, replaced atomically (a reader sees the old folder or the new one).
+
+    ``figures(out, units, tables, folder, error_metric) -> list of paths`` draws into ``folder``
+    (the ``_derived`` being written); ``tables`` maps ``pareto``, ``radius``, ``ladder`` (and
+    ``scaling``) to the frames written."""
     units = read_units(out)
     if units.empty:
         return None
-    from ..reports.sweep_plots import plot_pareto, plot_radius
-    from .ladder import write_ladder
-    from .scaling import write_scaling
+    from .ladder import ladder_table
+    from .scaling import scaling_table
 
     cols = ["case", "method", "label", "options", "unit_key", "unit_status", error_metric, "haptic_median_s",
             "haptic_p99_s", "reconstruct_median_s", "reference_step_s", "speedup", "n_reduced"]
@@ -232,16 +224,17 @@ def write_derived(out: Path, error_metric: str = "max_rel_l2") -> Path | None:
     pareto.insert(len(cols), "error_metric", error_metric)
     radius = units[["case", "method", "label", "options", "unit_key", "x_name"]
                    + [f"validity_{int(round(t * 100))}pct" for t in TOLERANCES]].copy()
+    tables = {"pareto": pareto, "radius": radius, "ladder": ladder_table(units, read_points(out))}
+    scaling = scaling_table(units, read_sweep_manifest(out, missing_ok=True).get("cases", []), error_metric)
+    if not scaling.empty:  # a scaling_group of cases at >= 2 sizes (studies/scaling.py)
+        tables["scaling"] = scaling
     final = out / "_derived"
     tmp = Path(tempfile.mkdtemp(prefix="._derived.", dir=out))
     try:
-        pareto.to_parquet(tmp / "pareto.parquet", index=False)
-        radius.to_parquet(tmp / "radius.parquet", index=False)
-        plot_pareto(pareto, tmp, paper_points(out))
-        plot_radius(radius, tmp)
-        plot_trends(out, units, error_metric, tmp)
-        write_ladder(out, units, tmp)  # _derived/ladder.parquet, ladder_<case>.png
-        write_scaling(out, units, tmp, error_metric)  # _derived/scaling.parquet, scaling_<quantity>.png
+        for name, table in tables.items():
+            table.to_parquet(tmp / f"{name}.parquet", index=False)
+        if figures is not None:
+            figures(out, units, tables, tmp, error_metric)
         if final.exists():
             old = out / "._derived.old"
             shutil.rmtree(old, ignore_errors=True)
@@ -252,4 +245,3 @@ def write_derived(out: Path, error_metric: str = "max_rel_l2") -> Path | None:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return final
-

@@ -25,7 +25,7 @@ from ..base import StepResult, check_parameters
 from .common import DeadLoads, FeModel
 
 __all__ = ["NewtonPathModel", "TrajectoryModel", "newton_options", "dynamic_system", "integrator_choice",
-           "load_history", "with_atol"]
+           "load_history", "with_atol", "ScaledHistory"]
 
 
 def newton_options(who, rtol, max_iterations, min_increment, linear_solver, n_free) -> dict:
@@ -137,12 +137,41 @@ def integrator_choice(who, integrator, scene) -> tuple[str, dict]:
     return integrator, (own_opts if integrator == own else {})
 
 
-def load_history(training, scene):
-    """The load factor versus time of a dynamic case: the training's, else the scene's."""
+class ScaledHistory:
+    """The load factor the baseline's system is driven with: ``scale * history(t)``.
+
+    A trajectory step receives its load factor in ``mu`` (``load_scale`` folded in, see
+    :mod:`tissuebench.studies.evaluation`); the integrators evaluate the load at times inside
+    the step (Bathe's mid-step, HHT's weighted ends), so the step sets ``scale`` from the
+    driven value at the step's end and the history's shape carries it in between: exact for a
+    run whose loads are a constant multiple of the training's."""
+
+    def __init__(self, history):
+        self.history, self.scale = history, 1.0
+
+    def __call__(self, t):
+        return self.scale * self.history(t)
+
+    def drive(self, t: float, load_factor: float) -> str:
+        """Set the scale so that the load factor at ``t`` is ``load_factor``; returns ``""`` or, where
+        the history is zero at ``t`` and the driven value is not (no multiple represents it), why."""
+        base = float(self.history(t))
+        if abs(base) > 1e-300:
+            self.scale = load_factor / base
+            return ""
+        if abs(load_factor) > 1e-300:
+            return (f"load factor {load_factor:g} at t = {t:.6g}, where the training's history is 0: driven with "
+                    f"the last scale {self.scale:g}")
+        return ""
+
+
+def load_history(training, scene) -> ScaledHistory:
+    """The load factor versus time of a dynamic case: the training's, else the scene's, scaled
+    by the driven load factor of each step (:class:`ScaledHistory`)."""
     history = training.history if training.history is not None else getattr(scene, "history", None)
     if history is None:
         raise ValueError("a trajectory baseline needs the load history (training.history or the scene's)")
-    return history
+    return ScaledHistory(history)
 
 
 def dynamic_system(backend, training, name: str, linear: bool, history) -> SecondOrderSystem:
@@ -194,6 +223,8 @@ class TrajectoryModel(FeModel):
         if state0 is not None:
             u0, v0 = self._initial(state0.get("u")), self._initial(state0.get("v"))
         self._pending, self._integ, self._stopped = (u0, v0, float(dt)), None, None
+        if isinstance(self.history, ScaledHistory):
+            self.history.scale = 1.0
 
     def _initial(self, x):
         if x is None:
@@ -209,6 +240,10 @@ class TrajectoryModel(FeModel):
     def step(self, mu) -> StepResult:
         mu = check_parameters(mu, ("time",), self.name)
         t = float(mu["time"])
+        unrepresented = ""
+        if "load_factor" in mu and isinstance(self.history, ScaledHistory):  # the driven load (load_scale folded
+            # in) reaches the system, not the training's; before the first step binds the integrator (its a0)
+            unrepresented = self.history.drive(t, float(mu["load_factor"]))
         if self._integ is None:
             if getattr(self, "_pending", None) is None:
                 raise RuntimeError(f"{self.name}: call start(mu0, state0, dt) before step()")
@@ -226,7 +261,9 @@ class TrajectoryModel(FeModel):
         if not rep.converged:
             self._stopped = f"{self.name}: stopped at t = {integ.t + integ.dt:.6g}: {rep.message}"
             return StepResult(None, "failed", f"{self.name}: {rep.message}", {"iterations": rep.iterations}, mu=out)
-        return StepResult(integ.u, "ok", "", {"fixed": integ.uc, "iterations": rep.iterations}, mu=out)
+        status = "extrapolation" if unrepresented else "ok"
+        return StepResult(integ.u, status, unrepresented and f"{self.name}: {unrepresented}",
+                          {"fixed": integ.uc, "iterations": rep.iterations}, mu=out)
 
     def floor_ops(self):
         """The step's unavoidable arithmetic, built at its first call (the step size is known once
