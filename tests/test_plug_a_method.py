@@ -93,5 +93,8 @@ def test_a_toy_method_runs_through_sweep_report_and_gate(toy_registered, tmp_pat
     worse = tmp_path / "worse"
     assert main(["sweep", str(spec), "--out", str(worse), "--quiet"]) == 0
     result = check(worse, baseline)
-    assert [(f.method, f.metric) for f in result.regressions] == [("scaled_last", "error")]
+    # file mode: a microsecond step's latency ratio moves between two sweeps (issue 25: the A/B is
+    # the latency test); the error is exact
+    found = [(f.method, f.metric) for f in result.regressions if not f.metric.startswith("latency")]
+    assert found == [("scaled_last", "error")]
     capsys.readouterr()
