@@ -46,7 +46,7 @@ import numpy as np
 
 __all__ = ["Training", "StepResult", "DeferredStepResult", "OnlineModel", "RomMethod", "METHODS", "register",
            "make_method", "STEP_STATUSES", "MODEL_KINDS", "check_parameters", "LinearReconstruction", "method_class",
-           "Applies", "POLYNOMIAL_MATERIALS"]
+           "Applies", "POLYNOMIAL_MATERIALS", "check_choice"]
 
 STEP_STATUSES = ("ok", "extrapolation", "beyond_validity", "failed")
 MODEL_KINDS = ("map", "path", "trajectory")
@@ -236,6 +236,12 @@ class DeferredStepResult(StepResult):
     def message(self, value: str) -> None:
         self._message_of = None
         _MESSAGE.__set__(self, value)
+
+
+def check_choice(who: str, name: str, value, valid) -> None:
+    """Refuse an option ``value`` outside ``valid``, naming the method, the option and the value."""
+    if value not in valid:
+        raise ValueError(f"{who}: {name} = {value!r}; valid: {list(valid)}")
 
 
 def check_parameters(mu, required: tuple, name: str) -> dict:

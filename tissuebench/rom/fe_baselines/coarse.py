@@ -39,8 +39,8 @@ from ...cases.probes import hex_shape_functions, make_probe
 from ...refsolvers.backends import make_backend
 from ...refsolvers.mesh import node_layout
 from ...refsolvers.remesh import mean_edge_length, remesh
-from ..base import RomMethod, Training, register
-from .common import DeadLoads, FieldMap, check_choice, contact_load, contact_nodes_of, intact_backend, scene_of
+from ..base import RomMethod, Training, check_choice, register
+from .common import DeadLoads, FieldMap, contact_load, contact_nodes_of, intact_backend, scene_of
 from .corotational import corotational_backend, roundoff_force
 from .linear import is_dynamic, linear_static_model
 from .stepping import (NewtonPathModel, TrajectoryModel, dynamic_system, integrator_choice, load_history,

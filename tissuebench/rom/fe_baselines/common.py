@@ -26,13 +26,8 @@ import scipy.sparse as sp
 
 from ..base import OnlineModel, StepResult, Training
 
-__all__ = ["scene_of", "intact_backend", "DeadLoads", "FieldMap", "FeModel", "contact_load", "check_choice",
+__all__ = ["scene_of", "intact_backend", "DeadLoads", "FieldMap", "FeModel", "contact_load",
            "contact_nodes_of"]
-
-
-def check_choice(who: str, name: str, value, valid) -> None:
-    if value not in valid:
-        raise ValueError(f"{who}: {name} = {value!r}; valid: {list(valid)}")
 
 
 def scene_of(training: Training, who: str):

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from ..base import RomMethod, Training, register
+from ..base import RomMethod, Training, check_choice, register
 from .cubature import bgbc_cubature, cell_centroids, full_cubature, rbf_cubature
 from .handles import furthest_point_sampling, resolve_count
 from .loads import ReducedLoads
@@ -114,22 +114,12 @@ class Wsc(RomMethod):
             if _positive(name, val) <= 1.0:
                 raise ValueError(f"wsc option {name} = {val!r} must exceed 1 (a node may lie a covering radius "
                                  "away from every handle or sample)")
-        if cubature not in CUBATURES:
-            raise ValueError(f"wsc option cubature = {cubature!r}: expected one of {CUBATURES}")
-        if integrator not in SCHEMES:
-            raise ValueError(f"wsc option integrator = {integrator!r}: expected one of {SCHEMES}")
-        if solver not in SOLVERS:
-            raise ValueError(f"wsc option solver = {solver!r}: expected one of {SOLVERS}")
-        if linear_solver not in KINDS:
-            raise ValueError(f"wsc option linear_solver = {linear_solver!r}: expected one of {KINDS}")
-        if solve_precision not in PRECISIONS:
-            raise ValueError(f"wsc option solve_precision = {solve_precision!r}: expected one of {PRECISIONS}")
-        if predictor not in PREDICTORS:
-            raise ValueError(f"wsc option predictor = {predictor!r}: expected one of {PREDICTORS}")
-        if lbfgs_history not in HISTORIES:
-            raise ValueError(f"wsc option lbfgs_history = {lbfgs_history!r}: expected one of {HISTORIES}")
-        if on_max_iter not in ("fail", "accept"):
-            raise ValueError(f"wsc option on_max_iter = {on_max_iter!r}: expected 'fail' or 'accept'")
+        for name, value, valid in (("cubature", cubature, CUBATURES), ("integrator", integrator, SCHEMES),
+                                   ("solver", solver, SOLVERS), ("linear_solver", linear_solver, KINDS),
+                                   ("solve_precision", solve_precision, PRECISIONS),
+                                   ("predictor", predictor, PREDICTORS), ("lbfgs_history", lbfgs_history, HISTORIES),
+                                   ("on_max_iter", on_max_iter, ("fail", "accept"))):
+            check_choice("wsc option", name, value, valid)
         if nnls_tol is not None:
             _positive("nnls_tol", nnls_tol)
         self.scheme = make_scheme(integrator, alpha)
