@@ -11,7 +11,8 @@ import pytest
 from tissuebench.refsolvers.dynamics import SecondOrderSystem, integrate
 from tissuebench.rom import METHODS, make_method
 from tissuebench.rom.base import Training
-from tissuebench.rom.direct import SCHEMES, Vademecum, VectorAlgebra
+from tissuebench.rom.pgd_direct import SCHEMES, StepVademecum, VectorAlgebra
+from tissuebench.rom.pgd_direct.meshes import ParameterMesh, parameter_domain
 from tissuebench.studies.trajectories import scene_system, trajectory_training
 
 
@@ -223,7 +224,7 @@ def test_training_without_velocities_or_time_step_is_refused(frame_fe):
 
 def test_vademecum_npz_roundtrip(tmp_path, frame_fe):
     vad = make_method("pgd_direct", pod_modes=2, integrator="hht").build(frame_fe).vademecum
-    back = Vademecum.load(vad.save(tmp_path / "vad.npz"))
+    back = StepVademecum.load(vad.save(tmp_path / "vad.npz"))
     p = _random_params(vad, np.random.default_rng(0), 1)[0]
     assert back.param_names == vad.param_names and back.stats["pgd_modes"] == vad.stats["pgd_modes"]
     for k, x in vad.evaluate(p).items():
@@ -272,3 +273,24 @@ def test_basis_floor_bounds_the_error_of_a_replayed_training(beam):
         rmse = np.linalg.norm(U - ref) / np.linalg.norm(ref)
         assert rmse >= 0.9 * floors[-1], (k, rmse, floors[-1])
     assert floors[0] > floors[1] > floors[2] and 0 < floors[2] < 0.2, floors
+
+
+def test_parameter_domain_and_mesh():
+    assert parameter_domain([0.0, 2.0, -1.0], 0.25) == (-2.5, 2.5)
+    assert parameter_domain([0.0, 2.0, -1.0], 0.25, min_radius=4.0) == (-4.0, 4.0)
+    assert parameter_domain([1.0, 1.0], 0.25, symmetric=False) == (0.75, 1.25)
+    with pytest.raises(ValueError, match="zero"):
+        parameter_domain([0.0, 0.0], 0.25)
+    with pytest.raises(ValueError, match="margin"):
+        parameter_domain([1.0], -0.1)
+    mesh = ParameterMesh(-1.0, 1.0, 5)
+    # the P1 mass matrix integrates: 1^T W 1 = length, x^T W x = int x^2 = 2/3
+    W = mesh.mass()
+    assert np.ones(5) @ W @ np.ones(5) == pytest.approx(2.0)
+    assert mesh.nodes @ W @ mesh.nodes == pytest.approx(2.0 / 3.0)
+    # interpolation of a linear function is exact, also beyond the ends (extrapolation flagged)
+    _, _, inside = mesh.locate(np.array([-1.0, 0.3, 1.0, 1.7]))
+    assert list(inside) == [True, True, True, False]
+    assert mesh.interpolate(3 * mesh.nodes + 1, np.array([0.3, 1.7])) == pytest.approx([1.9, 6.1])
+    with pytest.raises(ValueError, match="n_nodes"):
+        ParameterMesh(0.0, 1.0, 1)

@@ -4,7 +4,7 @@ import pytest
 import scipy.sparse as sp
 
 from tissuebench.refsolvers.dynamics import SecondOrderSystem, make_integrator
-from tissuebench.rom.direct.schemes import SCHEMES, StepOperators, VectorAlgebra
+from tissuebench.rom.pgd_direct.schemes import SCHEMES, StepOperators, VectorAlgebra
 
 
 def _system(n=6, seed=0, alpha_m=0.0, beta_k=0.0, lumped=False):

@@ -272,7 +272,7 @@ def _manifest_consumers(root, manifest, everything):
     provenance and description; the whole report data when ``everything``."""
     from tissuebench.reports.html import _description
     from tissuebench.reports.report_data import load_results
-    from tissuebench.reports.sections import provenance_rows
+    from tissuebench.reports.report_sections import provenance_rows
     from tissuebench.reports.trend_plots import case_trends
     from tissuebench.studies.results import read_units
     from tissuebench.studies.spec import ERROR_METRICS

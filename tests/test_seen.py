@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from tissuebench.reports.recommend import SEEN_REASON, parse_requirement, rank_units
-from tissuebench.reports.sections import recommendation
+from tissuebench.reports.report_sections import recommendation
 from tissuebench.studies.evaluation import Evaluation, EvaluationPoint, build_evaluation
 from tissuebench.studies.metrics import seen_points
 from tissuebench.studies.results import read_points, read_units

@@ -3,7 +3,8 @@
 Timed with pytest-benchmark (``pytest -n 0 tests/benchmarks/test_bench_direct.py --benchmark-enable``);
 the plain test run executes each once, untimed. Targets (issue 14): step + outputs median
 <= 0.1 ms and p99 <= 0.5 ms on every scene; the speed-up is the ratio to the HHT step
-(examples/direct_study.py reports both measured in one process, with p99).
+(the direct_* presets report both measured in one run, with p99: ``tissuebench sweep --preset
+direct_liver_dynamic``).
 """
 import numpy as np
 import pytest

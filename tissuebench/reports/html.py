@@ -39,7 +39,7 @@ from .paper import paper_rows
 from .plotly_figures import error_figure, pareto_figure
 from .recommend import LATENCY_STATISTIC, parse_requirement
 from .report_data import load_results
-from .sections import (Table, anchors_table, backends_table, calibration, extremes_table_view, offline_table,
+from .report_sections import (Table, anchors_table, backends_table, calibration, extremes_table_view, offline_table,
                        paper_table, provenance_rows, radius_table, ranking_table, recommendation, scene_info, scene_of)
 
 __all__ = ["write_report", "TEMPLATES", "DEFAULT_NAME"]

@@ -1,8 +1,8 @@
 """Reduced-order models: one module per method family, one offline/online contract (:mod:`.base`)."""
 from .base import (METHODS, MODEL_KINDS, STEP_STATUSES, LinearReconstruction, OnlineModel, RomMethod, StepResult,
                    Training, check_parameters, make_method, method_class, register)
-from . import (anm, anm_interp, anm_pod, baselines, direct, interpolation, pgd, pod,  # noqa: F401  (registers
-               wsc)
+from . import (anm, anm_interp, anm_pod, baselines, interpolation, pgd, pgd_direct, pod,  # noqa: F401  (registers
+               subspace_interp, wsc)
 from . import fe_baselines  # noqa: F401,E402  (registers linear_fe, corotational_fe, coarse_fe)
 
 __all__ = ["METHODS", "MODEL_KINDS", "STEP_STATUSES", "LinearReconstruction", "OnlineModel", "RomMethod",

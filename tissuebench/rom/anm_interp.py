@@ -54,7 +54,7 @@ from .interpolation import grassmann_interpolate, match_modes, principal_angles,
 from .pod import pod_basis
 from .polynomial import ReducedPolynomial, check_polynomial_problem, reduced_polynomial
 
-__all__ = ["AnmPodInterp", "AnmPodInterpModel", "Podi", "Grassmann", "rotate_polynomial"]
+__all__ = ["AnmPodInterp", "AnmPodInterpModel", "rotate_polynomial"]
 
 BASIS_INTERPOLATIONS = ("podi", "grassmann")
 ALIGNMENTS = {"procrustes": procrustes_align, "modes": match_modes}
@@ -374,33 +374,6 @@ class AnmPodInterpModel(OnlineModel):
         u = np.zeros(self.ndof)
         u[self.free_dofs] = basis @ result.q
         return u
-
-
-@register
-class Podi(AnmPodInterp):
-    """PODI (paper §5.2): stored POD bases aligned mode by mode and interpolated piecewise
-    linearly between load positions, with the reduced SVK tensors (the f_nl terms)
-    interpolated alike; the reduced ANM series solves the state. :class:`AnmPodInterp` with
-    ``basis_interpolation="podi"``, ``align="modes"`` (the more accurate pairing measured)."""
-
-    name = "podi"
-
-    def __init__(self, n_modes: int | None = None, order: int = 6, eps: float = 1e-4, max_segments: int = 100,
-                 align: str = "modes"):
-        super().__init__(n_modes, order, eps, "podi", max_segments, align)
-
-
-@register
-class Grassmann(AnmPodInterp):
-    """Grassmann interpolation (paper §5.1, Amsallem-Farhat log/exp maps about the nearest
-    stored basis) of the POD basis between load positions, tensors interpolated in aligned
-    coordinates; :class:`AnmPodInterp` with ``basis_interpolation="grassmann"``."""
-
-    name = "grassmann"
-
-    def __init__(self, n_modes: int | None = None, order: int = 6, eps: float = 1e-4, max_segments: int = 100,
-                 align: str = "modes"):
-        super().__init__(n_modes, order, eps, "grassmann", max_segments, align)
 
 
 def _polar(B):

@@ -4,7 +4,7 @@ cracking-node cutting. Importing the package registers the methods ``pgd`` (and 
 others as they are added) in :data:`tissuebench.rom.METHODS`."""
 from .family import PointLoadFamily, anterior_nodes, line_family, nodal_areas, surface_family
 from .linear import Pgd, PgdModel
-from .cutting import CuttingModel, PgdCutting
+from .cutting_method import CuttingModel, PgdCutting
 from .svk import PgdSvk, PgdSvkModel
 from .projections import PrbProjection, SrbProjection, make_projection
 from .training import family_from_training, pgd_training

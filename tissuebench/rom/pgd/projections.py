@@ -16,7 +16,7 @@
   ``beta = 1``: prb is not consistent, which is the paper's point (srb is better).
 
 Both reduced matrices are factorised offline; with cuts they are the leading block of
-the coupled system (28) (:mod:`.cutting`).
+the coupled system (28) (:mod:`.cutting_method`).
 """
 from __future__ import annotations
 

@@ -47,7 +47,7 @@ import scipy.sparse.linalg as spla
 
 from .lbfgs import lbfgs, two_loop
 from .linsolve import StepMatrix
-from .schemes import SCHEMES, Scheme, make_scheme  # noqa: F401  (re-exported)
+from .kinematics import SCHEMES, Scheme, make_scheme  # noqa: F401  (re-exported)
 from .subspace import regularised
 
 __all__ = ["SCHEMES", "SOLVERS", "PREDICTORS", "HISTORIES", "Scheme", "ReducedStepper", "make_scheme"]

@@ -7,8 +7,8 @@ constant over ``[t_n, t_n + dt]``, the paper's assumption, §4.1) to the state a
 
 * :class:`VectorAlgebra` runs them on free-dof vectors (the explicit update formula of
   the inner integrator, used as the reference of one step);
-* :class:`~tissuebench.rom.direct.offline.SeparatedAlgebra` runs them on
-  :class:`~tissuebench.rom.direct.fields.SepField` inputs, each implicit solve being a
+* :class:`~tissuebench.rom.pgd_direct.offline.SeparatedAlgebra` runs them on
+  :class:`~tissuebench.rom.pgd_direct.fields.SepField` inputs, each implicit solve being a
   PGD solve of the parametric problem (the vademecum).
 
 A scheme returns, per computed field, ``("value", x)`` (the field itself) or

@@ -17,7 +17,7 @@ import numpy as np
 from ..base import DeferredStepResult, OnlineModel, StepResult
 from ..online import parameter
 from .schemes import SCHEMES, StepOperators, VectorAlgebra
-from .vademecum import Evaluator, Vademecum
+from .step_vademecum import Evaluator, StepVademecum
 
 __all__ = ["DirectModel"]
 
@@ -27,17 +27,17 @@ class DirectModel(OnlineModel):
 
     Attributes
     ----------
-    vademecum : Vademecum
+    vademecum : StepVademecum
     extrapolations : int
         Steps since ``start`` whose input lay outside the parameter intervals.
     info : dict
-        Offline record (:attr:`Vademecum.stats`).
+        Offline record (:attr:`StepVademecum.stats`).
     """
 
     name = "pgd_direct"
     kind = "trajectory"
 
-    def __init__(self, vademecum: Vademecum, ops: StepOperators, bases: dict, free_dofs, ndof: int,
+    def __init__(self, vademecum: StepVademecum, ops: StepOperators, bases: dict, free_dofs, ndof: int,
                  load_at: str = "end"):
         self.vademecum, self.ops, self.bases = vademecum, ops, bases
         self.free_dofs, self.ndof, self.load_at = np.asarray(free_dofs), int(ndof), load_at

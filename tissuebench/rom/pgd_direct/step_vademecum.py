@@ -19,11 +19,11 @@ import numpy as np
 
 from .meshes import ParameterMesh
 
-__all__ = ["Evaluator", "Vademecum"]
+__all__ = ["Evaluator", "StepVademecum"]
 
 
 @dataclass
-class Vademecum:
+class StepVademecum:
     """Separated solution of one step of ``scheme`` with step ``dt``.
 
     Attributes
@@ -88,7 +88,7 @@ class Vademecum:
         return path
 
     @classmethod
-    def load(cls, path) -> Vademecum:
+    def load(cls, path) -> StepVademecum:
         with np.load(Path(path), allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
             space = {k: data[f"space_{k}"] for k in meta["fields"]}
@@ -99,7 +99,7 @@ class Vademecum:
 
 
 class Evaluator:
-    """Precomputed arrays for the online evaluation of a :class:`Vademecum`.
+    """Precomputed arrays for the online evaluation of a :class:`StepVademecum`.
 
     ``weights(p)`` costs a handful of NumPy calls on (P, N) arrays, into buffers kept between
     calls: locate each ``p_d`` on its uniform mesh, gather the left nodal values and the
@@ -107,7 +107,7 @@ class Evaluator:
     interpolate, multiply over the parameters.
     """
 
-    def __init__(self, vad: Vademecum):
+    def __init__(self, vad: StepVademecum):
         G = np.ascontiguousarray(vad.factors)
         P, n, N = G.shape
         self.left = np.ascontiguousarray(G[:, :-1, :])

@@ -6,7 +6,7 @@
 * :func:`state_bases`: one POD basis per state field (displacements, velocities and,
   for HHT, accelerations; mass-orthonormal, so that projecting a state is the Galerkin
   projection in the kinetic-energy norm) and the training values of every reduced
-  coordinate, from which :func:`~tissuebench.rom.direct.meshes.parameter_domain` takes
+  coordinate, from which :func:`~tissuebench.rom.pgd_direct.meshes.parameter_domain` takes
   the intervals of the vademecum.
 """
 from __future__ import annotations

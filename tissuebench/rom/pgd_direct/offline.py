@@ -30,7 +30,7 @@ import numpy as np
 from ..separated import SeparatedOperator, SeparatedVector, pgd_solve
 from .fields import SepField, coordinate_field, parameter_field, stack_fields
 from .schemes import Scheme, StepOperators, scheme_step
-from .vademecum import Vademecum
+from .step_vademecum import StepVademecum
 
 __all__ = ["PgdSettings", "SeparatedAlgebra", "build_vademecum"]
 
@@ -151,7 +151,7 @@ class SeparatedAlgebra:
 
 
 def build_vademecum(ops: StepOperators, scheme: Scheme, bases: dict, meshes, dt: float, settings: PgdSettings,
-                    internal_force_field=None, **options) -> Vademecum:
+                    internal_force_field=None, **options) -> StepVademecum:
     """PGD vademecum of one step of ``scheme``.
 
     Parameters
@@ -198,5 +198,5 @@ def build_vademecum(ops: StepOperators, scheme: Scheme, bases: dict, meshes, dt:
     stats = {"solves": alg.records, "separated_terms": Z.n_terms, "offline_s": time.perf_counter() - t0,
              "pgd_modes": {r["solve"]: r["modes"] for r in alg.records},
              "fixed_point_iterations": {r["solve"]: r["fixed_point_iterations"] for r in alg.records}}
-    return Vademecum(scheme.name, float(dt), dict(options), names + ["load_factor"], list(meshes), space,
+    return StepVademecum(scheme.name, float(dt), dict(options), names + ["load_factor"], list(meshes), space,
                      np.stack(Z.factors), stats)

@@ -4,15 +4,14 @@ Modules: :mod:`.meshes` (parameter intervals and 1D meshes), :mod:`.fields` (sep
 functions), :mod:`.schemes` (the inner integrators, on vectors and separated fields),
 :mod:`.operators` (system and POD bases from a Training), :mod:`.balance` (the
 coordinates the PGD sees), :mod:`.nonlinear` (separated SVK force), :mod:`.offline` (the
-PGD solves of one step), :mod:`.vademecum` (storage and evaluation), :mod:`.model`
-(online), :mod:`.method` (the registered method), :mod:`.diagnostics` (runs, errors,
-energy, spectra). Trajectory trainings of catalogue scenes: ``studies.trajectories``.
+PGD solves of one step), :mod:`.step_vademecum` (storage and evaluation), :mod:`.model`
+(online), :mod:`.method` (the registered method). Trajectory trainings of catalogue scenes: ``studies.trajectories``.
 """
 from .meshes import ParameterMesh, parameter_domain
 from .method import DirectIntegrator
 from .model import DirectModel
 from .schemes import SCHEMES, StepOperators, VectorAlgebra
-from .vademecum import Vademecum
+from .step_vademecum import StepVademecum
 
 __all__ = [
            "SCHEMES",
@@ -20,7 +19,7 @@ __all__ = [
            "DirectModel",
            "ParameterMesh",
            "StepOperators",
-           "Vademecum",
+           "StepVademecum",
            "VectorAlgebra",
            "parameter_domain",
 ]
