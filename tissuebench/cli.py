@@ -19,6 +19,9 @@
                                             RESULTS also every FE scene of the sweep on both
                                             backends (RESULTS/_backends.parquet)
 
+The package's subcommand modules are imported inside the handlers below, not at the top: a
+command loads only what it runs (``tissuebench --help`` and ``cache ls`` need no solver).
+
 Exit codes: 0 success, 1 the run finished with a numerical failure (stored) or its results
 could not be written (a full disk: nothing stored), 2 bad input (including an output location
 that cannot be written, checked before any work or found read-only during it), 130
@@ -35,6 +38,8 @@ import time
 import warnings
 from pathlib import Path
 
+from .choices import BACKEND_NAMES, RESOLUTIONS
+
 
 def _parser():
     p = argparse.ArgumentParser(prog="tissuebench", description="Verification and benchmarking of "
@@ -43,8 +48,8 @@ def _parser():
     run = sub.add_parser("run", help="reference solve of a catalogue case")
     run.add_argument("case", help="case name (see `tissuebench cases`) or a scene file")
     run.add_argument("--variant", default=None, help="scene variant (default: the scene's default)")
-    run.add_argument("--backend", default="skfem", choices=["skfem", "ngsolve"])
-    run.add_argument("--resolution", default="ci", choices=["ci", "paper"])
+    run.add_argument("--backend", default="skfem", choices=BACKEND_NAMES)
+    run.add_argument("--resolution", default="ci", choices=RESOLUTIONS)
     run.add_argument("--out", type=Path, default=None, help="result folder (default: out/CASE[-VARIANT]-BACKEND-RES)")
     run.add_argument("--force", action="store_true", help="replace an existing result folder")
     run.add_argument("--linear-solver", default="auto", choices=["auto", "direct", "cholesky", "amg-cg"],
@@ -80,7 +85,7 @@ def _parser():
     ver = sub.add_parser("verify", help="our values against the external anchors (Cook, Land et al., analytic)")
     ver.add_argument("results", type=Path, nargs="?", default=None,
                      help="a sweep's results folder: the table goes to RESULTS/_anchors.parquet (the report shows it)")
-    ver.add_argument("--resolution", default="ci", choices=["ci", "paper"])
+    ver.add_argument("--resolution", default="ci", choices=RESOLUTIONS)
     ver.add_argument("--backend", default="ngsolve", choices=["ngsolve", "skfem"])
     ver.add_argument("--cases", default=None, help="only these anchor cases (comma-separated)")
     ver.add_argument("--no-backends", action="store_true",
@@ -89,23 +94,23 @@ def _parser():
     desc = sub.add_parser("describe", help="what a run of CASE models, and why")
     desc.add_argument("case")
     desc.add_argument("--variant", default=None)
-    desc.add_argument("--resolution", default="ci", choices=["ci", "paper"])
+    desc.add_argument("--resolution", default="ci", choices=RESOLUTIONS)
     scene = sub.add_parser("scene", help="check a scene file: what it models, counted, and scene.png")
     scene.add_argument("action", choices=["check"])
     scene.add_argument("case", help="a scene file (or a catalogue case name)")
     scene.add_argument("--variant", default=None)
-    scene.add_argument("--resolution", default="ci", choices=["ci", "paper"])
+    scene.add_argument("--resolution", default="ci", choices=RESOLUTIONS)
     scene.add_argument("--out", type=Path, default=None,
                        help="the picture (default: scene.png beside the scene file; '-' for none)")
     methods = sub.add_parser("methods", help="every registered method: does it apply to SCENE, and why not")
     methods.add_argument("case", help="a scene file or a catalogue case name")
     methods.add_argument("--variant", default=None)
-    methods.add_argument("--resolution", default="ci", choices=["ci", "paper"])
+    methods.add_argument("--resolution", default="ci", choices=RESOLUTIONS)
     return p
 
 
 def _sweep_options(p):
-    p.add_argument("--resolution", default=None, choices=["ci", "paper"],
+    p.add_argument("--resolution", default=None, choices=RESOLUTIONS,
                    help="mesh resolution of every case and the grid of the methods (default: the spec's, ci)")
     p.add_argument("--out", type=Path, default=None, help="results folder (default: out/sweep-NAME-RES)")
     p.add_argument("--executor", default="serial", help="serial (default) | processes | dask")

@@ -12,6 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from ..refsolvers import BodyForce, Dirichlet, FollowerPressure, PointLoad, Problem, SurfaceTraction
+from ..refsolvers.mesh import node_layout
 from .histories import History
 from .monitors import unit_vector
 
@@ -63,7 +65,6 @@ def _plane_normal(scene, path, facets):
 
 
 def _fe_load(scene, i, ld, nodes):
-    from ..refsolvers import BodyForce, FollowerPressure, PointLoad, SurfaceTraction
 
     kind, path = ld["type"], f"load[{i}]"
     if kind == "body":
@@ -87,8 +88,6 @@ def _fe_load(scene, i, ld, nodes):
 def _interpolated_point_load(scene, path, ld, nodes):
     """A point force at the region's ``nearest`` point (bbox frame allowed), consistent nodal
     forces ``w_i F`` with the shape-function weights ``w_i`` of the point in its cell."""
-    from ..refsolvers import PointLoad
-    from ..refsolvers.mesh import node_layout
     from .probes import make_probe
 
     region = ld["region"]
@@ -111,8 +110,6 @@ def _interpolated_point_load(scene, path, ld, nodes):
 def fe_problem(scene, element: str | None = None):
     """The :class:`~tissuebench.refsolvers.Problem` of a finite-element ``scene``
     (see :meth:`tissuebench.cases.scene.Scene.to_problem`)."""
-    from ..refsolvers import Dirichlet, Problem
-    from ..refsolvers.mesh import node_layout
 
     element = element or scene.element
     nodes = node_layout(scene.mesh, element)[0]

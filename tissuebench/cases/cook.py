@@ -4,7 +4,7 @@ The trapezoid (0,0), (48,44), (48,60), (0,44) mm, 1 mm thick (one element throug
 thickness), left edge clamped, a dead shear traction of 1/16 MPa on the right edge (1 N
 total), units mm, N, MPa. Two neo-Hookean energies with mu = 0.4225 MPa, nu = 0.3:
 
-* the SPEC's coupled one, W = mu/2 (I1 - 3) - mu ln J + lambda/2 (ln J)^2
+* the coupled one (this project's ``neo_hookean``), W = mu/2 (I1 - 3) - mu ln J + lambda/2 (ln J)^2
   (:class:`~tissuebench.refsolvers.NeoHookean`): plane strain, corner u_y 13.57 mm
   (our converged P2 16x16 / Q1 32x32 value, no external source);
 * the decoupled one of the deal.II code gallery (``Quasi_static_Finite_strain_Compressible_
@@ -32,7 +32,9 @@ from ..refsolvers import (
     NeoHookeanDecoupled,
     Problem,
     SurfaceTraction,
+    make_backend,
 )
+from ..refsolvers.newton import newton_solve
 from .meshes import box_mesh
 
 __all__ = [
@@ -78,7 +80,7 @@ def cook_problem(n: int, element: str = "P2", material="coupled", traction: floa
         Cells along each in-plane edge (>= 1).
     element : {"P1", "P2", "Q1"}
     material : "coupled" | "decoupled" | "linear" | Material
-        The SPEC's neo-Hookean, the gallery's decoupled one (both mu = 0.4225 MPa, nu = 0.3),
+        Our (coupled) neo-Hookean, the gallery's decoupled one (both mu = 0.4225 MPa, nu = 0.3),
         linear E = 70 MPa, nu = 1/3 (the linear benchmark), or any material.
     traction : float
         Shear traction on the right edge [MPa] (1/16: 1 N on the 16 mm x 1 mm face).
@@ -110,8 +112,6 @@ def cook_tip(problem: Problem, backend: str = "skfem", point=CORNER, **newton_op
 
     The value is NaN when Newton does not reach the full load (see ``result.message``).
     """
-    from ..refsolvers import make_backend
-    from ..refsolvers.newton import newton_solve
 
     hit = np.flatnonzero(np.all(np.abs(problem.nodes - np.asarray(point, float)) < 1e-9, axis=1))
     if hit.size == 0:

@@ -24,6 +24,7 @@ import weakref
 
 import numpy as np
 
+from ..refsolvers import Mesh
 from .probes import Probe, make_probe
 from .regions import check_region
 from .schema import AXES, c_bool, c_enum, c_frame, c_name, c_num, c_pos, c_str, c_vec3, check_table, require
@@ -155,7 +156,6 @@ def _reaction(scene, m, nodes, U, f_int):
 
 
 def _volume_ratio(mesh, U):
-    from ..refsolvers import Mesh
 
     # only the vertices carry the geometry (P2 mid-edge nodes follow the straight edges)
     deformed = Mesh(mesh.points + U[: mesh.n_vertices], mesh.cells, mesh.cell_type, reorient=False)

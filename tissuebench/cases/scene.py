@@ -72,6 +72,8 @@ from typing import Callable
 
 import numpy as np
 
+from ..choices import RESOLUTIONS
+from ..refsolvers import make_material
 from . import assembly
 from .assembly import LineModel
 from .builder_params import MeshFileNotFound, check_builder_params
@@ -91,7 +93,6 @@ __all__ = ["CATALOGUE_DIR", "Scene", "History", "load", "list_cases", "compile_r
            "RESOLUTIONS"]
 
 CATALOGUE_DIR = Path(__file__).resolve().parent / "catalogue"
-RESOLUTIONS = ("ci", "paper")
 
 
 @dataclass(frozen=True, eq=False)
@@ -248,7 +249,6 @@ class Scene:
 
     # ------------------------------------------------------------------ models
     def make_material(self):
-        from ..refsolvers import make_material
 
         params = {k: v for k, v in self.material.items() if k not in ("name", "density")}
         if "fibres" in params:
@@ -360,7 +360,7 @@ def _check_mesh(raw, resolution, model, path: Path | None = None, units: dict | 
             fail("mesh.builder", raw["builder"], "give either a builder or a file, not both")
         return _check_mesh_file(raw, model, path or Path("."), units or {})
     mesh = check_table("mesh", raw, _MESH_SCHEMA,
-                       required=("builder", "ci", "paper") + (("element",) if model == "fe" else ()))
+                       required=("builder",) + RESOLUTIONS + (("element",) if model == "fe" else ()))
     from .builders import BUILDERS
 
     if mesh["builder"] not in BUILDERS:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..refsolvers.dynamics import make_integrator
 from .histories import DEFAULT_HISTORY, check_history
 from .regions import check_region
 from .schema import (COMPONENTS_1D, c_any, c_bool, c_enum, c_int_range, c_name, c_nonneg, c_num, c_numlist,
@@ -157,7 +158,6 @@ def _check_step_count(path, dt, t_end):
 
 def _check_integrator_options(path, name, options):
     """The options must configure the integrator (names and values checked by its constructor)."""
-    from ..refsolvers.dynamics import make_integrator
 
     try:
         make_integrator(name, **options)

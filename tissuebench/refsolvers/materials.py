@@ -8,7 +8,7 @@ shape ``(n_cells, n_qp, 3, 3)``:
 * :meth:`Material.stress_and_tangent` -> (P, A) with A = dP/dF, shape ``(..., 3, 3, 3, 3)``
   indexed ``A[..., i, J, k, L] = dP_iJ / dF_kL``.
 
-Definitions follow SPEC.md exactly (lambda, mu are the Lame constants):
+Definitions (lambda, mu are the Lame constants):
 
 * linear elastic: W = lambda/2 (tr eps)^2 + mu eps:eps, eps = sym(F - I)
 * Saint Venant-Kirchhoff: W = lambda/2 (tr E)^2 + mu E:E, E = (C - I)/2

@@ -16,16 +16,19 @@ import time
 import numpy as np
 import pandas as pd
 
+from ..choices import BACKEND_NAMES
+from ..studies.reference import cached_solve
+from ..studies.results import SweepManifestError, read_sweep_manifest
+from ..studies.training import case_scene
+
 __all__ = ["RTOL", "backend_agreement", "scenes_of_results"]
 
 RTOL = 1e-6  # Newton tolerances are 1e-8..1e-10 relative; the difference is the solvers', not the FE's
-BACKENDS = ("skfem", "ngsolve")
+BACKENDS = BACKEND_NAMES
 
 
 def scenes_of_results(results) -> list:
     """``[(case id, scene)]`` of the case entries a sweep ran (``cases`` of its ``_sweep.json``)."""
-    from ..studies.results import SweepManifestError, read_sweep_manifest
-    from ..studies.training import case_scene
 
     meta = read_sweep_manifest(results)
     if "cases" not in meta:
@@ -44,7 +47,6 @@ def scenes_of_results(results) -> list:
 
 
 def _compare(case_id, scene) -> dict:
-    from ..studies.reference import cached_solve
 
     row = {"case": case_id, "scene": scene.name, "variant": scene.variant or "", "resolution": scene.resolution}
     if not scene.is_fe:

@@ -34,6 +34,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse.linalg as spla
 
+from ..refsolvers.newton import newton_solve
 from .polynomial import CubicForce, MultilinearTerms, check_polynomial_problem
 
 __all__ = ["AnmSeries", "AnmPath", "anm_series", "anm_path", "reduced_series", "reduced_path"]
@@ -455,7 +456,6 @@ def anm_path(backend, lam_target: float, order: int = 10, eps: float = 1e-6, max
     AnmPath
         Series with free-dof coefficients; ``path.evaluate(lam)`` gives u on the free dofs.
     """
-    from ..refsolvers.newton import newton_solve
 
     if not (math.isfinite(lam_target) and lam_target > 0):
         raise ValueError(f"lam_target must be a finite number > 0, got {lam_target!r}")

@@ -8,6 +8,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..refsolvers.sparse_direct import factorized
 from .separated import SeparatedOperator, SeparatedSolution, SeparatedVector
 
 __all__ = ["pgd_solve"]
@@ -32,7 +33,6 @@ class _DimSolver:
         """A ``solve(b)`` of the matrix M, factorised once (sparse: NGSolve or SuperLU by
         size, :func:`~tissuebench.refsolvers.sparse_direct.factorized`; dense: LU)."""
         if sp.issparse(M):
-            from ..refsolvers.sparse_direct import factorized
 
             return factorized(M)
         lu = sla.lu_factor(np.asarray(M, float))

@@ -38,6 +38,8 @@ import traceback
 def _prepare_legacy(case, method, options, steps, seed):
     """The unit as tissuebench 0.1 (before ``latency_ab.prepare_unit``) builds it for its
     latency pass (``studies.units._measure``): ``(model, sequence, start)``."""
+    # lazy: this runs in the child interpreter of the A/B reference, importing whichever
+    # tissuebench that interpreter has (another version's), not the one of this module
     from tissuebench.rom import make_method
     from tissuebench.studies.evaluation import NEEDS_MODEL, build_evaluation
     from tissuebench.studies.protocol import _start, _timing_sequence
@@ -132,7 +134,7 @@ def main(argv):
         threadpool_limits = None
     result = {"units": {}}
     try:
-        import tissuebench
+        import tissuebench  # lazy: the child interpreter's tissuebench (see _prepare_legacy)
         result["tissuebench"] = str(tissuebench.__file__)
     except Exception as exc:
         result["error"] = f"cannot import tissuebench: {exc}"

@@ -59,6 +59,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..refsolvers.backends import make_backend
+from ..rom.pgd.reference import cut_problem, linear_reference
 from .energy import EnergyDrift, conservative_window, reference_drift
 from .reference import cached_solve
 from .training import lattice_positions, positional_reference, positional_scene, reference_states, training_indices
@@ -159,8 +161,6 @@ def load_measure(scene, ref, backend: str) -> dict:
     units = scene.units
     kinds = {ld["type"] for ld in scene.loads}
     if kinds & {"point", "traction", "body"}:
-        from ..refsolvers.backends import make_backend
-
         be = make_backend(backend, ref.problem)
         f = be.external_force(np.zeros(be.ndof), 1.0).reshape(-1, 3).sum(axis=0)
         return {"x_scale": float(np.linalg.norm(f)), "x_unit": units.get("force", "")}
@@ -250,9 +250,6 @@ _CUT_REFERENCES: dict = {}
 
 def _cut_lengths(scene, case, spec, model):
     """Per cut length of the model's incision: the linear FE of the same cut mesh (module docstring)."""
-    from ..refsolvers.backends import make_backend
-    from ..rom.pgd.reference import cut_problem, linear_reference
-
     strip = getattr(model, "strip", None)
     if strip is None:
         raise ValueError(f"evaluation.kind = 'cut_lengths' needs a cutting model (one with an incision strip); "

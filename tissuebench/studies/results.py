@@ -38,8 +38,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from ..cases.schema import is_num
+from ..choices import RESOLUTIONS
 from .schema import LATENCY_COLUMNS, OUTPUT_COLUMNS, POINT_COLUMNS, UNIT_COLUMNS, conform
-from .store import write_json_atomic
+from .store import process_alive, write_json_atomic
 
 __all__ = ["ResultsStore", "SweepLocked", "StoreError", "SweepManifestError", "read_units", "read_points",
            "read_outputs", "read_latency", "read_sweep_manifest", "foreign_files", "MANIFEST", "MANIFEST_STATES"]
@@ -94,7 +95,7 @@ class ResultsStore:
                 fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
             except FileExistsError:
                 holder = _read_lock(lock)
-                if holder and holder.get("host") == me["host"] and not _alive(holder.get("pid")):
+                if holder and holder.get("host") == me["host"] and not process_alive(holder.get("pid")):
                     lock.unlink(missing_ok=True)  # stale: its sweep was killed
                     continue
                 raise SweepLocked(f"results folder {self.root} is in use by another sweep ({holder or 'unknown'}); "
@@ -165,14 +166,6 @@ def _read_lock(lock: Path) -> dict | None:
         return json.loads(lock.read_text())
     except (OSError, ValueError):
         return None
-
-
-def _alive(pid) -> bool:
-    try:
-        os.kill(int(pid), 0)
-    except (OSError, TypeError, ValueError):
-        return False
-    return True
 
 
 class StoreError(ValueError):
@@ -377,7 +370,7 @@ def _is_hash(v):
 
 _MANIFEST_KEYS = {"spec_name": (_is_str, "a string"), "spec_source": (_is_str, "a string"),
                   "spec_hash": (_is_hash, "64 hexadecimal digits"), "spec_text": (_is_str, "a string"),
-                  "resolution": (lambda v: v in ("ci", "paper"), "'ci' or 'paper'"),
+                  "resolution": (lambda v: v in RESOLUTIONS, f"one of {list(RESOLUTIONS)}"),
                   "executor": (_is_str, "a string"),
                   "state": (lambda v: v in MANIFEST_STATES, f"one of {MANIFEST_STATES}"),
                   "git_commit": (_is_str, "a string"), "code_hash": (_is_str, "a string"),
@@ -389,7 +382,7 @@ _MANIFEST_KEYS = {"spec_name": (_is_str, "a string"), "spec_source": (_is_str, "
                   "not_applicable": (lambda v: isinstance(v, list) and all(
                       isinstance(e, dict) and all(isinstance(x, str) for x in e.values()) for e in v),
                       "a list of tables of strings {case, method, options, why}")}
-_CASE_KEYS = {"id": _is_str, "name": _is_str, "resolution": lambda v: v in ("ci", "paper"), "backend": _is_str,
+_CASE_KEYS = {"id": _is_str, "name": _is_str, "resolution": lambda v: v in RESOLUTIONS, "backend": _is_str,
               "variant": lambda v: v is None or isinstance(v, str), "training": lambda v: isinstance(v, dict),
               "evaluation": lambda v: isinstance(v, dict), "mu": lambda v: isinstance(v, dict),
               "mesh": lambda v: isinstance(v, dict), "paper_points": lambda v: isinstance(v, list),

@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..cases.scene import LENGTH_UNITS
+from ..refsolvers.backends import make_backend
+from ..refsolvers.dynamics import SecondOrderSystem, critical_time_step
 
 __all__ = ["scene_summary", "summary_lines", "small_strain"]
 
@@ -48,7 +50,6 @@ def _critical_time_step(scene, backend) -> float | None:
     """dt_cr of central difference on the lumped system at rest (None without a density)."""
     if not scene.density:
         return None
-    from ..refsolvers.dynamics import SecondOrderSystem, critical_time_step
 
     system = SecondOrderSystem.from_backend(backend, lambda t: 1.0, lumped=True, linear=False)
     return critical_time_step(system)
@@ -61,7 +62,6 @@ def scene_summary(scene, backend: str = "skfem") -> dict:
     entry) where the problem cannot be built (a region that selects no node, free rigid modes)."""
     if not scene.is_fe:
         return {"name": scene.name, "model": scene.model, "nodes": int(len(scene.mesh.points))}
-    from ..refsolvers.backends import make_backend
 
     pb = scene.to_problem()  # the problem's checks: node sets, shared dofs, rigid-body modes
     be = make_backend(backend, pb)

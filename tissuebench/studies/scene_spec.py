@@ -28,6 +28,7 @@ import json
 import os
 from pathlib import Path
 
+from ..cases.scene import load
 from ..rom import METHODS
 from .applicability import evaluation_why_not, load_scale_why_not, why_not
 from .ladder import RUNG_METHODS
@@ -179,7 +180,6 @@ def write_scene_spec(scene_path, out: Path, variant: str | None = None,
     """Write the spec of the scene file ``scene_path`` beside the results folder ``out``
     (``<out>.spec.toml``; a file there that this function did not write is never replaced);
     returns its path and the methods left out with why."""
-    from ..cases.scene import load
 
     scene = load(scene_path, resolution=resolution, variant=variant)
     spec_path = Path(f"{Path(out)}.spec.toml")

@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..cases.scene import RESOLUTIONS, list_cases, resolve_toml
+from ..choices import BACKEND_NAMES
 from ..cases.schema import c_nonneg, c_pos, c_str, check_table, key_text, value_text
 from ..rom import METHODS, method_class
 from .applicability import evaluation_why_not, why_not
@@ -78,7 +79,7 @@ _TRAINING_KEYS = {"path": {"every", "repeat"}, "positions": {"positions", "max_l
 _EVALUATION_KEYS = {"path": {"every", "beyond", "held_out"}, "positions": {"held_out"},
                     "trajectory": {"t_end", "load_scale", "from_time"},
                     "map": {"mus"}, "cut_lengths": {"steps_per_length"}, "contact_nodes": {"count"}}
-BACKENDS = ("skfem", "ngsolve")
+BACKENDS = BACKEND_NAMES
 
 
 def _fail(path, value, what):

@@ -78,7 +78,7 @@ def clean_leftovers(out: Path, min_age_s: float = 3600.0) -> list:
         m = pattern.fullmatch(p.name)
         if m is None or not p.is_dir():
             continue
-        if m["pid"] is not None and int(m["pid"]) != os.getpid() and _alive(int(m["pid"])):
+        if m["pid"] is not None and int(m["pid"]) != os.getpid() and process_alive(int(m["pid"])):
             continue  # a run in progress
         if m["pid"] is None and time.time() - p.stat().st_mtime < min_age_s:
             continue
@@ -90,12 +90,14 @@ def clean_leftovers(out: Path, min_age_s: float = 3600.0) -> list:
     return removed
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid) -> bool:
+    """Whether process ``pid`` (of this host) runs: one of another user counts (signal 0 is
+    refused with PermissionError), a pid that is not a number does not."""
     try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
+        os.kill(int(pid), 0)
+    except (TypeError, ValueError, ProcessLookupError):
         return False
-    except OSError:  # exists, owned by someone else
+    except OSError:  # PermissionError: it exists, owned by someone else
         return True
     return True
 

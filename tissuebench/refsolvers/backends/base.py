@@ -32,6 +32,8 @@ from abc import ABC, abstractmethod
 import numpy as np
 import scipy.sparse as sp
 
+from ...choices import BACKEND_NAMES
+
 
 class Backend(ABC):
     """Operators of one problem on one finite-element library."""
@@ -203,6 +205,7 @@ BACKENDS: dict[str, str] = {
     "skfem": "tissuebench.refsolvers.backends.skfem_backend:SkfemBackend",
     "ngsolve": "tissuebench.refsolvers.backends.ngsolve_backend:NgsolveBackend",
 }
+assert tuple(BACKENDS) == BACKEND_NAMES  # the one list of names (tissuebench.choices)
 
 
 def make_backend(name, problem) -> Backend:

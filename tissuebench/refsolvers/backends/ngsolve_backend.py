@@ -41,8 +41,7 @@ import ngsolve as ngs
 import numpy as np
 import scipy.sparse as sp
 
-from ..materials import (Guccione, LinearElastic, MooneyRivlin, NeoHookean, NeoHookeanDecoupled,
-                         SaintVenantKirchhoff)
+from ..materials import Guccione, LinearElastic, MooneyRivlin, NeoHookean, NeoHookeanDecoupled, SaintVenantKirchhoff
 from ..problem import BodyForce, FollowerPressure, SurfaceTraction
 from ..quadrature import default_order, facet_rule, mass_order, volume_rule
 from ..solver_base import idle_core
@@ -113,7 +112,7 @@ def build_ngsolve_mesh(mesh, facet_sets=()):
 
 # ---------------------------------------------------------------- energies
 def energy_cf(material, F, fibre=None):
-    """Strain-energy density W(F) as a CoefficientFunction (SPEC.md definitions).
+    """Strain-energy density W(F) as a CoefficientFunction (the definitions of :mod:`..materials`).
 
     ``fibre`` is a unit-vector CoefficientFunction (Guccione only).
     """

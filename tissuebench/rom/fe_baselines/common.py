@@ -24,6 +24,7 @@ import dataclasses
 import numpy as np
 import scipy.sparse as sp
 
+from ...cases import load
 from ..base import OnlineModel, StepResult, Training
 
 __all__ = ["scene_of", "intact_backend", "DeadLoads", "FieldMap", "FeModel", "contact_load",
@@ -38,7 +39,6 @@ def scene_of(training: Training, who: str):
         return info["scene"]
     if "case" not in info:
         return None
-    from ...cases import load
 
     scene = load(info["case"], resolution=info.get("resolution", "ci"), variant=info.get("variant"))
     if info.get("scene_hash") and scene.content_hash() != info["scene_hash"]:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...refsolvers.dynamics import SecondOrderSystem, make_integrator
+from ...refsolvers.dynamics import INTEGRATORS, SecondOrderSystem, make_integrator
 from ...refsolvers.newton import newton_solve
 from ...refsolvers.sparse_direct import NGSOLVE_MIN_DOFS, factorized
 from ..base import StepResult, check_parameters
@@ -130,7 +130,6 @@ def integrator_choice(who, integrator, scene) -> tuple[str, dict]:
     own, own_opts = analysis.get("integrator"), dict(analysis.get("integrator_options", {}))
     if integrator is None:
         return (own, own_opts) if own else ("backward_euler", {})
-    from ...refsolvers.dynamics import INTEGRATORS
 
     if integrator not in INTEGRATORS:
         raise ValueError(f"{who}: integrator = {integrator!r}; valid: {sorted(INTEGRATORS)} (or None: the scene's)")

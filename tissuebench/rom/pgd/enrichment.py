@@ -35,6 +35,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from ...refsolvers import make_backend
+from ...refsolvers.sparse_direct import factorized
 from .strip import IncisionStrip
 
 __all__ = ["Enrichment", "enrichment_operators", "condense", "to_cut_mesh"]
@@ -90,7 +92,6 @@ def enrichment_operators(scene, backend, strip: IncisionStrip) -> Enrichment:
     backend : Backend of the intact mesh (its class assembles the cut mesh too)
     strip : IncisionStrip
     """
-    from ...refsolvers import make_backend
 
     c = strip.max_cut_length
     if c < 1:
@@ -111,7 +112,6 @@ def enrichment_operators(scene, backend, strip: IncisionStrip) -> Enrichment:
 def condense(enrichment: Enrichment, K) -> Enrichment:
     """The condensed variant (module docstring): ``G = K^{-1} K_ud`` with ``K`` the intact
     stiffness on the free dofs (sparse; factorised here, one solve per enriched dof)."""
-    from ...refsolvers.sparse_direct import factorized
 
     G = factorized(sp.csr_matrix(K))(np.asarray(enrichment.K_ud.toarray()))
     return Enrichment(enrichment.K_ud, enrichment.K_dd, enrichment.K_uu_check, enrichment.strip, G)

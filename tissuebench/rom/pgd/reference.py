@@ -20,6 +20,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from ...refsolvers import PointLoad
 from ...refsolvers.sparse_direct import factorized
 
 __all__ = ["cut_problem", "linear_reference", "l2_error"]
@@ -28,7 +29,6 @@ __all__ = ["cut_problem", "linear_reference", "l2_error"]
 def cut_problem(scene, strip, c: int, force, node: int | None = None):
     """Problem of ``scene`` cut to length ``c`` along ``strip``, point load ``force`` (3,)
     on ``node`` (default: the scalpel tip of length c)."""
-    from ...refsolvers import PointLoad
 
     c = strip.check_length(c)
     if c == 0:

@@ -20,6 +20,9 @@ import dataclasses
 
 import numpy as np
 
+from ...cases.scene import load
+from ...refsolvers import PointLoad, make_backend
+from ...refsolvers.line_models import assemble_line_model
 from ..base import Training
 from .family import PointLoadFamily, anterior_nodes, line_family, nodal_areas, surface_family
 
@@ -30,10 +33,8 @@ def pgd_training(scene, backend: str = "skfem") -> Training:
     """The operators Training of ``scene`` (module docstring)."""
     info = {"scene": scene, "case": scene.name, "resolution": scene.resolution, "training": "operators"}
     if not scene.is_fe:
-        from ...refsolvers.line_models import assemble_line_model
 
         return Training(system=assemble_line_model(scene.line_model()), info=info)
-    from ...refsolvers import make_backend
 
     uncut = dataclasses.replace(scene, cut=None)
     be = make_backend(backend, uncut.to_problem())
@@ -46,7 +47,6 @@ def scene_of(training: Training, who: str):
     if info.get("scene") is not None:
         return info["scene"]
     if "case" in info:
-        from ...cases.scene import load
 
         return load(info["case"], info.get("resolution", "ci"))
     raise ValueError(f"{who}: training.info needs the scene ('scene') or its name ('case')")
@@ -60,14 +60,12 @@ def uncut_backend(training: Training, scene, who: str):
     uncut = dataclasses.replace(scene, cut=None)
     if be.problem.mesh.n_vertices == uncut.mesh.n_vertices:
         return be
-    from ...refsolvers import make_backend
 
     return make_backend(type(be), uncut.to_problem())
 
 
 def contact_force(problem) -> np.ndarray:
     """The (3,) force of the problem's single point load (the scalpel contact) [N]."""
-    from ...refsolvers import PointLoad
 
     pls = [ld for ld in problem.loads if isinstance(ld, PointLoad)]
     if len(pls) != 1:

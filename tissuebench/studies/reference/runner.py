@@ -17,6 +17,7 @@ import pandas as pd
 from ...cases.scene import Scene, load
 from ...refsolvers.backends import make_backend
 from ...refsolvers.dynamics import SecondOrderSystem, integrate
+from ...refsolvers.mixed import static_run
 from ...refsolvers.sparse_direct import factorized
 from ...refsolvers.newton import NewtonOptions, newton_solve
 from .line import line_dynamics_system, solve_line
@@ -103,8 +104,6 @@ def _static(scene, plan, be, progress, linear_solver):
 
 def _mixed_static(scene, be, n_steps, target, progress):
     """The u-p Taylor-Hood run of ``refsolvers.mixed`` on the displacement backend's problem."""
-    from ...refsolvers.mixed import static_run
-
     pb = be.problem
     return static_run(pb, be, n_steps, target, lambda u, f: scene.evaluate_monitors(pb, u, f),
                       needs_force=any(m["quantity"] in ("reaction_force", "nominal_stress", "moment")
