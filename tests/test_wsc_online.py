@@ -8,11 +8,12 @@ with the state equal the products recomputed.
 """
 import numpy as np
 import pytest
+import scipy.linalg as sla
 
 from tissuebench.cases import load
 from tissuebench.refsolvers.backends import make_backend
 from tissuebench.rom import Training, make_method
-from tissuebench.rom.wsc.linsolve import SINGLE_TOL, StepMatrix
+from tissuebench.rom.wsc.linsolve import SINGLE_TOL, StepMatrix, _Dense, _rounding_radius
 
 
 def _spd(n, cond, seed=0):
@@ -50,8 +51,38 @@ def test_auto_keeps_the_fastest_measured_and_bad_options_are_refused():
 
 def test_single_precision_is_refused_where_it_changes_the_solutions():
     op = StepMatrix(_spd(60, 1e13), "dense", "single")
-    assert op.precision == "double" and "single_refused" in op.info and op.info["single_error"] > SINGLE_TOL
-    assert StepMatrix(_spd(60, 1e2), "dense", "single").info["single_error"] < 1e-5
+    assert op.precision == "double" and "single_refused" in op.info and op.info["single_rho"] > SINGLE_TOL
+    well = StepMatrix(_spd(60, 1e2), "dense", "single")
+    assert well.precision == "single" and well.info["single_error"] < 1e-5 and well.info["single_rho"] < 1e-5
+
+
+class _Scaled:
+    """``P = H^-1 (I + E)``, ``E`` symmetric with known spectrum: rho(P H - I) is known."""
+
+    def __init__(self, H, E):
+        self.H, self.E = H, E
+
+    def solve(self, b):
+        return np.linalg.solve(self.H, b + self.E @ b)
+
+
+@pytest.mark.parametrize("cond", [1e1, 1e4])
+def test_the_rounding_radius_is_the_spectral_radius(cond):
+    """The acceptance test's estimate against the exact spectral radius of ``P H - I``
+    (``eigvals``), for a perturbation of known spectrum, and for the real float32 operator."""
+    H = _spd(50, cond)
+    rng = np.random.default_rng(3)
+    Q, _ = np.linalg.qr(rng.standard_normal((50, 50)))
+    # P H - I = H^-1 E H: similar to E, eigenvalues -0.3 and -0.15 .. 0.05: rho = 0.3 whatever H
+    E = (Q * np.r_[-0.3, np.linspace(-0.15, 0.05, 49)]) @ Q.T
+    assert _rounding_radius(_Scaled(H, E), H, rng.standard_normal(50)) == pytest.approx(0.3, rel=1e-3)
+    d = 1.0 / np.sqrt(np.diag(H))
+    op = _Dense(sla.cho_factor(d[:, None] * H * d[None, :], lower=False)[0], d, np.float32)
+    P = np.array([op.solve(e) for e in np.eye(50)]).T
+    exact = np.max(np.abs(np.linalg.eigvals(P @ H - np.eye(50))))
+    # the operator also rounds its input to float32 (exact for the unit vectors that gave P):
+    # the estimate may exceed the matrix's radius by that, never fall far below it
+    assert 0.9 * exact <= _rounding_radius(op, H, rng.standard_normal(50)) <= 1.5 * exact
 
 
 @pytest.fixture(scope="module")

@@ -18,12 +18,18 @@ builds every kind and keeps the fastest by its fastest of timed solves taken in 
 (``info`` keeps the measured costs), instead of a fixed size threshold; SuperLU is tried only for a matrix at
 most ``SPARSE_MAX_DENSITY`` dense.
 
-Precision ``"single"`` stores the operator in float32 (half the traffic). It is accepted
-when it recovers seeded solutions ``x`` from ``H x`` to ``SINGLE_TOL`` (relative; every
-eigendirection present, so a stiff direction lost to rounding shows), else the operator
-stays in double and ``info`` says why (ci cube, 10 handles: 1.1e-4). The
-operator only preconditions L-BFGS and predicts; every residual the convergence test sees
-is computed in double, so the converged state does not depend on it beyond the tolerance.
+Precision ``"single"`` stores the operator in float32 (half the traffic). The operator only
+preconditions L-BFGS and predicts; every residual the convergence test sees is computed in
+double, so the converged state does not depend on it beyond the tolerance. What rounding can
+change is how well it preconditions: with ``P`` the single-precision inverse, L-BFGS starts
+from the Hessian ``P^-1`` instead of ``H``, and the preconditioned step matrix ``P H`` has its
+eigenvalues in ``[1 - rho, 1 + rho]``, ``rho`` the spectral radius of ``P H - I`` (``P H`` is
+similar to the symmetric ``H^1/2 P H^1/2``, so its eigenvalues are real). Single precision is
+accepted when ``rho <= SINGLE_TOL``, ``rho`` estimated by power iteration on ``P H - I``
+(seeded; the iterate converges to the dominant eigendirection, so a stiff direction lost to
+rounding shows even where random solutions average it away); else the operator stays in
+double and ``info`` says why. ``info["single_error"]`` keeps the relative error of seeded
+solutions beside it (ci cube, 10 handles: 1.1e-4).
 """
 from __future__ import annotations
 
@@ -35,7 +41,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.linalg import blas, lapack
 
-__all__ = ["KINDS", "PRECISIONS", "SINGLE_TOL", "SPARSE_MAX_DENSITY", "StepMatrix"]
+__all__ = ["KINDS", "POWER_ITERATIONS", "PRECISIONS", "SINGLE_TOL", "SPARSE_MAX_DENSITY", "StepMatrix"]
 
 KINDS = ("auto", "dense", "cholesky", "sparse")
 PRECISIONS = ("single", "double")
@@ -43,10 +49,14 @@ PRECISIONS = ("single", "double")
 #: 24 % dense, SuperLU 24-31 ms a solve against 2.7 ms for the single-precision inverse, and
 #: its factorisation takes longer than the dense one)
 SPARSE_MAX_DENSITY = 0.1
-#: largest relative error of single-precision solutions that is accepted: the operator is a
-#: preconditioner, a 1 % error changes the L-BFGS path, not the converged state; the check is
-#: there for a stiff direction lost to rounding (errors of order 1; condition numbers past ~1e6)
-SINGLE_TOL = 1e-2
+#: largest spectral radius of ``P H - I`` accepted for the single-precision ``P`` (module
+#: docstring): the preconditioned step matrix then has a condition number <= 1.1 / 0.9 = 1.22,
+#: and a linearised iteration contracts by rho at worst (the tangent's change over a step moves
+#: it more: the step matrix is the start state's); rounding loses a stiff direction when rho
+#: nears 1 (condition numbers past ~1e7 in single precision)
+SINGLE_TOL = 0.1
+#: power iterations of the ``rho`` estimate (a solve and a product with ``H`` each, at build)
+POWER_ITERATIONS = 30
 
 
 class _Dense:
@@ -83,6 +93,26 @@ class _Sparse:
         return self.lu.solve(np.asarray(b, dtype=float))
 
 
+def _rounding_radius(op, H, v) -> float:
+    """Spectral radius of ``A = P H - I`` (``P``: ``op.solve``, symmetric) by power iteration
+    from ``v``. ``A`` is self-adjoint in the ``H`` inner product, so the ``H``-norm ratios
+    ``|A v|_H / |v|_H`` increase towards rho; the last one is returned."""
+    Hv = H @ v
+    v, Hv = v / np.sqrt(v @ Hv), Hv / np.sqrt(v @ Hv)
+    ratio = 0.0
+    for _ in range(POWER_ITERATIONS):
+        w = op.solve(Hv) - v
+        Hw = H @ w
+        nw2 = float(w @ Hw)
+        if not np.isfinite(nw2):
+            return float("inf")
+        if nw2 <= 0.0:
+            break
+        ratio = np.sqrt(nw2)
+        v, Hv = w / ratio, Hw / ratio
+    return float(ratio)
+
+
 def _fastest_solve_s(ops, rhs) -> dict:
     """The fastest of ``len(rhs)`` timed solves of every operator, taken in turns (a load spike
     on a shared machine then hits every candidate alike, and the minimum ignores it)."""
@@ -114,8 +144,9 @@ class StepMatrix:
     kind, precision : str
         What was built.
     info : dict
-        ``solve_ms`` per candidate (auto), ``single_error`` (relative error of the
-        single-precision solutions), ``kind``, ``precision``, ``n``, ``build_s``.
+        ``solve_ms`` per candidate (auto), ``single_rho`` (spectral radius of ``P H - I``,
+        the acceptance test) and ``single_error`` (relative error of seeded solutions),
+        ``kind``, ``precision``, ``n``, ``build_s``.
     """
 
     def __init__(self, H, kind="auto", precision="single", timing_solves=15):
@@ -135,11 +166,13 @@ class StepMatrix:
         if precision == "single":
             trial = _Dense(c, d, np.float32)
             err = max(np.linalg.norm(trial.solve(H @ x) - x) / np.linalg.norm(x) for x in exact)
-            self.info["single_error"] = float(err)
-            if err <= SINGLE_TOL:
+            rho = _rounding_radius(trial, H, exact[0])
+            self.info.update(single_error=float(err), single_rho=float(rho))
+            if rho <= SINGLE_TOL:
                 dtype = np.float32
             else:
-                self.info["single_refused"] = f"single-precision solutions off by {err:.1e} (> {SINGLE_TOL:g})"
+                self.info["single_refused"] = (f"single-precision inverse: spectral radius of P H - I {rho:.2e} "
+                                               f"(> {SINGLE_TOL:g})")
         self.precision = "single" if dtype == np.float32 else "double"
         build = {"dense": lambda: _Dense(c, d, dtype), "cholesky": lambda: _Cholesky(c, d, dtype),
                  "sparse": lambda: _Sparse(H)}
