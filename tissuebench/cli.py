@@ -374,20 +374,22 @@ def _print_check(result, args) -> None:
 
 
 def _cache(args) -> int:
-    from .studies.reference.cache import cache_dir, clear, list_entries, stray_items
+    from .studies.reference.cache import cache_url, clear, list_entries, stray_items
 
+    where = cache_url()
     stray = stray_items()
     if args.action == "clear":
-        print(f"removed {clear()} reference runs from {cache_dir()}")
+        print(f"removed {clear()} reference runs from {where}")
     else:
         table = list_entries()
-        print(f"{cache_dir()}: {len(table)} reference runs")
+        print(f"{where}: {len(table)} reference runs")
         if len(table):
             print(table.to_string(index=False))
     if stray:
-        names = ", ".join(p.name for p in stray[:10]) + (" ..." if len(stray) > 10 else "")
-        print(f"note: {len(stray)} items in {cache_dir() / 'references'} are not cache entries (no valid meta.json) "
-              f"and were left alone: {names}", file=sys.stderr)
+        names = ", ".join(str(p).rstrip("/").rsplit("/", 1)[-1] for p in stray[:10]) + (" ..." if len(stray) > 10
+                                                                                      else "")
+        print(f"note: {len(stray)} items in {where.rstrip('/')}/references are not cache entries (no valid "
+              f"meta.json) and were left alone: {names}", file=sys.stderr)
     return 0
 
 
