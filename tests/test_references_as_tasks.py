@@ -102,3 +102,38 @@ def test_serial_and_processes_keep_their_cache_argument(spec, tmp_path, counted)
     import fsspec
 
     assert len(fsspec.filesystem("memory").ls(f"/{url.split('://', 1)[1]}/references", detail=False)) == 2
+
+
+def _ci_cases():
+    spec = load_spec(Path(__file__).resolve().parents[1] / "tissuebench" / "studies" / "presets" / "ci.toml")
+    cases = {u.case["id"]: u.case for u in expand_units(spec)}  # every case of the preset, once
+    return [pytest.param(c, id=i) for i, c in cases.items()
+            if c["training"]["kind"] != "operators" or c["evaluation"].get("kind") == "map"]
+
+
+@pytest.mark.parametrize("case", _ci_cases())
+def test_each_kind_declares_the_references_its_builders_read(case, monkeypatch):
+    """What :func:`unit_references` declares for every case of the ci preset with references is
+    read by the builders (a declared reference nobody reads would be computed for nothing), and
+    what they read beyond it is the continuation past a path's top (``beyond``), the one reference
+    not declared by design."""
+    import tissuebench.studies.evaluation as evaluation
+    import tissuebench.studies.training as training
+    from tissuebench.studies.units import WorkUnit
+
+    read, real = {}, cache_module.cached_solve
+
+    def recording(scene, backend="skfem", **kw):
+        read[reference_key(scene, backend)] = scene
+        return real(scene, backend, **kw)
+
+    monkeypatch.setattr(training, "cached_solve", recording)
+    monkeypatch.setattr(evaluation, "cached_solve", recording)
+    declared = unit_references(WorkUnit(case, "nearest", {}, {}, {}, "0" * 64))
+    scene = case_scene(case)
+    training.build_training(case, scene)
+    if case["evaluation"].get("kind") not in evaluation.NEEDS_MODEL:
+        evaluation.build_evaluation(case, scene)
+    assert declared and set(declared) <= set(read)
+    extra = [s for k, s in read.items() if k not in declared]
+    assert len(extra) == (1 if case["evaluation"].get("beyond") else 0), [s.mu for s in extra]
