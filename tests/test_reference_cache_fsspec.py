@@ -145,3 +145,14 @@ def test_a_url_fsspec_cannot_open_is_a_value_error_naming_it(bad):
 
 def test_a_bare_path_and_file_url_are_the_same_local_folder(tmp_path):
     assert open_cache(str(tmp_path)).root == open_cache(f"file://{tmp_path}").root == tmp_path
+
+
+def test_sweep_refuses_a_cache_url_it_cannot_open_before_any_work(tmp_path, capsys):
+    from tissuebench.cli import main
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('[sweep]\nname = "s"\n[[case]]\nname = "cornea_pinch"\n[[method]]\nname = "nearest"\n')
+    out = tmp_path / "out"
+    assert main(["sweep", str(spec), "--out", str(out), "--quiet", "--cache", "nosuchproto://bucket/c"]) == 2
+    assert "--cache = 'nosuchproto://bucket/c': unknown protocol 'nosuchproto'" in capsys.readouterr().err
+    assert not out.exists()
