@@ -148,7 +148,8 @@ def _lookup(root, entry, scene) -> ReferenceResult | None:
 def _cluster_lock(key: str):
     """A lock held by one task of the dask cluster at a time, named by the reference key, when this
     runs inside a dask worker; else nothing to hold (serial and process pools: the atomic write
-    keeps one entry)."""
+    keeps one entry). The lock is a lease of a ``distributed.Semaphore``: when the worker holding
+    it dies, the scheduler releases it after ``distributed.scheduler.locks.lease-timeout`` (30 s)."""
     try:  # lazy: distributed is imported only where a sweep runs on dask
         from distributed import Lock, get_worker
         get_worker()
