@@ -157,10 +157,10 @@ def _dask(units, workers, scheduler, run, cache):
             for key, scene in needs.items():
                 if key not in references:
                     references[key] = client.submit(reference_task, scene, u.case["backend"], cache,
-                                                    key=f"reference-{key[:32]}", pure=False)
+                                                    key=f"reference-{key}", pure=False)
         for u, needs in declared:
             needs = [references[k] for k in needs]
-            futures[client.submit(_in_cache, run, cache, u, *needs, key=f"unit-{u.key[:32]}", pure=False)] = u
+            futures[client.submit(_in_cache, run, cache, u, *needs, key=f"unit-{u.key}", pure=False)] = u
         for fut in dask_completed(futures):
             u = futures.pop(fut)
             try:
