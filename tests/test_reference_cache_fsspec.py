@@ -156,3 +156,32 @@ def test_sweep_refuses_a_cache_url_it_cannot_open_before_any_work(tmp_path, caps
     assert main(["sweep", str(spec), "--out", str(out), "--quiet", "--cache", "nosuchproto://bucket/c"]) == 2
     assert "--cache = 'nosuchproto://bucket/c': unknown protocol 'nosuchproto'" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_bad_url_in_the_environment_is_refused_naming_it(tmp_path, monkeypatch, capsys):
+    from tissuebench.cli import main
+
+    monkeypatch.setenv("TISSUEBENCH_CACHE", "nosuchproto://bucket/c")
+    spec = tmp_path / "s.toml"
+    spec.write_text('[sweep]\nname = "s"\n[[case]]\nname = "cornea_pinch"\n[[method]]\nname = "nearest"\n')
+    assert main(["sweep", str(spec), "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    assert "TISSUEBENCH_CACHE = 'nosuchproto://bucket/c': unknown protocol" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+    assert main(["cache", "ls"]) == 2
+    assert "TISSUEBENCH_CACHE = 'nosuchproto://bucket/c'" in capsys.readouterr().err
+
+
+def test_cache_ls_and_clear_on_a_url(monkeypatch, capsys, scene):
+    from tissuebench.cli import main
+
+    url = f"memory://tb-{uuid.uuid4().hex[:8]}/ls"
+    monkeypatch.setenv("TISSUEBENCH_CACHE", url)
+    cached_solve(scene)
+    fs, entry = _fs_entry(url, scene)
+    fs.pipe_file(entry.rsplit("/", 1)[0] + "/notes.txt", b"mine")
+    assert main(["cache", "ls"]) == 0
+    captured = capsys.readouterr()
+    assert f"{url}: 1 reference runs" in captured.out and "frame_2dof" in captured.out
+    assert "1 items" in captured.err and "notes.txt" in captured.err
+    assert main(["cache", "clear"]) == 0 and "removed 1 reference runs" in capsys.readouterr().out
+    assert fs.cat_file(entry.rsplit("/", 1)[0] + "/notes.txt") == b"mine"

@@ -32,7 +32,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
 from .reference.cache import cache_url, cached_solve
-from .reference.location import check_cache_url, using_cache
+from .reference.location import CACHE_ENV, check_cache_url, using_cache
 from .units import failed_outcome, run_unit, unit_references
 
 __all__ = ["EXECUTORS", "execute", "check_executor"]
@@ -63,7 +63,7 @@ def execute(units, name: str = "serial", workers: int | None = None, scheduler: 
     if cache is not None:
         cache = check_cache_url(cache)
     elif name != "dask" or scheduler is None:
-        cache = cache_url()
+        cache = check_cache_url(cache_url(), CACHE_ENV)
     in_cache = functools.partial(_in_cache, run, cache)
     if name == "serial":
         for u in units:

@@ -23,7 +23,7 @@ import pandas as pd
 
 from .executors import check_executor, execute
 from .reference.cache import PROGRESS_ENV
-from .reference.location import check_cache_url
+from .reference.location import CACHE_ENV, cache_url, check_cache_url
 from .metrics import TOLERANCES, pareto_front
 from .results import ResultsStore, SweepManifestError, read_points, read_sweep_manifest, read_units
 from .spec import SweepSpec, expand_units
@@ -102,7 +102,9 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
     check_executor(executor, workers, scheduler)
     if cache is not None:
         cache = check_cache_url(cache)
-    elif scheduler is not None and progress:
+    else:  # the environment's, refused before any work as --cache would be
+        check_cache_url(cache_url(), CACHE_ENV)
+    if cache is None and scheduler is not None and progress:
         log("note: no --cache: each worker of the cluster computes references into its own cache "
             "($TISSUEBENCH_CACHE on the worker); give --cache a location every worker reaches (s3://..., a shared "
             "folder) to compute each one once")
