@@ -12,7 +12,7 @@ import pytest
 
 from _workers import sleepy
 from tissuebench.studies.executors import execute
-from tissuebench.studies.units import WorkUnit
+from tissuebench.studies.units import WorkUnit, unit_references
 
 
 def _units(*options):
@@ -77,3 +77,23 @@ def test_minor_an_unreachable_scheduler_marks_the_sweep_failed(tmp_path):
 def test_execute_yields_every_unit_once(name):
     units = _units({"sleep": 0.0}, {"sleep": 0.0}, {"sleep": 0.0})
     assert sorted(u.key for u, _ in execute(units, name, 2, run=sleepy)) == sorted(u.key for u in units)
+
+
+def test_a_unit_that_kills_every_dask_worker_it_runs_on_is_stored_failed_and_the_others_finish():
+    """Dask runs a task whose worker died on another worker, up to ``allowed-failures`` times; past
+    that (0 here: the first death) the unit is a failed row saying so, not the end of the sweep.
+    (Dask counts a death against every task assigned to that worker: here one task per worker at a
+    time, no reference task to wait for, and the one that dies waits 3 s, so that the others are
+    done by then.)"""
+    import dask
+
+    units = _units({"sleep": 0.1}, {"die": True, "sleep": 3.0}, {"sleep": 0.1})
+    for u in units:  # operators: no reference declared
+        u.case.update(training={"kind": "operators"}, evaluation={"kind": "cut_lengths"})
+    assert not any(unit_references(u) for u in units)
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0, "distributed.scheduler.worker-saturation": 1.0}):
+        done = {u.key: o.row for u, o in execute(units, "dask", 2, run=sleepy)}
+    assert sorted(done) == sorted(u.key for u in units)
+    dead = done[units[1].key]
+    assert dead["unit_status"] == "failed" and "dask workers running this unit died" in dead["message"], dead
+    assert dead["case"] == "c" and all(done[u.key]["unit_status"] == "ok" for u in (units[0], units[2]))

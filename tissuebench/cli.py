@@ -5,7 +5,7 @@
 ``tissuebench run CASE [--variant V] [--backend skfem|ngsolve] [--resolution ci|paper]
 [--out DIR] [--force]``                     reference solve, stored in DIR
 ``tissuebench sweep SPEC.toml | --preset NAME | --list [--resolution] [--out DIR]
-[--executor serial|processes|dask] [--workers N] [--scheduler ADDR] [--resume] [--quiet]``
+[--executor serial|processes|dask] [--workers N] [--scheduler ADDR] [--cache URL] [--resume] [--quiet]``
                                             any methods over any scenes, one results store
 ``tissuebench study anm_pod``               alias of ``sweep --preset anm_pod``
 ``tissuebench cache ls|clear``              the reference-run cache
@@ -116,6 +116,9 @@ def _sweep_options(p):
     p.add_argument("--executor", default="serial", help="serial (default) | processes | dask")
     p.add_argument("--workers", type=int, default=None, help="worker processes (processes, dask LocalCluster)")
     p.add_argument("--scheduler", default=None, help="address of a running dask scheduler (tcp://host:port)")
+    p.add_argument("--cache", default=None,
+                   help="the reference cache: a folder or any fsspec URL (s3://bucket/cache; default "
+                        "$TISSUEBENCH_CACHE, else ~/.cache/tissuebench); on a cluster, one every worker reaches")
     p.add_argument("--resume", action="store_true", help="continue the sweep stored in --out")
     p.add_argument("--cases", default=None, help="only these case ids of the spec (comma-separated)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no per-unit lines")
@@ -234,7 +237,7 @@ def _sweep(args, preset=None) -> int:
     resume_hint = f"tissuebench sweep {source} --out {out} --resume"
     try:
         summary = run_sweep(spec, out, args.executor, args.workers, args.scheduler, args.resume,
-                            progress=not args.quiet, log=log, figures=draw_derived)
+                            progress=not args.quiet, log=log, figures=draw_derived, cache=args.cache)
     except KeyboardInterrupt:
         print(f"tissuebench: interrupted; finished units are stored in {out}. Resume with: {resume_hint}",
               file=sys.stderr)
@@ -379,20 +382,22 @@ def _print_check(result, args) -> None:
 
 
 def _cache(args) -> int:
-    from .studies.reference.cache import cache_dir, clear, list_entries, stray_items
+    from .studies.reference.cache import cache_url, clear, list_entries, stray_items
 
+    where = cache_url()
     stray = stray_items()
     if args.action == "clear":
-        print(f"removed {clear()} reference runs from {cache_dir()}")
+        print(f"removed {clear()} reference runs from {where}")
     else:
         table = list_entries()
-        print(f"{cache_dir()}: {len(table)} reference runs")
+        print(f"{where}: {len(table)} reference runs")
         if len(table):
             print(table.to_string(index=False))
     if stray:
-        names = ", ".join(p.name for p in stray[:10]) + (" ..." if len(stray) > 10 else "")
-        print(f"note: {len(stray)} items in {cache_dir() / 'references'} are not cache entries (no valid meta.json) "
-              f"and were left alone: {names}", file=sys.stderr)
+        names = ", ".join(str(p).rstrip("/").rsplit("/", 1)[-1] for p in stray[:10]) + (" ..." if len(stray) > 10
+                                                                                      else "")
+        print(f"note: {len(stray)} items in {where.rstrip('/')}/references are not cache entries (no valid "
+              f"meta.json) and were left alone: {names}", file=sys.stderr)
     return 0
 
 

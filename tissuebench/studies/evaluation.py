@@ -65,7 +65,7 @@ from .energy import EnergyDrift, conservative_window, reference_drift
 from .reference import cached_solve
 from .training import lattice_positions, positional_reference, positional_scene, reference_states, training_indices
 
-__all__ = ["EVALUATION_KINDS", "EvaluationPoint", "Evaluation", "build_evaluation"]
+__all__ = ["EVALUATION_KINDS", "EvaluationPoint", "Evaluation", "build_evaluation", "evaluation_references"]
 
 EVALUATION_KINDS = ("path", "positions", "trajectory", "map", "cut_lengths", "contact_nodes")
 NEEDS_MODEL = ("cut_lengths", "contact_nodes")  # built after the model: the incision strip, the contact nodes
@@ -313,6 +313,26 @@ def _contact_nodes(scene, case, spec, model):
                                    ref.monitors_at("load_factor", lam), float(lam), group=float(node))
                    for k, lam in enumerate(lams)]
     return Evaluation("contact_nodes", "load_factor", points, reference_steps=first, info={"nodes": pick.tolist()})
+
+
+def evaluation_references(case: dict, scene) -> list:
+    """The scenes whose reference runs :func:`build_evaluation` reads for ``case``, known from the
+    case entry alone, nothing solved (see :func:`~.training.training_references`). Not declared:
+    the continuation of a path past its top (``beyond``: its length is the reference's last load
+    factor, and it is run only when the path succeeded), the kinds that need the model
+    (:data:`NEEDS_MODEL`), a held-out position solved again with more load steps."""
+    spec = dict(case.get("evaluation") or {})
+    kind = spec.pop("kind", case["training"]["kind"])
+    if kind == "path":
+        return [scene]
+    if kind == "positions":
+        lattice = lattice_positions(scene, case["training"].get("positions", 5))
+        return [positional_scene(scene, s, case["training"]) for s in _held_out(lattice, spec.get("held_out"))]
+    if kind == "trajectory":
+        return [scene.at({k: v for k, v in spec.items() if k in ("load_scale", "t_end")})]
+    if kind == "map":
+        return [scene.at(mu) for mu in spec.get("mus", [])]
+    return []
 
 
 def build_evaluation(case: dict, scene, model=None) -> Evaluation:

@@ -7,20 +7,33 @@ worker process (threads_per_worker = 1), and yields ``(unit, outcome)`` as units
 the caller alone writes the store, so its contents do not depend on the executor.
 Dask workers of an existing cluster need tissuebench importable (the same version).
 
+The reference cache a unit uses travels with it (``cache``: a folder or an fsspec URL,
+:mod:`.reference.location`), never read from a worker's environment by accident: on a cluster
+of several machines it must be a location every worker reaches (``s3://...``, a shared
+folder). On dask, the reference runs a unit declares (:func:`~.units.unit_references`) are
+tasks of their own, one per content hash, submitted before the units, and each unit takes the
+results of its references' tasks as arguments, so it starts once they are in the cache; a
+reference a unit did not declare is computed by the unit under a cluster-wide lock
+(:func:`~.reference.cache.cached_solve`): never twice at once.
+
 A worker process that dies (SIGKILL, the out-of-memory killer, a crash in native code)
-does not end the sweep. Dask resubmits the lost task itself. The ``processes`` pool breaks
+does not end the sweep. Dask resubmits the lost task itself (a unit whose workers died
+``distributed.scheduler.allowed-failures`` + 1 times is stored as failed, saying so). The ``processes`` pool breaks
 as a whole when one worker dies, losing every unit in flight: they are run again in a
 fresh pool, one at a time (so the unit that kills its worker is known); a unit whose worker
 dies while it runs alone is stored as failed, saying so, and the sweep goes on.
 """
 from __future__ import annotations
 
+import functools
 import multiprocessing
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
-from .units import failed_outcome, run_unit
+from .reference.cache import cache_url, cached_solve
+from .reference.location import CACHE_ENV, check_cache_url, using_cache
+from .units import failed_outcome, run_unit, unit_references
 
 __all__ = ["EXECUTORS", "execute", "check_executor"]
 
@@ -39,17 +52,44 @@ def check_executor(name: str, workers: int | None = None, scheduler: str | None 
         raise ValueError(f"scheduler = {scheduler!r}: expected an address such as tcp://127.0.0.1:8786")
 
 
-def execute(units, name: str = "serial", workers: int | None = None, scheduler: str | None = None, run=run_unit):
+def execute(units, name: str = "serial", workers: int | None = None, scheduler: str | None = None, run=run_unit,
+            cache=None):
     """Yield ``(unit, UnitOutcome)`` for every unit, in completion order (``run``: the function
-    a worker applies to a unit, :func:`~.units.run_unit`; a module-level function)."""
+    a worker applies to a unit, :func:`~.units.run_unit`; a module-level function). ``cache``:
+    the reference cache the units use (module docstring); None: this process's
+    (:func:`~.reference.location.cache_url`), except on an existing dask cluster, whose workers
+    then use each their own."""
     check_executor(name, workers, scheduler)
+    if cache is not None:
+        cache = check_cache_url(cache)
+    elif name != "dask" or scheduler is None:
+        cache = check_cache_url(cache_url(), CACHE_ENV)
+    in_cache = functools.partial(_in_cache, run, cache)
     if name == "serial":
         for u in units:
-            yield u, run(u)
+            yield u, in_cache(u)
     elif name == "processes":
-        yield from _processes(units, workers or 2, run)
+        yield from _processes(units, workers or 2, in_cache)
     else:
-        yield from _dask(units, workers or 2, scheduler, run)
+        yield from _dask(units, workers or 2, scheduler, run, cache)
+
+
+def _in_cache(run, cache, unit, *references):
+    """``run(unit)`` with the reference cache at ``cache``; ``references``: what the unit's
+    reference tasks returned (their runs are in the cache: the arguments only order the tasks)."""
+    with using_cache(cache):
+        return run(unit)
+
+
+def reference_task(scene, backend: str, cache) -> str:
+    """Compute the reference run of ``scene`` into ``cache`` unless it is there: ``"hit"``,
+    ``"solved"``, or ``"failed: ..."``. Never raises: a unit that needs a reference that could not
+    be computed meets the error itself, and stores it as its failure."""
+    try:
+        with using_cache(cache):
+            return "hit" if cached_solve(scene, backend)[1] else "solved"
+    except Exception as exc:  # noqa: BLE001 - see the docstring
+        return f"failed: {type(exc).__name__}: {exc}"
 
 
 def _pool(workers):
@@ -96,7 +136,7 @@ def _processes(units, workers, run):
             pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _dask(units, workers, scheduler, run):
+def _dask(units, workers, scheduler, run, cache):
     try:
         from distributed import Client, LocalCluster, as_completed as dask_completed
     except ImportError as exc:  # pragma: no cover - dask is a dependency
@@ -112,9 +152,23 @@ def _dask(units, workers, scheduler, run):
         except (OSError, TimeoutError) as exc:
             raise ValueError(f"scheduler = {scheduler!r} cannot be reached: {exc}") from None
     try:
-        futures = {client.submit(run, u, key=f"unit-{u.key[:32]}", pure=False): u for u in units}
+        references, futures, declared = {}, {}, [(u, unit_references(u)) for u in units]
+        for u, needs in declared:  # every reference first: submitted earlier, they run first
+            for key, scene in needs.items():
+                if key not in references:
+                    references[key] = client.submit(reference_task, scene, u.case["backend"], cache,
+                                                    key=f"reference-{key}", pure=False)
+        for u, needs in declared:
+            needs = [references[k] for k in needs]
+            futures[client.submit(_in_cache, run, cache, u, *needs, key=f"unit-{u.key}", pure=False)] = u
         for fut in dask_completed(futures):
-            yield futures[fut], fut.result()
+            u = futures.pop(fut)
+            try:
+                outcome = fut.result()
+            except Exception as exc:  # noqa: BLE001 - the unit never raises: its workers died (KilledWorker)
+                outcome = failed_outcome(u, f"the dask workers running this unit died ({type(exc).__name__}: "
+                                            f"{exc}); the sweep went on")
+            yield u, outcome
     finally:
         client.close()
         if cluster is not None:

@@ -23,6 +23,7 @@ import pandas as pd
 
 from .executors import check_executor, execute
 from .reference.cache import PROGRESS_ENV
+from .reference.location import CACHE_ENV, cache_url, check_cache_url
 from .metrics import TOLERANCES, pareto_front
 from .results import ResultsStore, SweepManifestError, read_points, read_sweep_manifest, read_units
 from .spec import SweepSpec, expand_units
@@ -93,10 +94,20 @@ def check_same_spec(out: Path, spec: SweepSpec, units, store: ResultsStore) -> N
 
 def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | None = None,
               scheduler: str | None = None, resume: bool = False, progress: bool = True, log=print,
-              figures=None) -> SweepSummary:
-    """Run a sweep into results folder ``out`` (module docstring); ``figures``: see :func:`write_derived`."""
+              figures=None, cache=None) -> SweepSummary:
+    """Run a sweep into results folder ``out`` (module docstring); ``figures``: see :func:`write_derived`;
+    ``cache``: the reference cache's folder or fsspec URL (default ``$TISSUEBENCH_CACHE``, see
+    :mod:`.reference.location`), handed to every unit by the executor."""
     out = Path(out)
     check_executor(executor, workers, scheduler)
+    if cache is not None:
+        cache = check_cache_url(cache)
+    else:  # the environment's, refused before any work as --cache would be
+        check_cache_url(cache_url(), CACHE_ENV)
+    if cache is None and scheduler is not None and progress:
+        log("note: no --cache: each worker of the cluster computes references into its own cache "
+            "($TISSUEBENCH_CACHE on the worker); give --cache a location every worker reaches (s3://..., a shared "
+            "folder) to compute each one once")
     check_output_folder(out, resume)
     units = expand_units(spec)
     if not units:
@@ -118,7 +129,7 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
         summary = SweepSummary(out, len(units), skipped=[u.key for u in skipped], recomputed=[u.key for u, _ in stale])
         store.write_manifest(_manifest(spec, units, executor, "running"))
         state = "failed"
-        _execute(spec, units, pending, skipped, stale, store, summary, executor, workers, scheduler, progress)
+        _execute(spec, pending, skipped, stale, store, summary, (executor, workers, scheduler, cache), progress)
         write_derived(out, spec.error_metric, figures)
         summary.wall_s = time.perf_counter() - t_start
         state = "finished"
@@ -137,11 +148,13 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
         store.release()
 
 
-def _execute(spec, units, pending, skipped, stale, store, summary, executor, workers, scheduler, progress):
-    bar = _bar(len(units), len(skipped), progress)
+def _execute(spec, pending, skipped, stale, store, summary, where, progress):
+    executor, workers, scheduler, cache = where
+    total = len(pending) + len(skipped)
+    bar = _bar(total, len(skipped), progress)
     stale_old = {u.key: old for u, old in stale}
     try:
-        for unit, outcome in execute(pending, executor, workers, scheduler):
+        for unit, outcome in execute(pending, executor, workers, scheduler, cache=cache):
             store.write_unit(outcome)
             if unit.key in stale_old:
                 store.remove_unit(unit.case["id"], unit.method, stale_old[unit.key])
@@ -150,7 +163,7 @@ def _execute(spec, units, pending, skipped, stale, store, summary, executor, wor
                 summary.failed.append(unit.key)
             if bar is not None:
                 bar.update(1)
-                bar.write(_line(len(summary.computed) + len(skipped), len(units), unit, outcome.row,
+                bar.write(_line(len(summary.computed) + len(skipped), total, unit, outcome.row,
                                  spec.error_metric))
     finally:
         if bar is not None:

@@ -34,8 +34,8 @@ from ..refsolvers.line_models import assemble_line_model
 from ..rom import Training
 from .reference import cached_solve, dynamics_system
 
-__all__ = ["TRAINING_KINDS", "case_scene", "build_training", "lattice_positions", "reference_states",
-           "training_indices"]
+__all__ = ["TRAINING_KINDS", "case_scene", "build_training", "training_references", "lattice_positions",
+           "reference_states", "training_indices"]
 
 TRAINING_KINDS = ("path", "positions", "trajectory", "operators")
 
@@ -173,6 +173,22 @@ def _operators(scene, case, spec, info):
     if scene.analysis["type"] == "dynamic":
         return Training(system=dynamics_system(scene), info=info)
     return Training(system=assemble_line_model(scene.line_model()), info=info)
+
+
+def training_references(case: dict, scene=None) -> list:
+    """The scenes whose reference runs :func:`build_training` reads for ``case`` (on its
+    ``case["backend"]``), known from the case entry alone, nothing solved: the dask executor
+    computes each as a task the unit waits for. Not declared: a stored position solved again
+    with more load steps (:func:`positional_reference`: only when the first run stalled)."""
+    scene = scene or case_scene(case)
+    spec = case["training"]
+    if spec["kind"] == "path":
+        return [scene]
+    if spec["kind"] == "positions":
+        return [positional_scene(scene, s, spec) for s in lattice_positions(scene, spec.get("positions", 5))]
+    if spec["kind"] == "trajectory":
+        return [scene.at(mu) for mu in [{}] + list(spec.get("runs", []))]
+    return []  # operators: no reference run
 
 
 _BUILDERS = {"path": _path, "positions": _positions, "trajectory": _trajectory, "operators": _operators}

@@ -26,14 +26,16 @@ from threadpoolctl import threadpool_limits
 from ..rom import make_method, method_class
 from .applicability import evaluation_why_not, why_not
 from .energy import EnergyDrift, model_drift
-from .evaluation import NEEDS_MODEL, build_evaluation
+from .evaluation import NEEDS_MODEL, build_evaluation, evaluation_references
 from .metrics import output_rows, point_rows, seen_points, summarise_points
 from .protocol import (_timing_sequence, blas_info, cached_dynamics_system, calibration_seconds, drive,
                        reference_step_seconds, time_latency)
 from .store import code_hash, git_commit, package_versions
-from .training import build_training, case_scene
+from .reference import reference_key
+from .training import build_training, case_scene, training_references
 
-__all__ = ["WorkUnit", "UnitOutcome", "unit_key", "options_text", "run_unit", "failed_outcome", "DEFAULT_PROTOCOL"]
+__all__ = ["WorkUnit", "UnitOutcome", "unit_key", "options_text", "run_unit", "failed_outcome", "unit_references",
+           "DEFAULT_PROTOCOL"]
 
 DEFAULT_PROTOCOL = {"latency_steps": 200, "warmup": 20, "blas_threads": 1, "reference_samples": 3, "seed": 0}
 
@@ -138,6 +140,19 @@ def failed_outcome(unit: WorkUnit, message: str, wall_s: float = float("nan")) -
     row = {**_base_row(unit), **_provenance_row()}
     row.update(unit_status="failed", message=message, unit_wall_s=wall_s)
     return UnitOutcome(row)
+
+
+def unit_references(unit: WorkUnit) -> dict:
+    """``{reference key: scene}`` of the reference runs ``unit`` reads on its case's backend, as
+    its training and evaluation kinds declare them (:func:`~.training.training_references`,
+    :func:`~.evaluation.evaluation_references`); nothing solved. A case entry whose scene does not
+    load declares none: the unit's own run stores the error."""
+    try:
+        scene = case_scene(unit.case)
+        scenes = training_references(unit.case, scene) + evaluation_references(unit.case, scene)
+        return {reference_key(s, unit.case["backend"]): s for s in scenes}
+    except Exception:  # noqa: BLE001 - reported by the unit's run, which meets the same error
+        return {}
 
 
 def _where(exc) -> str:

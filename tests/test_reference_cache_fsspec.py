@@ -1,0 +1,187 @@
+"""The reference cache on an fsspec file system (issue 30, ``--cache URL``): on ``memory://`` and
+``file://`` an entry is written, read back, and refused when damaged, with the same checks as on a
+local folder (tests/test_reference_cache.py); a URL fsspec cannot open is a clear ValueError."""
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import uuid
+
+import fsspec
+import numpy as np
+import pytest
+
+from tissuebench.cases.scene import load
+from tissuebench.studies.reference.cache import (_meta_checksum, cached_solve, cached_table, clear, list_entries,
+                                                 reference_key, stray_items)
+from tissuebench.studies.reference.location import check_cache_url, open_cache, using_cache
+
+
+@pytest.fixture()
+def scene():
+    return load("frame_2dof")
+
+
+@pytest.fixture(params=["memory", "file"])
+def url(request, tmp_path):
+    if request.param == "memory":
+        name = f"tb-{uuid.uuid4().hex[:8]}"
+        yield f"memory://{name}/cache"
+        fsspec.filesystem("memory").rm(f"/{name}", recursive=True)
+    else:
+        yield f"file://{tmp_path}/cache"
+
+
+def _fs_entry(url, scene):
+    fs, root = fsspec.core.url_to_fs(url)
+    return fs, f"{root.rstrip('/')}/references/{reference_key(scene)}"
+
+
+def test_write_then_read_back(url, scene):
+    first, hit = cached_solve(scene, cache=url)
+    assert not hit
+    fs, entry = _fs_entry(url, scene)
+    assert sorted(p.rsplit("/", 1)[-1] for p in fs.ls(entry, detail=False)) == ["fields.npz", "meta.json",
+                                                                                "table.parquet"]
+    again, hit = cached_solve(scene, cache=url)
+    assert hit
+    np.testing.assert_array_equal(again.displacement, first.displacement)
+    assert cached_table(scene, cache=url) is not None
+    assert list_entries(url)["valid"].tolist() == [True] and stray_items(url) == []
+    # nothing but the entry: no temporary folder left beside it
+    assert [p.rsplit("/", 1)[-1] for p in fs.ls(entry.rsplit("/", 1)[0], detail=False)] == [entry.rsplit("/", 1)[-1]]
+    assert clear(url) == 1 and list_entries(url).empty
+
+
+def test_the_environment_variable_takes_a_url(monkeypatch, scene):
+    url = f"memory://tb-{uuid.uuid4().hex[:8]}/env"
+    monkeypatch.setenv("TISSUEBENCH_CACHE", url)
+    assert not cached_solve(scene)[1] and cached_solve(scene)[1]
+    fs, entry = _fs_entry(url, scene)
+    assert fs.exists(f"{entry}/meta.json")
+
+
+def test_using_cache_overrides_the_environment(monkeypatch, tmp_path, scene):
+    monkeypatch.setenv("TISSUEBENCH_CACHE", str(tmp_path / "env"))
+    url = f"memory://tb-{uuid.uuid4().hex[:8]}/unit"
+    with using_cache(url):
+        assert not cached_solve(scene)[1]
+    assert not (tmp_path / "env").exists() and _fs_entry(url, scene)[0].exists(_fs_entry(url, scene)[1])
+
+
+def _reseal(fs, entry, files=True):
+    meta = json.loads(fs.cat_file(f"{entry}/meta.json"))
+    if files:
+        for f in ("fields.npz", "table.parquet"):
+            data = fs.cat_file(f"{entry}/{f}")
+            meta["files"][f] = {"sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data)}
+    meta["meta_sha256"] = _meta_checksum(meta)
+    fs.pipe_file(f"{entry}/meta.json", json.dumps(meta).encode())
+
+
+def _damage(fs, entry, how):
+    if how == "edited status":
+        meta = json.loads(fs.cat_file(f"{entry}/meta.json"))
+        meta["status"] = "failed"
+        fs.pipe_file(f"{entry}/meta.json", json.dumps(meta).encode())
+        return "does not match its checksum"
+    if how == "truncated fields":
+        fs.pipe_file(f"{entry}/fields.npz", fs.cat_file(f"{entry}/fields.npz")[:-10])
+        return "fields.npz does not match"
+    if how == "no meta (half-moved)":
+        fs.rm(f"{entry}/meta.json")
+        return "no meta.json"
+    if how == "resealed bad shape":
+        with np.load(io.BytesIO(fs.cat_file(f"{entry}/fields.npz")), allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        arrays["displacement"] = arrays["displacement"][:, :1]
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
+        fs.pipe_file(f"{entry}/fields.npz", buf.getvalue())
+        _reseal(fs, entry)
+        return "do not read back"
+    assert how == "pickled array"
+    buf = io.BytesIO()
+    np.savez(buf, steps=np.array([object()], dtype=object))
+    fs.pipe_file(f"{entry}/fields.npz", buf.getvalue())
+    _reseal(fs, entry)
+    return "do not read back"
+
+
+@pytest.mark.parametrize("how", ["edited status", "truncated fields", "no meta (half-moved)", "resealed bad shape",
+                                 "pickled array"])
+def test_a_damaged_entry_is_a_warning_and_a_recompute_never_read(url, scene, how):
+    first, _ = cached_solve(scene, cache=url)
+    fs, entry = _fs_entry(url, scene)
+    why = _damage(fs, entry, how)
+    if "resealed" not in how and "pickled" not in how:  # the table alone is read by cached_table: its checksum fails
+        assert cached_table(scene, cache=url) is None
+    with pytest.warns(UserWarning, match=why):
+        again, hit = cached_solve(scene, cache=url)
+    assert not hit
+    np.testing.assert_array_equal(again.displacement, first.displacement)
+    assert cached_solve(scene, cache=url)[1]  # the replacement reads back
+
+
+def test_an_entry_swapped_into_another_keys_folder_is_a_miss(scene):
+    url = f"memory://tb-{uuid.uuid4().hex[:8]}/swap"
+    other = scene.at({"load_scale": 0.5})
+    cached_solve(scene, cache=url)
+    cached_solve(other, cache=url)
+    fs, a = _fs_entry(url, scene)
+    _, b = _fs_entry(url, other)
+    fs.rm(b, recursive=True)
+    fs.copy(a, b, recursive=True)
+    with pytest.warns(UserWarning, match="moved or swapped"):
+        assert not cached_solve(other, cache=url)[1]
+
+
+@pytest.mark.parametrize("bad", ["nosuchproto://bucket/x", "", "   ", "a\x00b", 3])
+def test_a_url_fsspec_cannot_open_is_a_value_error_naming_it(bad):
+    with pytest.raises(ValueError, match="--cache = "):
+        check_cache_url(bad)
+
+
+def test_a_bare_path_and_file_url_are_the_same_local_folder(tmp_path):
+    assert open_cache(str(tmp_path)).root == open_cache(f"file://{tmp_path}").root == tmp_path
+
+
+def test_sweep_refuses_a_cache_url_it_cannot_open_before_any_work(tmp_path, capsys):
+    from tissuebench.cli import main
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('[sweep]\nname = "s"\n[[case]]\nname = "cornea_pinch"\n[[method]]\nname = "nearest"\n')
+    out = tmp_path / "out"
+    assert main(["sweep", str(spec), "--out", str(out), "--quiet", "--cache", "nosuchproto://bucket/c"]) == 2
+    assert "--cache = 'nosuchproto://bucket/c': unknown protocol 'nosuchproto'" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_a_bad_url_in_the_environment_is_refused_naming_it(tmp_path, monkeypatch, capsys):
+    from tissuebench.cli import main
+
+    monkeypatch.setenv("TISSUEBENCH_CACHE", "nosuchproto://bucket/c")
+    spec = tmp_path / "s.toml"
+    spec.write_text('[sweep]\nname = "s"\n[[case]]\nname = "cornea_pinch"\n[[method]]\nname = "nearest"\n')
+    assert main(["sweep", str(spec), "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    assert "TISSUEBENCH_CACHE = 'nosuchproto://bucket/c': unknown protocol" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+    assert main(["cache", "ls"]) == 2
+    assert "TISSUEBENCH_CACHE = 'nosuchproto://bucket/c'" in capsys.readouterr().err
+
+
+def test_cache_ls_and_clear_on_a_url(monkeypatch, capsys, scene):
+    from tissuebench.cli import main
+
+    url = f"memory://tb-{uuid.uuid4().hex[:8]}/ls"
+    monkeypatch.setenv("TISSUEBENCH_CACHE", url)
+    cached_solve(scene)
+    fs, entry = _fs_entry(url, scene)
+    fs.pipe_file(entry.rsplit("/", 1)[0] + "/notes.txt", b"mine")
+    assert main(["cache", "ls"]) == 0
+    captured = capsys.readouterr()
+    assert f"{url}: 1 reference runs" in captured.out and "frame_2dof" in captured.out
+    assert "1 items" in captured.err and "notes.txt" in captured.err
+    assert main(["cache", "clear"]) == 0 and "removed 1 reference runs" in capsys.readouterr().out
+    assert fs.cat_file(entry.rsplit("/", 1)[0] + "/notes.txt") == b"mine"

@@ -1,0 +1,139 @@
+"""References as tasks on the dask executor (issue 30): a reference needed by several units of a
+sweep is computed once per content hash, whether the units declare it (it runs as its own task
+they wait for) or not (computed inside a unit under a cluster-wide lock named by its key).
+
+The solve is counted in the workers themselves: the cluster runs in this process
+(``processes=False``), so the counting wrapper patched over ``cache.solve`` is the one the
+workers call, and the cache is on ``memory://``, which its threads share. The wrapper holds
+each solve 1 s, so two workers that both miss the cache overlap: without the tasks and the lock
+(the code before issue 30) the path's reference was solved by both workers' first units, 2 times
+(measured: see the issue's closing note)."""
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+
+import tissuebench.studies.reference.cache as cache_module
+from tissuebench.studies.executors import execute
+from tissuebench.studies.reference import reference_key
+from tissuebench.studies.results import read_units
+from tissuebench.studies.spec import expand_units, load_spec
+from tissuebench.studies.sweep import run_sweep
+from tissuebench.studies.training import case_scene
+from tissuebench.studies.units import unit_references
+
+distributed = pytest.importorskip("distributed")
+
+FIVE = """
+[sweep]
+name = "five"
+[protocol]
+latency_steps = 5
+warmup = 1
+reference_samples = 1
+[[case]]
+name = "cornea_pinch"
+training = { kind = "path", every = 2 }
+evaluation = { kind = "path", beyond = [2.0] }
+[[method]]
+name = "nearest"
+[[method]]
+name = "pod_interp"
+grid = { n_modes = [2, 4], interpolation = ["linear", "rbf"] }
+"""
+
+
+@pytest.fixture()
+def spec(tmp_path):
+    p = tmp_path / "five.toml"
+    p.write_text(FIVE)
+    return load_spec(p)
+
+
+@pytest.fixture()
+def counted(monkeypatch):
+    """Every solve the cache starts, by reference key, held 1 s (module docstring)."""
+    solves, lock, real = [], threading.Lock(), cache_module.solve
+
+    def solve(scene, backend="skfem", **kw):
+        with lock:
+            solves.append(reference_key(scene, backend, kw.get("linear_solver", "auto")))
+        time.sleep(1.0)
+        return real(scene, backend=backend, **kw)
+
+    monkeypatch.setattr(cache_module, "solve", solve)
+    return solves
+
+
+def test_the_declared_references_are_the_ones_the_units_read(spec):
+    units = expand_units(spec)
+    scene = case_scene(units[0].case)
+    assert len(units) == 5
+    # the path is declared (its key, on the case's backend); the continuation past the top is not
+    assert all(list(unit_references(u)) == [reference_key(scene, "skfem")] for u in units)
+
+
+def test_a_reference_five_units_need_is_computed_once_on_two_workers(spec, tmp_path, counted):
+    url = f"memory://tb-{uuid.uuid4().hex[:8]}/cache"
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cl:
+        summary = run_sweep(spec, tmp_path / "out", executor="dask", scheduler=cl.scheduler_address, progress=False,
+                            cache=url)
+    assert len(summary.computed) == 5 and not summary.failed, read_units(tmp_path / "out")["message"].tolist()
+    # two references: the path (declared: a task) and its continuation past the top (not declared:
+    # computed by the first unit to need it under the lock, read by the other four)
+    assert len(counted) == 2 and len(set(counted)) == 2, counted
+    fs_root = url.split("://", 1)[1]
+    import fsspec
+
+    assert sorted(Path(p).name for p in fsspec.filesystem("memory").ls(f"/{fs_root}/references", detail=False)) \
+        == sorted(set(counted))
+
+
+def test_serial_and_processes_keep_their_cache_argument(spec, tmp_path, counted):
+    """The cache a sweep is given reaches the units of every executor (not the environment's)."""
+    url = f"memory://tb-{uuid.uuid4().hex[:8]}/serial"
+    outcomes = list(execute(expand_units(spec)[:2], "serial", cache=url))
+    assert all(o.row["unit_status"] == "ok" for _, o in outcomes)
+    assert len(counted) == 2  # path and continuation, once each, into the memory cache
+    import fsspec
+
+    assert len(fsspec.filesystem("memory").ls(f"/{url.split('://', 1)[1]}/references", detail=False)) == 2
+
+
+def _ci_cases():
+    spec = load_spec(Path(__file__).resolve().parents[1] / "tissuebench" / "studies" / "presets" / "ci.toml")
+    cases = {u.case["id"]: u.case for u in expand_units(spec)}  # every case of the preset, once
+    return [pytest.param(c, id=i) for i, c in cases.items()
+            if c["training"]["kind"] != "operators" or c["evaluation"].get("kind") == "map"]
+
+
+@pytest.mark.parametrize("case", _ci_cases())
+def test_each_kind_declares_the_references_its_builders_read(case, monkeypatch):
+    """What :func:`unit_references` declares for every case of the ci preset with references is
+    read by the builders (a declared reference nobody reads would be computed for nothing), and
+    what they read beyond it is the continuation past a path's top (``beyond``), the one reference
+    not declared by design."""
+    import tissuebench.studies.evaluation as evaluation
+    import tissuebench.studies.training as training
+    from tissuebench.studies.units import WorkUnit
+
+    read, real = {}, cache_module.cached_solve
+
+    def recording(scene, backend="skfem", **kw):
+        read[reference_key(scene, backend)] = scene
+        return real(scene, backend, **kw)
+
+    monkeypatch.setattr(training, "cached_solve", recording)
+    monkeypatch.setattr(evaluation, "cached_solve", recording)
+    declared = unit_references(WorkUnit(case, "nearest", {}, {}, {}, "0" * 64))
+    scene = case_scene(case)
+    training.build_training(case, scene)
+    if case["evaluation"].get("kind") not in evaluation.NEEDS_MODEL:
+        evaluation.build_evaluation(case, scene)
+    assert declared and set(declared) <= set(read)
+    extra = [s for k, s in read.items() if k not in declared]
+    assert len(extra) == (1 if case["evaluation"].get("beyond") else 0), [s.mu for s in extra]
