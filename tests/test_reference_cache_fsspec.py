@@ -185,3 +185,23 @@ def test_cache_ls_and_clear_on_a_url(monkeypatch, capsys, scene):
     assert "1 items" in captured.err and "notes.txt" in captured.err
     assert main(["cache", "clear"]) == 0 and "removed 1 reference runs" in capsys.readouterr().out
     assert fs.cat_file(entry.rsplit("/", 1)[0] + "/notes.txt") == b"mine"
+
+
+def test_a_reader_leaves_an_entry_being_published_to_its_writer(scene):
+    """On an object store the writer moves the data files first and meta.json last. A reader that
+    comes in between sees no meta: a miss, and the files stay (removing them made the writer's
+    entry unreadable, and a third solve of a reference in a 2-worker sweep). Once the meta lands,
+    the entry reads back."""
+    url = f"memory://tb-{uuid.uuid4().hex[:8]}/race"
+    cached_solve(scene, cache=url)
+    fs, entry = _fs_entry(url, scene)
+    meta = fs.cat_file(f"{entry}/meta.json")
+    fs.rm(f"{entry}/meta.json")  # the writer between its last data file and its meta
+    root = open_cache(url)
+    from tissuebench.studies.reference.cache import _lookup
+
+    with pytest.warns(UserWarning, match="no meta.json yet"):
+        assert _lookup(root, entry, scene) is None
+    assert sorted(p.rsplit("/", 1)[-1] for p in fs.ls(entry, detail=False)) == ["fields.npz", "table.parquet"]
+    fs.pipe_file(f"{entry}/meta.json", meta)  # the writer's last move
+    assert cached_solve(scene, cache=url)[1]

@@ -140,6 +140,13 @@ def _lookup(root, entry, scene) -> ReferenceResult | None:
             return _read(meta, data, scene)
         except Exception as exc:  # noqa: BLE001 - whatever a damaged entry makes numpy/pandas raise
             why = f"its data do not read back ({type(exc).__name__}: {exc})"
+    if not root.atomic_publish and not root.exists(root.child(entry, "meta.json")):
+        # a writer may be moving its files in (meta last): removing them would break its entry
+        # (measured: a unit of a 2-worker sweep removed the files another was publishing, and the
+        # reference was solved a third time); the next publish completes a half-moved entry
+        warnings.warn(f"reference cache entry {root.show(entry)} has no meta.json yet (being written, or half-moved "
+                      f"by a writer that died): recomputed, the entry left to its writer", stacklevel=3)
+        return None
     warnings.warn(f"reference cache entry {root.show(entry)} is corrupted ({why}): recomputed", stacklevel=3)
     root.remove(entry)
     return None

@@ -91,6 +91,8 @@ def open_cache(cache=None):
 
 
 class LocalRoot:
+    #: :meth:`publish` renames a finished folder: an entry without its meta was never published whole
+    atomic_publish = True
     """The cache on the local file system (paths are :class:`~pathlib.Path`)."""
 
     def __init__(self, root: Path):
@@ -168,6 +170,9 @@ class RemoteRoot:
     against it, so a reader that comes while the move is under way sees no entry, or an entry
     whose files do not match (a warning and a recompute), never a mix it would read.
     """
+
+    #: :meth:`publish` moves file by file: an entry without its meta may be a move under way
+    atomic_publish = False
 
     def __init__(self, fs, root: str):
         self.fs, self.root = fs, root
