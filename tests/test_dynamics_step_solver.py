@@ -11,7 +11,7 @@ import scipy.sparse as sp
 
 from test_dynamics_prescribed import CUBE_MR, bar, ramp
 from tissuebench.refsolvers.dynamics import SecondOrderSystem, integrate
-from tissuebench.refsolvers.dynamics.newton import (NGSOLVE_MIN_DOFS, StepSolver, newton_options,
+from tissuebench.refsolvers.dynamics.step_newton import (NGSOLVE_MIN_DOFS, StepSolver, newton_options,
                                                      step_solver_name)
 from tissuebench.refsolvers.linear_solvers import LinearSolverError
 

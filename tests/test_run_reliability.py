@@ -30,7 +30,7 @@ from tissuebench.cli import main
 from tissuebench.refsolvers.mesh import Mesh
 from tissuebench.reports.run_files import write_result
 from tissuebench.studies.run import default_out, progress_bar, run_case, safe_name
-from tissuebench.studies.store import clean_leftovers
+from tissuebench.studies.atomic_folders import clean_leftovers
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -242,7 +242,7 @@ def test_read_only_output_folder_is_refused_before_any_work(tmp_path, capsys, no
 
 def test_unwritable_parent_is_refused_before_any_work(tmp_path, capsys, no_solve, monkeypatch):
     # as root no folder is read-only: the write probe itself fails, as on a read-only mount
-    import tissuebench.studies.store as store
+    import tissuebench.studies.atomic_folders as store
 
     monkeypatch.setattr(store, "_writable", lambda folder: False)
     assert main(["run", "cornea_pinch", "--out", str(tmp_path / "x"), "--quiet"]) == 2

@@ -162,7 +162,7 @@ def _run(args) -> int:
     try:
         from .cases.scene import load
         from .studies.run import default_out
-        from .studies.store import check_output_location, clean_leftovers
+        from .studies.atomic_folders import check_output_location, clean_leftovers
 
         scene = load(args.case, resolution=args.resolution, variant=args.variant)
         out = args.out or default_out(scene, args.backend, args.resolution)
@@ -261,7 +261,7 @@ def _scene_spec(args):
     from .cases.scene import load
     from .studies.run import safe_name
     from .studies.scene_spec import write_scene_spec
-    from .studies.store import check_output_location
+    from .studies.atomic_folders import check_output_location
 
     if not args.all_methods:
         raise ValueError("sweep --scene FILE: add --all-methods (every registered method that applies to the scene; "
@@ -406,7 +406,7 @@ def _verify(args) -> int:
     from .studies.results import write_table
 
     if args.results is not None:
-        from .studies.store import check_output_location
+        from .studies.atomic_folders import check_output_location
 
         if not args.results.is_dir():
             raise FileNotFoundError(f"results: {args.results} is not a folder")

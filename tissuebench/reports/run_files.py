@@ -11,7 +11,7 @@ import numpy as np
 from ..studies.describe import paper_comparison
 from ..studies.reference import ReferenceResult
 from ..studies.run import scene_hash
-from ..studies.store import atomic_directory, provenance, write_json_atomic
+from ..studies.atomic_folders import atomic_directory, provenance, write_json_atomic
 from . import plots
 from .figures import plot_line_state, plot_monitors
 

@@ -40,7 +40,7 @@ import pyarrow.parquet as pq
 from ..cases.schema import is_num
 from ..choices import RESOLUTIONS
 from .schema import LATENCY_COLUMNS, OUTPUT_COLUMNS, POINT_COLUMNS, UNIT_COLUMNS, conform
-from .store import process_alive, write_json_atomic
+from .atomic_folders import process_alive, write_json_atomic
 
 __all__ = ["ResultsStore", "SweepLocked", "StoreError", "SweepManifestError", "read_units", "read_points",
            "read_outputs", "read_latency", "read_sweep_manifest", "foreign_files", "MANIFEST", "MANIFEST_STATES"]

@@ -27,7 +27,7 @@ from .reference.location import CACHE_ENV, cache_url, check_cache_url
 from .metrics import TOLERANCES, pareto_front
 from .results import ResultsStore, SweepManifestError, read_points, read_sweep_manifest, read_units
 from .spec import SweepSpec, expand_units
-from .store import _writable, check_output_location, provenance
+from .atomic_folders import _writable, check_output_location, provenance
 
 __all__ = ["SweepSummary", "run_sweep", "check_output_folder", "write_derived"]
 

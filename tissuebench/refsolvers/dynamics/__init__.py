@@ -9,7 +9,7 @@ from .base import Integrator, StepReport, check_dt
 from .driver import integrate
 from .explicit import CentralDifference, ForwardEuler, critical_time_step, lumped_mass, max_frequency
 from .implicit import HHT, BackwardEuler, Bathe, Newmark, NewmarkFamily
-from .newton import NewtonOptions
+from .step_newton import NewtonOptions
 from .registry import INTEGRATORS, make_integrator
 from .result import DynamicsResult
 from .system import SecondOrderSystem

@@ -155,7 +155,7 @@ class Integrator(ABC):
 
     def solve_mass(self, rhs):
         """M_ff^{-1} rhs with a factorisation computed once per system."""
-        from .newton import StepSolver
+        from .step_newton import StepSolver
 
         if getattr(self, "_mass_lu", None) is None or self._mass_lu[0] is not self.system:
             self._mass_lu = (self.system, StepSolver("auto"))

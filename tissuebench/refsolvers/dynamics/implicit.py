@@ -1,7 +1,7 @@
 """Implicit schemes: Newmark family, HHT-alpha, Bathe composite, backward Euler.
 
 All solve for the displacement at the end of each (sub)step with Newton iterations on
-the nonlinear residual (:func:`~tissuebench.refsolvers.dynamics.newton.newton`); for a
+the nonlinear residual (:func:`~tissuebench.refsolvers.dynamics.step_newton.newton`); for a
 linear system the effective matrix is factorised once and each step is one solve.
 
 References: Hilber, Hughes, Taylor (1977) EESD 5:283; Bathe, Baig (2005) C&S 83:2513;
@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from .base import Integrator, StepReport
-from .newton import StepSolver, newton, newton_options
+from .step_newton import StepSolver, newton, newton_options
 
 
 class NewmarkFamily(Integrator):

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..store import code_hash, package_versions
+from ..atomic_folders import code_hash, package_versions
 from .entry import FILES, arrays_of, check_meta, read_files
 from .entry import meta_checksum as _meta_checksum  # the tests reseal entries with it
 from .location import CACHE_ENV, as_buffer, cache_url, open_cache
