@@ -27,12 +27,11 @@ the method classes, :meth:`~tissuebench.rom.base.RomMethod.why_not`), never by t
 from __future__ import annotations
 
 from ..rom import METHODS, method_class
+from .training import TRAINING_KINDS
 
-__all__ = ["TRAINING_KINDS_ANALYSIS", "training_why_not", "why_not", "evaluation_keys", "evaluation_why_not",
+__all__ = ["training_why_not", "why_not", "evaluation_keys", "evaluation_why_not",
            "load_scale_why_not", "method_rows", "LOAD_FACTOR_KEYS"]
 
-#: the analysis a training kind learns from (``operators``: that of the method's model kind)
-TRAINING_KINDS_ANALYSIS = {"path": "static", "positions": "static", "trajectory": "dynamic"}
 #: evaluation parameters that reach every model as its load factor
 LOAD_FACTOR_KEYS = ("load_scale", "max_load_factor")
 
@@ -40,7 +39,7 @@ LOAD_FACTOR_KEYS = ("load_scale", "max_load_factor")
 def training_why_not(scene, kind: str, cls=None) -> str:
     """Why training kind ``kind`` cannot be built on ``scene`` (``""`` when it can)."""
     analysis = scene.analysis.get("type")
-    want = TRAINING_KINDS_ANALYSIS.get(kind)
+    want = TRAINING_KINDS[kind].analysis if kind in TRAINING_KINDS else None  # operators: the method's
     if kind == "operators" and cls is not None:
         want = "dynamic" if cls.kind == "trajectory" else "static"
     if want is not None and analysis != want:

@@ -62,13 +62,14 @@ import numpy as np
 from ..refsolvers.backends import make_backend
 from ..rom.pgd.reference import cut_problem, linear_reference
 from .energy import EnergyDrift, conservative_window, reference_drift
+from .kinds import Kind
+from .limits import (check_contact_nodes_evaluation, check_cut_lengths_evaluation, check_map_evaluation,
+                     check_path_evaluation, check_positions_evaluation, check_trajectory_evaluation)
 from .reference import cached_solve
 from .training import lattice_positions, positional_reference, positional_scene, reference_states, training_indices
 
 __all__ = ["EVALUATION_KINDS", "EvaluationPoint", "Evaluation", "build_evaluation", "evaluation_references"]
 
-EVALUATION_KINDS = ("path", "positions", "trajectory", "map", "cut_lengths", "contact_nodes")
-NEEDS_MODEL = ("cut_lengths", "contact_nodes")  # built after the model: the incision strip, the contact nodes
 
 
 @dataclass
@@ -315,24 +316,55 @@ def _contact_nodes(scene, case, spec, model):
     return Evaluation("contact_nodes", "load_factor", points, reference_steps=first, info={"nodes": pick.tolist()})
 
 
+def _path_references(case: dict, scene) -> list:
+    return [scene]
+
+
+def _positions_references(case: dict, scene) -> list:
+    lattice = lattice_positions(scene, case["training"].get("positions", 5))
+    held = (case.get("evaluation") or {}).get("held_out")
+    return [positional_scene(scene, s, case["training"]) for s in _held_out(lattice, held)]
+
+
+def _trajectory_references(case: dict, scene) -> list:
+    spec = case.get("evaluation") or {}
+    return [scene.at({k: v for k, v in spec.items() if k in ("load_scale", "t_end")})]
+
+
+def _map_references(case: dict, scene) -> list:
+    return [scene.at(mu) for mu in (case.get("evaluation") or {}).get("mus", [])]
+
+
+def _model_references(case: dict, scene) -> list:
+    return []  # the cut meshes and contact nodes come from the model: solved inside the unit
+
+
+#: the evaluation kinds (:class:`~.kinds.Kind`): options, value checks, builder, references read
+EVALUATION_KINDS = {k.name: k for k in (
+    Kind("path", frozenset({"every", "beyond", "held_out"}), lambda sc, c, o, m: _path(sc, c, o),
+         _path_references, check_path_evaluation),
+    Kind("positions", frozenset({"held_out"}), lambda sc, c, o, m: _positions(sc, c, o, c["training"]),
+         _positions_references, check_positions_evaluation),
+    Kind("trajectory", frozenset({"t_end", "load_scale", "from_time"}), lambda sc, c, o, m: _trajectory(sc, c, o),
+         _trajectory_references, check_trajectory_evaluation),
+    Kind("map", frozenset({"mus"}), lambda sc, c, o, m: _map(sc, c, o), _map_references, check_map_evaluation),
+    Kind("cut_lengths", frozenset({"steps_per_length"}), _cut_lengths, _model_references,
+         check_cut_lengths_evaluation, needs_model=True),
+    Kind("contact_nodes", frozenset({"count"}), _contact_nodes, _model_references, check_contact_nodes_evaluation,
+         needs_model=True),
+)}
+#: the kinds built after the model (the incision strip, the contact nodes)
+NEEDS_MODEL = tuple(name for name, k in EVALUATION_KINDS.items() if k.needs_model)
+
+
 def evaluation_references(case: dict, scene) -> list:
     """The scenes whose reference runs :func:`build_evaluation` reads for ``case``, known from the
     case entry alone, nothing solved (see :func:`~.training.training_references`). Not declared:
     the continuation of a path past its top (``beyond``: its length is the reference's last load
     factor, and it is run only when the path succeeded), the kinds that need the model
     (:data:`NEEDS_MODEL`), a held-out position solved again with more load steps."""
-    spec = dict(case.get("evaluation") or {})
-    kind = spec.pop("kind", case["training"]["kind"])
-    if kind == "path":
-        return [scene]
-    if kind == "positions":
-        lattice = lattice_positions(scene, case["training"].get("positions", 5))
-        return [positional_scene(scene, s, case["training"]) for s in _held_out(lattice, spec.get("held_out"))]
-    if kind == "trajectory":
-        return [scene.at({k: v for k, v in spec.items() if k in ("load_scale", "t_end")})]
-    if kind == "map":
-        return [scene.at(mu) for mu in spec.get("mus", [])]
-    return []
+    kind = (case.get("evaluation") or {}).get("kind", case["training"]["kind"])
+    return EVALUATION_KINDS[kind].references(case, scene)
 
 
 def build_evaluation(case: dict, scene, model=None) -> Evaluation:
@@ -340,20 +372,11 @@ def build_evaluation(case: dict, scene, model=None) -> Evaluation:
     in :data:`NEEDS_MODEL`."""
     spec = dict(case.get("evaluation") or {})
     kind = spec.pop("kind", case["training"]["kind"])
-    if kind == "cut_lengths":
-        return _cut_lengths(scene, case, spec, model)
-    if kind == "contact_nodes":
-        ev = _contact_nodes(scene, case, spec, model)
-    elif kind == "path":
-        ev = _path(scene, case, spec)
-    elif kind == "positions":
-        ev = _positions(scene, case, spec, case["training"])
-    elif kind == "trajectory":
-        ev = _trajectory(scene, case, spec)
-    elif kind == "map":
-        ev = _map(scene, case, spec)
-    else:
+    if kind not in EVALUATION_KINDS:
         raise ValueError(f"evaluation.kind = {kind!r}; valid: {list(EVALUATION_KINDS)}")
+    ev = EVALUATION_KINDS[kind].build(scene, case, spec, model)
+    if kind == "cut_lengths":
+        return ev
     if "x_unit" not in ev.info:  # what one unit of the abscissa is, in the scene's units
         if kind == "positions":
             pos = scene.parameters["position"]

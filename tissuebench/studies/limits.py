@@ -20,8 +20,7 @@ import math
 
 from ..cases.schema import is_num, value_text
 
-__all__ = ["LIMITS", "MAX_UNITS", "MAX_OPTION_INT", "check_count", "check_protocol", "check_training",
-           "check_evaluation", "check_option_values"]
+__all__ = ["LIMITS", "MAX_UNITS", "MAX_OPTION_INT", "check_count", "check_protocol", "check_option_values"]
 
 LIMITS = {
     # protocol
@@ -94,39 +93,45 @@ def _needs_dynamics(path, kind, scene):
         _fail(f"{path}.kind", kind, f"needs a dynamic scene; {scene.name!r} is {scene.analysis.get('type')!r}")
 
 
-def check_training(path, training: dict, scene) -> None:
-    """The values of a case's ``training`` table (its keys are already known to the kind)."""
-    kind = training["kind"]
-    if "every" in training:
-        check_count(f"{path}.every", training["every"], "every")
-    if "repeat" in training:
-        check_count(f"{path}.repeat", training["repeat"], "repeat")
-    if kind == "positions":
-        _needs_position(path, kind, scene)
-        positions = training.get("positions", 5)
-        if isinstance(positions, list):
-            _numbers(f"{path}.positions", positions, "positions", lo=2)
-            if len(set(positions)) != len(positions):
-                _fail(f"{path}.positions", positions, "positions must be distinct")
-        else:
-            check_count(f"{path}.positions", positions, "positions", lo=2)  # one point has no spacing
-        if "load_steps" in training:
-            check_count(f"{path}.load_steps", training["load_steps"], "load_steps")
-        mu = {k: training[k] for k in ("max_load_factor", "load_steps") if k in training}
-        lo, _ = scene.parameters["position"]["range"]
-        _at(path, scene, {**mu, "position": lo})
-    if kind == "trajectory":
-        _needs_dynamics(path, kind, scene)
-        if "runs" in training:
-            _mu_tables(f"{path}.runs", training["runs"], "runs", scene, lo=0)
+# ------------------------------------------------------------------------------ kinds' values
+# One function per training / evaluation kind (``Kind.check``: ``(path, table, scene, training)``);
+# a table's keys are already known to its kind (:mod:`.kinds`).
+def check_path_training(path, training: dict, scene, _training=None) -> None:
+    for key in ("every", "repeat"):
+        if key in training:
+            check_count(f"{path}.{key}", training[key], key)
 
 
-def check_evaluation(path, evaluation: dict, scene, training: dict | None = None) -> None:
-    """The values of a case's ``evaluation`` table (its keys are already known to the kind)."""
-    kind = evaluation["kind"]
+def check_positions_training(path, training: dict, scene, _training=None) -> None:
+    _needs_position(path, "positions", scene)
+    positions = training.get("positions", 5)
+    if isinstance(positions, list):
+        _numbers(f"{path}.positions", positions, "positions", lo=2)
+        if len(set(positions)) != len(positions):
+            _fail(f"{path}.positions", positions, "positions must be distinct")
+    else:
+        check_count(f"{path}.positions", positions, "positions", lo=2)  # one point has no spacing
+    if "load_steps" in training:
+        check_count(f"{path}.load_steps", training["load_steps"], "load_steps")
+    mu = {k: training[k] for k in ("max_load_factor", "load_steps") if k in training}
+    lo, _ = scene.parameters["position"]["range"]
+    _at(path, scene, {**mu, "position": lo})
+
+
+def check_trajectory_training(path, training: dict, scene, _training=None) -> None:
+    _needs_dynamics(path, "trajectory", scene)
+    if "runs" in training:
+        _mu_tables(f"{path}.runs", training["runs"], "runs", scene, lo=0)
+
+
+def check_nothing(path, table: dict, scene, training=None) -> None:
+    """A kind without options (``operators``)."""
+
+
+def check_path_evaluation(path, evaluation: dict, scene, training: dict | None = None) -> None:
     if "every" in evaluation:
         check_count(f"{path}.every", evaluation["every"], "every")
-    if kind == "path" and "held_out" in evaluation:
+    if "held_out" in evaluation:
         if not isinstance(evaluation["held_out"], bool):
             _fail(f"{path}.held_out", evaluation["held_out"], "expected true or false")
         t = training or {}
@@ -135,32 +140,44 @@ def check_evaluation(path, evaluation: dict, scene, training: dict | None = None
                   "training = { kind = \"path\", every = 2 } (or more)")
     if "beyond" in evaluation:
         _numbers(f"{path}.beyond", evaluation["beyond"], "beyond", lo=0, positive=True)
-    if kind == "positions":
-        _needs_position(path, kind, scene)
-        held = evaluation.get("held_out")
-        if isinstance(held, list):
-            _numbers(f"{path}.held_out", held, "held_out")
-            for i, s in enumerate(held):
-                _at(f"{path}.held_out[{i}]", scene, {"position": s})
-        elif held is not None:
-            check_count(f"{path}.held_out", held, "held_out")
-    if kind == "trajectory":
-        _needs_dynamics(path, kind, scene)
-        mu = {k: evaluation[k] for k in ("t_end", "load_scale") if k in evaluation}
-        run = _at(path, scene, mu)
-        steps = run.analysis["t_end"] / run.analysis["dt"]
-        if not steps <= LIMITS["trajectory_steps"]:
-            _fail(f"{path}.t_end", run.analysis["t_end"], f"{steps:.3g} time steps of dt = {run.analysis['dt']:g}; "
-                  f"at most {LIMITS['trajectory_steps']} (LIMITS['trajectory_steps'])")
-        if "from_time" in evaluation:
-            start = evaluation["from_time"]
-            if not is_num(start) or not 0 <= start < run.analysis["t_end"]:
-                _fail(f"{path}.from_time", start, f"expected a time in [0, t_end = {run.analysis['t_end']:g}) (the "
-                      "window of the evaluation)")
-    if kind == "map":
-        _mu_tables(f"{path}.mus", evaluation.get("mus"), "mus", scene)
+
+
+def check_positions_evaluation(path, evaluation: dict, scene, training: dict | None = None) -> None:
+    _needs_position(path, "positions", scene)
+    held = evaluation.get("held_out")
+    if isinstance(held, list):
+        _numbers(f"{path}.held_out", held, "held_out")
+        for i, s in enumerate(held):
+            _at(f"{path}.held_out[{i}]", scene, {"position": s})
+    elif held is not None:
+        check_count(f"{path}.held_out", held, "held_out")
+
+
+def check_trajectory_evaluation(path, evaluation: dict, scene, training: dict | None = None) -> None:
+    _needs_dynamics(path, "trajectory", scene)
+    mu = {k: evaluation[k] for k in ("t_end", "load_scale") if k in evaluation}
+    run = _at(path, scene, mu)
+    steps = run.analysis["t_end"] / run.analysis["dt"]
+    if not steps <= LIMITS["trajectory_steps"]:
+        _fail(f"{path}.t_end", run.analysis["t_end"], f"{steps:.3g} time steps of dt = {run.analysis['dt']:g}; "
+              f"at most {LIMITS['trajectory_steps']} (LIMITS['trajectory_steps'])")
+    if "from_time" in evaluation:
+        start = evaluation["from_time"]
+        if not is_num(start) or not 0 <= start < run.analysis["t_end"]:
+            _fail(f"{path}.from_time", start, f"expected a time in [0, t_end = {run.analysis['t_end']:g}) (the "
+                  "window of the evaluation)")
+
+
+def check_map_evaluation(path, evaluation: dict, scene, training: dict | None = None) -> None:
+    _mu_tables(f"{path}.mus", evaluation.get("mus"), "mus", scene)
+
+
+def check_cut_lengths_evaluation(path, evaluation: dict, scene, training: dict | None = None) -> None:
     if "steps_per_length" in evaluation:
         check_count(f"{path}.steps_per_length", evaluation["steps_per_length"], "steps_per_length")
+
+
+def check_contact_nodes_evaluation(path, evaluation: dict, scene, training: dict | None = None) -> None:
     if "count" in evaluation:
         check_count(f"{path}.count", evaluation["count"], "count")
 

@@ -57,7 +57,7 @@ from ..cases.schema import c_nonneg, c_pos, c_str, check_table, key_text, value_
 from ..rom import METHODS, method_class
 from .applicability import evaluation_why_not, why_not
 from .evaluation import EVALUATION_KINDS
-from .limits import MAX_UNITS, check_evaluation, check_option_values, check_protocol, check_training
+from .limits import MAX_UNITS, check_option_values, check_protocol
 from .scaling import check_group_name, check_scaling_groups
 from .training import TRAINING_KINDS, case_scene
 from .units import DEFAULT_PROTOCOL, WorkUnit, options_text, unit_key
@@ -74,11 +74,6 @@ _CASE = {"name", "id", "variant", "backend", "resolution", "training", "evaluati
 # a published configuration drawn beside ours on the case's Pareto plot (paper resolution)
 _PAPER_POINT = {"label": c_str, "step_ms": c_pos, "error": c_nonneg}
 _METHOD = {"name", "cases", "options", "grid", "list", "paper", "protocol"}
-_TRAINING_KEYS = {"path": {"every", "repeat"}, "positions": {"positions", "max_load_factor", "load_steps"},
-                  "trajectory": {"runs"}, "operators": set()}
-_EVALUATION_KEYS = {"path": {"every", "beyond", "held_out"}, "positions": {"held_out"},
-                    "trajectory": {"t_end", "load_scale", "from_time"},
-                    "map": {"mus"}, "cut_lengths": {"steps_per_length"}, "contact_nodes": {"count"}}
 BACKENDS = BACKEND_NAMES
 
 
@@ -147,17 +142,17 @@ def _check_case(i, c, resolution, default_resolution, folder: Path | None = None
     if res not in RESOLUTIONS:
         _fail(f"{path}.resolution", res, f"valid: {list(RESOLUTIONS)}")
     training = dict(_table(f"{path}.training", c.get("training", {"kind": "path"}), {"kind"} | set().union(
-        *_TRAINING_KEYS.values())))
+        *(k.keys for k in TRAINING_KINDS.values()))))
     kind = training.setdefault("kind", "path")
     if not isinstance(kind, str) or kind not in TRAINING_KINDS:
         _fail(f"{path}.training.kind", kind, f"valid: {list(TRAINING_KINDS)}")
-    _table(f"{path}.training", training, {"kind"} | _TRAINING_KEYS[kind])
+    _table(f"{path}.training", training, {"kind"} | TRAINING_KINDS[kind].keys)
     evaluation = dict(_table(f"{path}.evaluation", c.get("evaluation", {}), {"kind"} | set().union(
-        *_EVALUATION_KEYS.values())))
+        *(k.keys for k in EVALUATION_KINDS.values()))))
     ekind = evaluation.setdefault("kind", kind if kind in EVALUATION_KINDS else "map")
     if not isinstance(ekind, str) or ekind not in EVALUATION_KINDS:
         _fail(f"{path}.evaluation.kind", ekind, f"valid: {list(EVALUATION_KINDS)}")
-    _table(f"{path}.evaluation", evaluation, {"kind"} | _EVALUATION_KEYS[ekind])
+    _table(f"{path}.evaluation", evaluation, {"kind"} | EVALUATION_KINDS[ekind].keys)
     cid = c.get("id", Path(name).stem)
     if not (isinstance(cid, str) and re.fullmatch(r"[A-Za-z0-9_.-]+", cid) and cid not in (".", "..")):
         _fail(f"{path}.id", cid, "a case id names a results folder: letters, digits, '_', '.', '-' only")
@@ -178,8 +173,8 @@ def _check_case(i, c, resolution, default_resolution, folder: Path | None = None
     if "scaling_group" in c:  # one scene on several meshes: the cost-versus-size fits (studies/scaling.py)
         entry["scaling_group"] = check_group_name(f"{path}.scaling_group", c["scaling_group"])
     scene = _named(path, case_scene, entry)  # the scene must load and take the mu (their errors name the key)
-    check_training(f"{path}.training", training, scene)
-    check_evaluation(f"{path}.evaluation", evaluation, scene, training)
+    TRAINING_KINDS[kind].check(f"{path}.training", training, scene, None)
+    EVALUATION_KINDS[ekind].check(f"{path}.evaluation", evaluation, scene, training)
     return entry, scene
 
 

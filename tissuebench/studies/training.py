@@ -32,12 +32,12 @@ from ..cases.monitors import linear_outputs
 from ..refsolvers.backends import make_backend
 from ..refsolvers.line_models import assemble_line_model
 from ..rom import Training
+from .kinds import Kind
+from .limits import check_nothing, check_path_training, check_positions_training, check_trajectory_training
 from .reference import cached_solve, dynamics_system
 
 __all__ = ["TRAINING_KINDS", "case_scene", "build_training", "training_references", "lattice_positions",
            "reference_states", "training_indices"]
-
-TRAINING_KINDS = ("path", "positions", "trajectory", "operators")
 
 
 def case_scene(case: dict):
@@ -175,23 +175,41 @@ def _operators(scene, case, spec, info):
     return Training(system=assemble_line_model(scene.line_model()), info=info)
 
 
+def _path_references(case: dict, scene) -> list:
+    return [scene]
+
+
+def _positions_references(case: dict, scene) -> list:
+    spec = case["training"]
+    return [positional_scene(scene, s, spec) for s in lattice_positions(scene, spec.get("positions", 5))]
+
+
+def _trajectory_references(case: dict, scene) -> list:
+    return [scene.at(mu) for mu in [{}] + list(case["training"].get("runs", []))]
+
+
+def _no_references(case: dict, scene) -> list:
+    return []  # operators: no reference run
+
+
+#: the training kinds (:class:`~.kinds.Kind`): options, value checks, builder, references read
+TRAINING_KINDS = {k.name: k for k in (
+    Kind("path", frozenset({"every", "repeat"}), _path, _path_references, check_path_training, analysis="static"),
+    Kind("positions", frozenset({"positions", "max_load_factor", "load_steps"}), _positions, _positions_references,
+         check_positions_training, analysis="static"),
+    Kind("trajectory", frozenset({"runs"}), _trajectory, _trajectory_references, check_trajectory_training,
+         analysis="dynamic"),
+    Kind("operators", frozenset(), _operators, _no_references, check_nothing),
+)}
+
+
 def training_references(case: dict, scene=None) -> list:
     """The scenes whose reference runs :func:`build_training` reads for ``case`` (on its
     ``case["backend"]``), known from the case entry alone, nothing solved: the dask executor
     computes each as a task the unit waits for. Not declared: a stored position solved again
     with more load steps (:func:`positional_reference`: only when the first run stalled)."""
     scene = scene or case_scene(case)
-    spec = case["training"]
-    if spec["kind"] == "path":
-        return [scene]
-    if spec["kind"] == "positions":
-        return [positional_scene(scene, s, spec) for s in lattice_positions(scene, spec.get("positions", 5))]
-    if spec["kind"] == "trajectory":
-        return [scene.at(mu) for mu in [{}] + list(spec.get("runs", []))]
-    return []  # operators: no reference run
-
-
-_BUILDERS = {"path": _path, "positions": _positions, "trajectory": _trajectory, "operators": _operators}
+    return TRAINING_KINDS[case["training"]["kind"]].references(case, scene)
 
 
 def build_training(case: dict, scene=None) -> Training:
@@ -203,4 +221,4 @@ def build_training(case: dict, scene=None) -> Training:
     # on a coarser mesh and read its integrator
     info = {"case": scene.name, "variant": scene.variant, "resolution": scene.resolution,
             "backend": case["backend"], "training_kind": kind, "scene_hash": scene.content_hash(), "scene": scene}
-    return _BUILDERS[kind](scene, case, spec, info)
+    return TRAINING_KINDS[kind].build(scene, case, spec, info)
