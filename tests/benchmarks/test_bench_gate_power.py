@@ -6,8 +6,9 @@ A small sweep (ci meshes) holds a microsecond unit (ANM-POD on the liver, 9 mode
 microsecond units (POD with interpolated coefficients; POD-Galerkin). Each gate run re-times
 all four A/B, both sides running the project's HEAD commit (exported once), exactly as
 ``tissuebench check --against`` does (:func:`tissuebench.studies.latency_ab.run_ab` with the gate's decision
-rule), with a calibrated 1.3x slowdown injected on HEAD's side into the first two (a busy
-wait of 0.3x the unit's own warm median after every step). The counts and the wall time
+rule, without its 10 us floor: the statistic's power is measured; the floor only lets through
+slowdowns no haptic budget would notice), with a calibrated 1.3x slowdown injected on HEAD's
+side into the first two (a busy wait of 0.3x the unit's own warm median after every step). The counts and the wall time
 per gate run are printed and written to ``$TISSUEBENCH_GATE_POWER_OUT`` (JSON) when set::
 
     TISSUEBENCH_GATE_POWER_RUNS=20 pytest -n 0 -m "slow or not slow" -s \\

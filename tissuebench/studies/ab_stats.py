@@ -22,7 +22,20 @@ the geometric midpoint between no change and the tolerance, ``sqrt(tolerance)`` 
 * ``slower`` (a regression) when the interval lies above the threshold;
 * ``holds`` when it lies below (``faster`` when it lies below ``1 / threshold``);
 * undecided otherwise: the A/B runs more rounds; when it stops (``max_rounds`` or the time
-  budget) an undecided unit is judged by its point estimate and says so.
+  budget) an undecided unit is ``slower`` only when its point estimate is above the threshold
+  *and* its interval stays clear of the ``faster`` region (lower end above ``1 / threshold``),
+  and says it was undecided. Judging by the estimate alone flagged identical code: in CI (main
+  17841ea against its parent, which differ in a test file only) units ended undecided with
+  estimates 1.35 and 1.60 and intervals [0.747, 1.683] and [0.738, 1.696], readable as 25 %
+  faster as well as 60 % slower. On the synthetic noise models of ``tests/test_check_ab.py``
+  the undecided 1.3x slowdowns have lower ends 0.82-0.94 (1 in 100 would be lost) and no
+  identical run is flagged.
+
+A slowdown must also be one a user could see: ``floor_s`` (the gate's ``latency_floor_s``,
+default 10 us, 1 % of a 1 kHz haptic step) is the least increase of the level, HEAD minus REF,
+that counts. Microsecond steps move 1.6x between processes with the memory layout (pod_interp
+on the cornea: 15.45 vs 9.62 us, identical code, interval [1.013, 1.680]); a ratio alone
+cannot tell that from the code.
 """
 from __future__ import annotations
 
@@ -55,13 +68,22 @@ class ABVerdict:
     threshold: float
     verdict: str  # slower | holds | faster
     decided: bool
+    floor_s: float = 0.0  # the least level increase [s] that counts as slower
+
+    @property
+    def below_floor(self) -> bool:
+        """The ratio says slower but HEAD's level is less than ``floor_s`` above REF's."""
+        return self.head_median_s - self.ref_median_s < self.floor_s
 
     @property
     def regressed(self) -> bool:
         return self.verdict == "slower"
 
     def text(self) -> str:
-        how = "" if self.decided else " (undecided: judged by the estimate)"
+        how = "" if self.decided else " (undecided: judged by the estimate and the interval)"
+        if self.verdict == "holds" and self.ratio > self.threshold and self.below_floor:
+            how += f" (below the floor: +{(self.head_median_s - self.ref_median_s) * 1e6:.3g} us < " \
+                   f"{self.floor_s * 1e6:.3g} us)"
         return (f"HEAD/REF {self.ratio:.3f} [{self.low:.3f}, {self.high:.3f}] ({self.head_median_s * 1e6:.4g} vs "
                 f"{self.ref_median_s * 1e6:.4g} us, {self.rounds} rounds x {self.blocks} blocks){how}")
 
@@ -99,9 +121,11 @@ def ratio_interval(ref: pd.DataFrame, head: pd.DataFrame, confidence: float = CO
     return ratio, float(math.exp(lo)), float(math.exp(hi))
 
 
-def verdicts(samples: pd.DataFrame, tolerance: float | dict = 1.3, final: bool = True) -> dict:
-    """``{uid: ABVerdict}`` of every unit with samples on both sides; ``tolerance`` a number or
-    ``{uid: number}``. With ``final=False`` undecided units are left out (the A/B goes on)."""
+def verdicts(samples: pd.DataFrame, tolerance: float | dict = 1.3, final: bool = True,
+             floor_s: float | dict = 0.0) -> dict:
+    """``{uid: ABVerdict}`` of every unit with samples on both sides; ``tolerance`` and
+    ``floor_s`` [s] a number or ``{uid: number}``. With ``final=False`` undecided units are left
+    out (the A/B goes on)."""
     out = {}
     if samples.empty:
         return out
@@ -111,17 +135,19 @@ def verdicts(samples: pd.DataFrame, tolerance: float | dict = 1.3, final: bool =
         if ref.empty or head.empty:
             continue
         tol = tolerance.get(uid, 1.3) if isinstance(tolerance, dict) else tolerance
+        floor = float(floor_s.get(uid, 0.0) if isinstance(floor_s, dict) else floor_s)
         thr = math.sqrt(float(tol))
         ratio, lo, hi = ratio_interval(ref, head)
         decided = lo > thr or hi < thr
         if not decided and not final:
             continue
-        slower = lo > thr if decided else ratio > thr
+        ref_level = float(np.quantile(ref["median_s"], LEVEL_QUANTILE))
+        head_level = float(np.quantile(head["median_s"], LEVEL_QUANTILE))
+        slower = (lo > thr if decided else (ratio > thr and lo > 1 / thr)) and head_level - ref_level >= floor
         verdict = "slower" if slower else ("faster" if (hi if decided else ratio) < 1 / thr else "holds")
         rounds = int(head["round"].nunique())
-        out[uid] = ABVerdict(uid, ratio, lo, hi, float(np.quantile(ref["median_s"], LEVEL_QUANTILE)),
-                             float(np.quantile(head["median_s"], LEVEL_QUANTILE)),
-                             rounds, len(head) // rounds, thr, verdict, decided)
+        out[uid] = ABVerdict(uid, ratio, lo, hi, ref_level, head_level, rounds, len(head) // rounds, thr,
+                             verdict, decided, floor)
     return out
 
 

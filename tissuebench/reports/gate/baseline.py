@@ -6,6 +6,7 @@
     error_rtol = 1e-3               # errors are deterministic up to BLAS round-off
     error_atol = 1e-9
     latency_tolerance = 1.3         # the slowdown the A/B must catch (--against REF)
+    latency_floor_s = 1e-5          # A/B: the least step increase [s] that counts (1 % of 1 kHz)
     file_latency_tolerance = 1.3    # file mode (no REF): the ratio's allowed growth across runs
     latency_floor = 0.0             # file mode: calibrations a baseline ratio is raised to first
 
@@ -36,7 +37,7 @@ import tomlkit
 __all__ = ["DEFAULTS", "UNIT_KEYS", "BaselineError", "load_baseline", "unit_identity", "update_baseline"]
 
 DEFAULTS = {"error_rtol": 1e-3, "error_atol": 1e-9, "latency_tolerance": 1.3, "file_latency_tolerance": 1.3,
-            "latency_floor": 0.0}
+            "latency_floor": 0.0, "latency_floor_s": 1e-5}
 # the tolerance keys of older baselines, still read (ignored: the reference ratio is not gated)
 _RETIRED = {"reference_latency_tolerance"}
 UNIT_KEYS = {"case": str, "method": str, "options": str, "error": float, "latency_per_calibration": float,
@@ -44,7 +45,8 @@ UNIT_KEYS = {"case": str, "method": str, "options": str, "error": float, "latenc
 # (lowest value, whether the lowest is allowed)
 _RANGES = {"error_rtol": (0.0, True), "error_atol": (0.0, True), "latency_tolerance": (1.0, False),
            "file_latency_tolerance": (1.0, False),
-           "latency_floor": (0.0, True), "error": (0.0, True), "latency_per_calibration": (0.0, True),
+           "latency_floor": (0.0, True), "latency_floor_s": (0.0, True), "error": (0.0, True),
+           "latency_per_calibration": (0.0, True),
            "latency_per_reference": (0.0, True), "flagged_steps": (0, True)}
 
 

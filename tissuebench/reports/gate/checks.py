@@ -141,6 +141,7 @@ def latency_ab(out, results_dir, ok_rows: dict, units: list, defaults: dict, ref
     by_uid = {u.uid: k for u, k in zip(ab, ok_rows)}
     base = {u["_identity"]: u for u in units}
     tol = {uid: tolerances(base.get(k), defaults)["latency_tolerance"] for uid, k in by_uid.items()}
+    floor = {uid: tolerances(base.get(k), defaults)["latency_floor_s"] for uid, k in by_uid.items()}
     inject = {uid: f for uid, k in by_uid.items() for ik, f in (settings.inject or {}).items()
               if unit_identity(*ik) == k}
     log(f"A/B latency: {len(ab)} units, {against} against this code, {settings.min_rounds}-{settings.max_rounds} "
@@ -148,7 +149,7 @@ def latency_ab(out, results_dir, ok_rows: dict, units: list, defaults: dict, ref
     samples, failures = run_ab(ab, ref_root, head_root, decided_units(tol), settings.min_rounds,
                                settings.max_rounds, settings.blocks, settings.budget_s, inject=inject or None, log=log)
     out.latency_mode = "ab"
-    for uid, v in verdicts(samples, tol).items():
+    for uid, v in verdicts(samples, tol, floor_s=floor).items():
         key = by_uid[uid]
         out.ab[key] = v
         out.add(key, Finding(*key, "latency_ab", 1.0, v.ratio, f"{v.verdict}: {v.text()}") if v.regressed else None)
