@@ -3,7 +3,8 @@ processes (each a nanny and its worker, as a user starts them: README, "Running 
 while, at seeded random moments, one worker process is SIGKILLed in the middle of a unit (its nanny
 starts a new one) and another worker is killed outright with its nanny (SIGKILL of both: a machine
 lost). Nothing is lost (every unit stored, none failed), no finished unit runs again (a unit runs
-twice only when its worker died while running it), and the store equals a serial run's, timing
+twice only when its worker died while running it, or in the instant after it ended, before its
+result left the worker: once seen in 10 seeds), and the store equals a serial run's, timing
 columns aside, errors bit-identical.
 
 What ran where is logged by a worker plugin (``_workers.RunLog``) in every worker, the restarted
@@ -62,6 +63,9 @@ name = "corotational_fe"
 name = "coarse_fe"
 """
 N_UNITS = 12
+# more kill schedules: TISSUEBENCH_SOAK_SEEDS=0-19 (a soak is as good as the schedules it tried)
+_SEEDS = os.environ.get("TISSUEBENCH_SOAK_SEEDS", "0-1")
+SEEDS = list(range(int(_SEEDS.split("-")[0]), int(_SEEDS.split("-")[-1]) + 1))
 # what differs between two runs of one unit (tests/test_sweep.py's VOLATILE): timings, their
 # ratios, dates, memory, the machine's name and threads
 VOLATILE = {"haptic_median_s", "haptic_p99_s", "reconstruct_median_s", "reconstruct_p99_s", "reference_step_s",
@@ -141,7 +145,7 @@ def serial(tmp_path_factory):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", SEEDS)
 def test_workers_killed_mid_sweep_lose_and_redo_nothing(serial, tmp_path, seed):
     spec, serial_out = serial
     cache = tmp_path / "cache"
@@ -174,22 +178,22 @@ def test_workers_killed_mid_sweep_lose_and_redo_nothing(serial, tmp_path, seed):
                 p.wait()
     assert [k for k, _, _ in killed] == ["restarted", "outright"], f"the kills did not happen: {killed}"
     runs = _log(log)
-    ends, starts = Counter(k for w, k, _ in runs if w == "end"), Counter(k for w, k, _ in runs if w == "start")
-    if summary.failed:
-        # Known, not fixed (issue 30 left open): in CI's slow pass (load ~4 beside other tests),
-        # seed 0 stored one unit failed after the kills (2026-11-26, 992c525); alone it passes.
-        # Its message is recorded here so the cause is named when it recurs; every other
-        # assertion below still holds whenever no unit failed.
-        rows = read_units(tmp_path / "dask")
-        why = rows[rows["unit_key"].isin(summary.failed)]["message"].tolist()
-        pytest.xfail(f"a unit was stored failed when workers were killed: {why}")
+    # a task submitted again after its result was lost is the same unit (executors._dask_units)
+    ends, starts = (Counter(k.split("-again-")[0] for w, k, _ in runs if w == what) for what in ("end", "start"))
     # 0 units lost: every unit stored, ok, once
-    assert len(summary.computed) == N_UNITS and not summary.failed, summary.failed
+    rows = read_units(tmp_path / "dask")
+    why = rows[rows["unit_key"].isin(summary.failed)]["message"].tolist()
+    assert len(summary.computed) == N_UNITS and not summary.failed, why
     stored = [p.stem for p in (tmp_path / "dask").glob("case=*/method=*/*.parquet")]
     assert len(stored) == len(set(stored)) == N_UNITS
-    # 0 finished units recomputed: each unit finished once; it started again only where its worker died
-    assert set(ends.values()) == {1} and len(ends) == N_UNITS, ends
-    dead = {key for _, _, key in killed}
+    # 0 finished units recomputed: a unit stored runs again only where its worker died under it, or
+    # died in the instant after it ended, before its result left the worker (a result dask cannot
+    # keep: it ran once more, once, and was stored once)
+    killed_pids = {pid for _, pid, _ in killed}
+    lost_after_end = {k.split("-again-")[0] for w, k, pid in runs if w == "end" and int(pid) in killed_pids}
+    assert len(ends) == N_UNITS and all(n == 1 or (n == 2 and k in lost_after_end) for k, n in ends.items()), \
+        (ends, killed)
+    dead = {key for _, _, key in killed} | lost_after_end
     assert all(n == 1 or key in dead for key, n in starts.items()), (starts, killed)
     assert sum(starts.values()) - N_UNITS >= 1, "no unit was running when its worker died: nothing was tested"
     # one reference, solved once on the cluster (a task), whichever workers died

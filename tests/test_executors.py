@@ -97,3 +97,67 @@ def test_a_unit_that_kills_every_dask_worker_it_runs_on_is_stored_failed_and_the
     dead = done[units[1].key]
     assert dead["unit_status"] == "failed" and "dask workers running this unit died" in dead["message"], dead
     assert dead["case"] == "c" and all(done[u.key]["unit_status"] == "ok" for u in (units[0], units[2]))
+
+
+class _Future:
+    def __init__(self, key, status, value):
+        self.key, self.status, self.value = key, status, value
+
+    def result(self):
+        if isinstance(self.value, BaseException):
+            raise self.value
+        return self.value
+
+
+class _Client:
+    """A dask client whose unit tasks end as ``plan`` says, task after task: ``lost`` /
+    ``cancelled`` (the result gone after the unit ended), ``error`` (KilledWorker), else finished."""
+
+    def __init__(self, plan):
+        self.plan, self.submitted = plan, []
+
+    def submit(self, fn, *args, key, pure):
+        self.submitted.append(key)
+        if key.startswith("reference-"):
+            return _Future(key, "finished", "hit")
+        unit = args[2]
+        fates = self.plan.get(unit.key, [])
+        fate = fates.pop(0) if fates else "finished"
+        value = {"lost": RuntimeError("lost"), "error": KeyError("KilledWorker: 4 deaths"),
+                 "cancelled": RuntimeError("cancelled")}.get(fate, f"outcome of {unit.key[-2:]}")
+        return _Future(key, fate, value)
+
+
+class _Completed:
+    """``distributed.as_completed``'s interface: futures as they end, and add()."""
+
+    def __init__(self, futures):
+        self.queue = list(futures)
+
+    def add(self, fut):
+        self.queue.append(fut)
+
+    def __iter__(self):
+        while self.queue:
+            yield self.queue.pop(0)
+
+
+def test_a_lost_dask_result_is_submitted_again_and_a_killed_worker_unit_is_stored_failed(monkeypatch):
+    """The executor's reading of a unit task's end (CI saw a unit lost with its worker after it
+    had finished): lost or cancelled -> submitted again, at most RESUBMITS times; KilledWorker ->
+    stored failed at once; each unit yielded once."""
+    from tissuebench.studies import executors
+
+    monkeypatch.setattr(executors, "failed_outcome", lambda u, why: ("failed", why))
+    units = _units({}, {}, {}, {})
+    lost_once, killed, lost_always = units[0].key, units[1].key, units[2].key
+    client = _Client({lost_once: ["lost"], killed: ["error"], lost_always: ["cancelled"] * 5})
+    done = list(executors._dask_units(client, units, sleepy, None, _Completed))
+    assert sorted(u.key for u, _ in done) == sorted(u.key for u in units)
+    by_key = {u.key: o for u, o in done}
+    assert by_key[lost_once] == "outcome of 00" and by_key[units[3].key] == "outcome of 03"
+    assert by_key[killed][0] == "failed" and "workers running this unit died (KeyError" in by_key[killed][1]
+    assert by_key[lost_always][0] == "failed" and "result was lost (cancelled" in by_key[lost_always][1]
+    again = [k for k in client.submitted if "-again-" in k]
+    assert sorted(again) == sorted([f"unit-{lost_once}-again-1"] +
+                                   [f"unit-{lost_always}-again-{n}" for n in (1, 2)])

@@ -18,7 +18,9 @@ reference a unit did not declare is computed by the unit under a cluster-wide lo
 
 A worker process that dies (SIGKILL, the out-of-memory killer, a crash in native code)
 does not end the sweep. Dask resubmits the lost task itself (a unit whose workers died
-``distributed.scheduler.allowed-failures`` + 1 times is stored as failed, saying so). The ``processes`` pool breaks
+``distributed.scheduler.allowed-failures`` + 1 times is stored as failed, saying so); results are
+a unit whose result could not be gathered (lost with its worker after it ended, cancelled) is
+submitted again (:func:`_dask_units`). The ``processes`` pool breaks
 as a whole when one worker dies, losing every unit in flight: they are run again in a
 fresh pool, one at a time (so the unit that kills its worker is known); a unit whose worker
 dies while it runs alone is stored as failed, saying so, and the sweep goes on.
@@ -26,6 +28,7 @@ dies while it runs alone is stored as failed, saying so, and the sweep goes on.
 from __future__ import annotations
 
 import functools
+import logging
 import multiprocessing
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -38,6 +41,7 @@ from .units import failed_outcome, run_unit, unit_references
 __all__ = ["EXECUTORS", "execute", "check_executor"]
 
 EXECUTORS = ("serial", "processes", "dask")
+logger = logging.getLogger(__name__)
 
 
 def check_executor(name: str, workers: int | None = None, scheduler: str | None = None) -> None:
@@ -152,24 +156,55 @@ def _dask(units, workers, scheduler, run, cache):
         except (OSError, TimeoutError) as exc:
             raise ValueError(f"scheduler = {scheduler!r} cannot be reached: {exc}") from None
     try:
-        references, futures, declared = {}, {}, [(u, unit_references(u)) for u in units]
-        for u, needs in declared:  # every reference first: submitted earlier, they run first
-            for key, scene in needs.items():
-                if key not in references:
-                    references[key] = client.submit(reference_task, scene, u.case["backend"], cache,
-                                                    key=f"reference-{key}", pure=False)
-        for u, needs in declared:
-            needs = [references[k] for k in needs]
-            futures[client.submit(_in_cache, run, cache, u, *needs, key=f"unit-{u.key}", pure=False)] = u
-        for fut in dask_completed(futures):
-            u = futures.pop(fut)
-            try:
-                outcome = fut.result()
-            except Exception as exc:  # noqa: BLE001 - the unit never raises: its workers died (KilledWorker)
-                outcome = failed_outcome(u, f"the dask workers running this unit died ({type(exc).__name__}: "
-                                            f"{exc}); the sweep went on")
-            yield u, outcome
+        yield from _dask_units(client, units, run, cache, dask_completed)
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+RESUBMITS = 2  # a unit whose result was lost (not its run) is submitted again at most this often
+
+
+def _dask_units(client, units, run, cache, dask_completed):
+    """Submit every reference task, then every unit depending on its references; yield
+    ``(unit, outcome)`` as units end. A unit whose task errs
+    (``KilledWorker``: its workers died ``allowed-failures`` + 1 times while running it) is stored
+    failed; one whose result was lost or cancelled (its worker died after it ended, the
+    connection dropped) is submitted again, at most :data:`RESUBMITS` times, then stored failed."""
+    references, futures, needs = {}, {}, {}
+    declared = [(u, unit_references(u)) for u in units]
+    for u, refs in declared:  # every reference first: submitted earlier, they run first
+        for key, scene in refs.items():
+            if key not in references:
+                references[key] = client.submit(reference_task, scene, u.case["backend"], cache,
+                                                key=f"reference-{key}", pure=False)
+    for u, refs in declared:
+        needs[u.key] = [references[k] for k in refs]
+        futures[client.submit(_in_cache, run, cache, u, *needs[u.key], key=f"unit-{u.key}", pure=False)] = u
+    tries = {}
+    # as_completed without results: with them, a gather that fails inside its tracking coroutine
+    # drops the future and the iteration waits forever (seen in the kill soak, seed 5)
+    done = dask_completed(list(futures))
+    for fut in done:
+        u = futures.pop(fut)
+        try:
+            outcome = fut.result()
+        except Exception as exc:  # noqa: BLE001 - the unit never raises: read the task's end below
+            outcome = exc
+        if not isinstance(outcome, BaseException):
+            yield u, outcome
+            continue
+        if fut.status == "error":  # the unit itself never raises: KilledWorker
+            why = f"the dask workers running this unit died ({type(outcome).__name__}: {outcome})"
+        else:
+            why = f"its result was lost ({fut.status}: {type(outcome).__name__}: {outcome})"
+            tries[u.key] = tries.get(u.key, 0) + 1
+            if tries[u.key] <= RESUBMITS:
+                logger.warning("%s: %s; submitted again (%d of %d)", u.label, why, tries[u.key], RESUBMITS)
+                again = client.submit(_in_cache, run, cache, u, *needs[u.key], pure=False,
+                                      key=f"unit-{u.key}-again-{tries[u.key]}")
+                futures[again] = u
+                done.add(again)
+                continue
+        yield u, failed_outcome(u, f"{why}; the sweep went on")
