@@ -205,3 +205,34 @@ def test_a_reader_leaves_an_entry_being_published_to_its_writer(scene):
     assert sorted(p.rsplit("/", 1)[-1] for p in fs.ls(entry, detail=False)) == ["fields.npz", "table.parquet"]
     fs.pipe_file(f"{entry}/meta.json", meta)  # the writer's last move
     assert cached_solve(scene, cache=url)[1]
+
+
+@pytest.mark.parametrize("failing", ["meta.json", "fields.npz"])
+def test_an_io_error_reading_an_entry_is_a_miss_that_leaves_the_entry(url, scene, failing, monkeypatch):
+    """A timeout or throttling of the object store while reading an entry is not damage: the
+    read is a miss (warned), the entry every worker shares stays and reads back afterwards."""
+    cached_solve(scene, cache=url)
+    fs, entry = _fs_entry(url, scene)
+    root = open_cache(url)
+    from tissuebench.studies.reference.cache import _lookup
+
+    real = type(root).read_bytes
+
+    def flaky(self, path):
+        if str(path).endswith(failing):
+            raise TimeoutError(f"read of {failing} timed out")
+        return real(self, path)
+
+    monkeypatch.setattr(type(root), "read_bytes", flaky)
+    with pytest.warns(UserWarning, match=f"could not be read just now .*{failing}.*TimeoutError"):
+        assert _lookup(root, entry, scene) is None
+    listed = list_entries(url)
+    assert listed["valid"].tolist() == [False] and stray_items(url) == []
+    monkeypatch.setattr(type(root), "read_bytes", real)
+    assert cached_solve(scene, cache=url)[1] and list_entries(url)["valid"].tolist() == [True]
+
+
+@pytest.mark.parametrize("empty", ["", "  "])
+def test_an_empty_cache_argument_is_refused_not_read_as_the_default(scene, empty):
+    with pytest.raises(ValueError, match="cache = '.*': expected a folder or a URL"):
+        cached_solve(scene, cache=empty)

@@ -7,7 +7,7 @@ kernel knows nothing of scenes, the scenes know nothing of solvers.
 from .plan import EXPLICIT_INTEGRATORS, ModelPlan, plan_for
 from .result import ReferenceResult, dynamics_output
 from .runner import dynamics_system, solve
-from .cache import CACHE_ENV, cache_dir, cached_solve, reference_key
+from .cache import CACHE_ENV, cached_solve, reference_key
 
 __all__ = ["EXPLICIT_INTEGRATORS", "ModelPlan", "plan_for", "ReferenceResult", "dynamics_output", "dynamics_system",
-           "solve", "CACHE_ENV", "cache_dir", "cached_solve", "reference_key"]
+           "solve", "CACHE_ENV", "cached_solve", "reference_key"]

@@ -34,21 +34,20 @@ import json
 import os
 import re
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from ..atomic_folders import code_hash, package_versions
-from .entry import FILES, arrays_of, check_meta, read_files
+from .entry import FILES, EntryUnreadable, arrays_of, check_meta, read_files
 from .entry import meta_checksum as _meta_checksum  # the tests reseal entries with it
 from .location import CACHE_ENV, as_buffer, cache_url, open_cache
 from .plan import ModelPlan
 from .result import ReferenceResult
 from .runner import solve
 
-__all__ = ["CACHE_ENV", "cache_dir", "cache_url", "reference_key", "cached_solve", "cached_table", "list_entries",
-           "clear", "stray_items", "entry_problem", "PROGRESS_ENV"]
+__all__ = ["CACHE_ENV", "cache_url", "reference_key", "cached_solve", "cached_table", "list_entries",
+           "clear", "stray_items", "PROGRESS_ENV"]
 
 _PACKAGES = ("numpy", "scipy", "ngsolve", "scikit-fem", "pyamg")
 _KEY = re.compile(r"[0-9a-f]{64}")
@@ -56,11 +55,6 @@ _TEMPORARY = re.compile(r"\.[0-9a-f]{16}\..+")  # a writer's temporary folder (b
 
 #: set to "1" (the sweep does, when it shows progress): a reference computed for a unit shows a bar
 PROGRESS_ENV = "TISSUEBENCH_REFERENCE_PROGRESS"
-
-
-def cache_dir() -> Path:
-    """The cache folder when it is local (see :mod:`.location`; :func:`cache_url` for any location)."""
-    return Path(str(open_cache().root))
 
 
 def reference_key(scene, backend: str = "skfem", linear_solver: str = "auto") -> str:
@@ -113,11 +107,6 @@ def _problem(root, entry) -> tuple[dict | None, dict, str]:
     return (meta, data, "") if not why else (None, {}, why)
 
 
-def entry_problem(entry, cache=None) -> str:
-    """Why ``entry`` (a folder of the cache at ``cache``) is not a valid entry ("" when it is)."""
-    return _problem(open_cache(cache if cache is not None else Path(entry).parent.parent), entry)[2]
-
-
 def _read(meta: dict, data: dict, scene) -> ReferenceResult:
     arrays = arrays_of(data["fields.npz"], meta)
     plan = ModelPlan(**{**meta["plan"], "reasons": [tuple(r) for r in meta["plan"]["reasons"]]})
@@ -134,7 +123,12 @@ def _lookup(root, entry, scene) -> ReferenceResult | None:
     """The entry read back when valid; a damaged one is removed with a warning (None)."""
     if not root.exists(entry):
         return None
-    meta, data, why = _problem(root, entry)
+    try:
+        meta, data, why = _problem(root, entry)
+    except EntryUnreadable as exc:  # an I/O error, not damage: the shared entry stays
+        warnings.warn(f"reference cache entry {root.show(entry)} could not be read just now ({exc}): recomputed, "
+                      "the entry left in place", stacklevel=3)
+        return None
     if not why:
         try:
             return _read(meta, data, scene)
@@ -225,7 +219,12 @@ def _items(root) -> list:
 
 def _is_entry(root, item) -> bool:
     """A folder named by a key whose meta checks (its data files may be damaged)."""
-    return bool(_KEY.fullmatch(root.name(item))) and root.is_plain_dir(item) and check_meta(root, item)[0] is not None
+    if not (_KEY.fullmatch(root.name(item)) and root.is_plain_dir(item)):
+        return False
+    try:
+        return check_meta(root, item)[0] is not None
+    except EntryUnreadable:  # an entry that cannot be read now is still an entry
+        return True
 
 
 def stray_items(cache=None) -> list:
@@ -242,9 +241,12 @@ def list_entries(cache=None) -> pd.DataFrame:
     for entry in _items(root):
         if _TEMPORARY.fullmatch(root.name(entry)) or not _is_entry(root, entry):
             continue
-        meta, _ = check_meta(root, entry)
         size = sum(root.size(f) for f in root.files(entry))
-        row = {"key": root.name(entry)[:16], "valid": not read_files(root, entry, meta)[1], "bytes": size}
+        try:
+            meta, _ = check_meta(root, entry)
+            row = {"key": root.name(entry)[:16], "valid": not read_files(root, entry, meta)[1], "bytes": size}
+        except EntryUnreadable:
+            meta, row = {}, {"key": root.name(entry)[:16], "valid": False, "bytes": size}
         row.update({k: meta.get(k) for k in ("case", "variant", "resolution", "backend", "status")},
                    mu=json.dumps(meta.get("mu") or {}), wall_s=meta.get("wall_s"))
         rows.append(row)

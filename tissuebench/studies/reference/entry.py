@@ -18,7 +18,7 @@ import numpy as np
 from ...cases.schema import is_num
 from .location import as_buffer
 
-__all__ = ["FILES", "STATUSES", "meta_checksum", "check_meta", "read_files", "arrays_of"]
+__all__ = ["FILES", "STATUSES", "EntryUnreadable", "meta_checksum", "check_meta", "read_files", "arrays_of"]
 
 FILES = ("fields.npz", "table.parquet")
 STATUSES = ("success", "stalled", "failed", "newton_failed", "blow_up", "energy_growth")
@@ -32,9 +32,15 @@ def meta_checksum(meta: dict) -> str:
     return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
 
 
+class EntryUnreadable(OSError):
+    """A file of an entry could not be read just now (an I/O error: a timeout or throttling of an
+    object store, a permission): not evidence of damage, so never a reason to remove the entry
+    that every worker of a cluster shares."""
+
+
 def check_meta(root, entry) -> tuple[dict | None, str]:
     """``(meta, "")`` when ``meta.json`` of ``entry`` is one the cache wrote for this address,
-    else ``(None, why)``."""
+    else ``(None, why)``; :class:`EntryUnreadable` when it cannot be read now."""
     path = root.child(entry, "meta.json")
     try:
         if root.size(path) > _MAX_META_BYTES:
@@ -42,7 +48,9 @@ def check_meta(root, entry) -> tuple[dict | None, str]:
         meta = json.loads(root.read_bytes(path).decode("utf-8"))
     except FileNotFoundError:
         return None, "no meta.json"
-    except (OSError, ValueError, RecursionError) as exc:
+    except OSError as exc:
+        raise EntryUnreadable(f"meta.json: {type(exc).__name__}: {exc}") from exc
+    except (ValueError, RecursionError) as exc:
         return None, f"meta.json unreadable ({type(exc).__name__})"
     if not isinstance(meta, dict):
         return None, "meta.json is not a JSON object"
@@ -73,7 +81,8 @@ def check_meta(root, entry) -> tuple[dict | None, str]:
 
 def read_files(root, entry, meta: dict) -> tuple[dict, str]:
     """``({file: bytes}, "")`` when every data file of ``entry`` has the size and SHA-256 that
-    ``meta`` records, else ``({}, why)``; a file larger than recorded is not read."""
+    ``meta`` records, else ``({}, why)``; a file larger than recorded is not read;
+    :class:`EntryUnreadable` when one cannot be read now."""
     data = {}
     for f in FILES:
         rec, path = meta["files"][f], root.child(entry, f)
@@ -81,8 +90,10 @@ def read_files(root, entry, meta: dict) -> tuple[dict, str]:
             if not root.is_file(path) or root.size(path) != rec["bytes"]:
                 return {}, f"{f} does not match its recorded size and checksum"
             raw = root.read_bytes(path)
+        except FileNotFoundError:
+            return {}, f"{f} is missing"
         except OSError as exc:
-            return {}, f"{f} unreadable ({getattr(exc, 'strerror', None) or exc})"
+            raise EntryUnreadable(f"{f}: {type(exc).__name__}: {getattr(exc, 'strerror', None) or exc}") from exc
         if len(raw) != rec["bytes"] or hashlib.sha256(raw).hexdigest() != rec["sha256"]:
             return {}, f"{f} does not match its recorded size and checksum"
         data[f] = raw

@@ -34,7 +34,10 @@ _CURRENT: contextvars.ContextVar = contextvars.ContextVar("tissuebench_cache", d
 
 def cache_url(cache=None) -> str:
     """The cache location as a string (path or URL), resolved as the module docstring says."""
-    if cache is not None and str(cache).strip():
+    if cache is not None:
+        if not str(cache).strip():
+            raise ValueError(f"cache = {cache!r}: expected a folder or a URL (an empty value is refused, not read as "
+                             "the default location)")
         return str(cache).strip()
     current = _CURRENT.get()
     if current:
@@ -91,9 +94,10 @@ def open_cache(cache=None):
 
 
 class LocalRoot:
+    """The cache on the local file system (paths are :class:`~pathlib.Path`)."""
+
     #: :meth:`publish` renames a finished folder: an entry without its meta was never published whole
     atomic_publish = True
-    """The cache on the local file system (paths are :class:`~pathlib.Path`)."""
 
     def __init__(self, root: Path):
         self.root = Path(root)
