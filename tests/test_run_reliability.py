@@ -382,3 +382,18 @@ def test_when_no_renderer_works_matplotlib_draws_the_picture(tmp_path, monkeypat
     assert tried == ["vtkEGLRenderWindow", "vtkOSOpenGLRenderWindow"]
     assert (tmp_path / "d.png").stat().st_size > 10_000
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.png"]  # the temporary VTU is gone
+
+
+@pytest.mark.parametrize("pid", [0, -1, True, 2 ** 63, "x", None, 1.5e30])
+def test_a_lock_pid_that_is_not_a_positive_process_id_is_not_alive(pid):
+    """A damaged lock file's pid: 0 and negative pids would signal process groups (always alive),
+    True would be pid 1, a huge one raised OverflowError."""
+    from tissuebench.studies.atomic_folders import process_alive
+
+    assert process_alive(pid) is False
+
+
+def test_this_process_is_alive():
+    from tissuebench.studies.atomic_folders import process_alive
+
+    assert process_alive(os.getpid()) and process_alive(str(os.getpid()))

@@ -92,10 +92,16 @@ def clean_leftovers(out: Path, min_age_s: float = 3600.0) -> list:
 
 def process_alive(pid) -> bool:
     """Whether process ``pid`` (of this host) runs: one of another user counts (signal 0 is
-    refused with PermissionError), a pid that is not a number does not."""
+    refused with PermissionError), a pid that is not a positive number does not (0 and negative
+    pids would signal process groups and always look alive)."""
+    if isinstance(pid, bool):
+        return False
     try:
-        os.kill(int(pid), 0)
-    except (TypeError, ValueError, ProcessLookupError):
+        pid = int(pid)
+        if pid <= 0:
+            return False
+        os.kill(pid, 0)
+    except (TypeError, ValueError, OverflowError, ProcessLookupError):
         return False
     except OSError:  # PermissionError: it exists, owned by someone else
         return True
