@@ -119,7 +119,7 @@ class _Client:
     def submit(self, fn, *args, key, pure):
         self.submitted.append(key)
         if key.startswith("reference-"):
-            return _Future(key, "finished", "hit")
+            return _Future(key, "error" if self.plan.get("reference") else "finished", "hit")
         unit = args[2]
         fates = self.plan.get(unit.key, [])
         fate = fates.pop(0) if fates else "finished"
@@ -161,3 +161,16 @@ def test_a_lost_dask_result_is_submitted_again_and_a_killed_worker_unit_is_store
     again = [k for k in client.submitted if "-again-" in k]
     assert sorted(again) == sorted([f"unit-{lost_once}-again-1"] +
                                    [f"unit-{lost_always}-again-{n}" for n in (1, 2)])
+
+
+def test_a_unit_whose_reference_task_died_names_the_reference(monkeypatch):
+    """Units depend on their reference tasks: when a reference's workers died (KilledWorker), the
+    units are errored by dask without having run, and their message says whose task died."""
+    from tissuebench.studies import executors
+
+    monkeypatch.setattr(executors, "failed_outcome", lambda u, why: ("failed", why))
+    monkeypatch.setattr(executors, "unit_references", lambda u: {"abc": None})
+    units = _units({})
+    client = _Client({"reference": True, units[0].key: ["error"]})
+    (_, outcome), = executors._dask_units(client, units, sleepy, None, _Completed)
+    assert outcome[0] == "failed" and "running its reference task reference-abc died" in outcome[1]

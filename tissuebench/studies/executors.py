@@ -18,9 +18,9 @@ reference a unit did not declare is computed by the unit under a cluster-wide lo
 
 A worker process that dies (SIGKILL, the out-of-memory killer, a crash in native code)
 does not end the sweep. Dask resubmits the lost task itself (a unit whose workers died
-``distributed.scheduler.allowed-failures`` + 1 times is stored as failed, saying so); results are
-a unit whose result could not be gathered (lost with its worker after it ended, cancelled) is
-submitted again (:func:`_dask_units`). The ``processes`` pool breaks
+``distributed.scheduler.allowed-failures`` + 1 times is stored as failed, saying so). A unit whose
+result could not be gathered (lost with its worker after it ended, or cancelled) is submitted
+again, at most :data:`RESUBMITS` times (:func:`_dask_units`). The ``processes`` pool breaks
 as a whole when one worker dies, losing every unit in flight: they are run again in a
 fresh pool, one at a time (so the unit that kills its worker is known); a unit whose worker
 dies while it runs alone is stored as failed, saying so, and the sweep goes on.
@@ -195,8 +195,10 @@ def _dask_units(client, units, run, cache, dask_completed):
         if not isinstance(outcome, BaseException):
             yield u, outcome
             continue
-        if fut.status == "error":  # the unit itself never raises: KilledWorker
-            why = f"the dask workers running this unit died ({type(outcome).__name__}: {outcome})"
+        if fut.status == "error":  # the unit itself never raises: KilledWorker, its own or a reference's
+            dead = [r.key for r in needs[u.key] if r.status == "error"]
+            whose = f"its reference task {dead[0]}" if dead else "this unit"
+            why = f"the dask workers running {whose} died ({type(outcome).__name__}: {outcome})"
         else:
             why = f"its result was lost ({fut.status}: {type(outcome).__name__}: {outcome})"
             tries[u.key] = tries.get(u.key, 0) + 1
