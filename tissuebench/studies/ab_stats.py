@@ -69,11 +69,7 @@ class ABVerdict:
     verdict: str  # slower | holds | faster
     decided: bool
     floor_s: float = 0.0  # the least level increase [s] that counts as slower
-
-    @property
-    def below_floor(self) -> bool:
-        """The ratio says slower but HEAD's level is less than ``floor_s`` above REF's."""
-        return self.head_median_s - self.ref_median_s < self.floor_s
+    held_by_floor: bool = False  # the ratio says slower; the increase is below floor_s
 
     @property
     def regressed(self) -> bool:
@@ -81,7 +77,7 @@ class ABVerdict:
 
     def text(self) -> str:
         how = "" if self.decided else " (undecided: judged by the estimate and the interval)"
-        if self.verdict == "holds" and self.ratio > self.threshold and self.below_floor:
+        if self.held_by_floor:
             how += f" (below the floor: +{(self.head_median_s - self.ref_median_s) * 1e6:.3g} us < " \
                    f"{self.floor_s * 1e6:.3g} us)"
         return (f"HEAD/REF {self.ratio:.3f} [{self.low:.3f}, {self.high:.3f}] ({self.head_median_s * 1e6:.4g} vs "
@@ -143,11 +139,12 @@ def verdicts(samples: pd.DataFrame, tolerance: float | dict = 1.3, final: bool =
             continue
         ref_level = float(np.quantile(ref["median_s"], LEVEL_QUANTILE))
         head_level = float(np.quantile(head["median_s"], LEVEL_QUANTILE))
-        slower = (lo > thr if decided else (ratio > thr and lo > 1 / thr)) and head_level - ref_level >= floor
+        by_ratio = lo > thr if decided else (ratio > thr and lo > 1 / thr)
+        slower = by_ratio and head_level - ref_level >= floor
         verdict = "slower" if slower else ("faster" if (hi if decided else ratio) < 1 / thr else "holds")
         rounds = int(head["round"].nunique())
         out[uid] = ABVerdict(uid, ratio, lo, hi, ref_level, head_level, rounds, len(head) // rounds, thr,
-                             verdict, decided, floor)
+                             verdict, decided, floor, by_ratio and not slower)
     return out
 
 

@@ -140,8 +140,9 @@ def latency_ab(out, results_dir, ok_rows: dict, units: list, defaults: dict, ref
     ab = ab_units(results_dir, table)
     by_uid = {u.uid: k for u, k in zip(ab, ok_rows)}
     base = {u["_identity"]: u for u in units}
-    tol = {uid: tolerances(base.get(k), defaults)["latency_tolerance"] for uid, k in by_uid.items()}
-    floor = {uid: tolerances(base.get(k), defaults)["latency_floor_s"] for uid, k in by_uid.items()}
+    unit_tol = {uid: tolerances(base.get(k), defaults) for uid, k in by_uid.items()}
+    tol = {uid: t["latency_tolerance"] for uid, t in unit_tol.items()}
+    floor = {uid: t["latency_floor_s"] for uid, t in unit_tol.items()}
     inject = {uid: f for uid, k in by_uid.items() for ik, f in (settings.inject or {}).items()
               if unit_identity(*ik) == k}
     log(f"A/B latency: {len(ab)} units, {against} against this code, {settings.min_rounds}-{settings.max_rounds} "

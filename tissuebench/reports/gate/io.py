@@ -59,7 +59,8 @@ def write_ab_artifacts(results_dir, samples: pd.DataFrame, verdicts: dict, again
     table = pd.DataFrame([{"case": k[0], "method": k[1], "options": k[2], "uid": v.uid, "ratio": v.ratio,
                            "low": v.low, "high": v.high, "threshold": v.threshold, "ref_median_s": v.ref_median_s,
                            "head_median_s": v.head_median_s, "rounds": v.rounds, "blocks": v.blocks,
-                           "verdict": v.verdict, "decided": v.decided, "against": against, "ref_commit": sha}
+                           "verdict": v.verdict, "decided": v.decided, "floor_s": v.floor_s,
+                           "held_by_floor": v.held_by_floor, "against": against, "ref_commit": sha}
                           for k, v in verdicts.items()])
     try:
         folder.mkdir(exist_ok=True)
