@@ -56,6 +56,16 @@ def test_single_precision_is_refused_where_it_changes_the_solutions():
     assert well.precision == "single" and well.info["single_error"] < 1e-5 and well.info["single_rho"] < 1e-5
 
 
+@pytest.mark.parametrize("cond, single", [(1e2, True), (1e13, False)])
+def test_auto_tests_single_precision_on_the_operator_it_keeps(cond, single):
+    """The acceptance test is of the kind "auto" keeps (a float32 Cholesky factor is another
+    operator than a float32 inverse), and the reported precision is what was built."""
+    op = StepMatrix(_spd(60, cond), "auto", "single")
+    assert op.precision == op.info["precision"] == ("single" if single else "double")
+    assert (op._op.dtype == np.float32) == single and (op.info["single_rho"] <= SINGLE_TOL) == single
+    assert single or op.info["single_refused"].startswith(f"single-precision {op.kind} solve")
+
+
 class _Scaled:
     """``P = H^-1 (I + E)``, ``E`` symmetric with known spectrum: rho(P H - I) is known."""
 

@@ -86,7 +86,7 @@ def _parser():
     ver.add_argument("results", type=Path, nargs="?", default=None,
                      help="a sweep's results folder: the table goes to RESULTS/_anchors.parquet (the report shows it)")
     ver.add_argument("--resolution", default="ci", choices=RESOLUTIONS)
-    ver.add_argument("--backend", default="ngsolve", choices=["ngsolve", "skfem"])
+    ver.add_argument("--backend", default="ngsolve", choices=BACKEND_NAMES)
     ver.add_argument("--cases", default=None, help="only these anchor cases (comma-separated)")
     ver.add_argument("--no-backends", action="store_true",
                      help="skip the backend agreement (with RESULTS: every FE scene of the sweep on both backends, "

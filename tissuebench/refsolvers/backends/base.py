@@ -205,7 +205,8 @@ BACKENDS: dict[str, str] = {
     "skfem": "tissuebench.refsolvers.backends.skfem_backend:SkfemBackend",
     "ngsolve": "tissuebench.refsolvers.backends.ngsolve_backend:NgsolveBackend",
 }
-assert tuple(BACKENDS) == BACKEND_NAMES  # the one list of names (tissuebench.choices)
+if tuple(BACKENDS) != BACKEND_NAMES:  # the one list of names (tissuebench.choices); not an assert: -O
+    raise ImportError(f"BACKENDS {tuple(BACKENDS)} differ from tissuebench.choices.BACKEND_NAMES {BACKEND_NAMES}")
 
 
 def make_backend(name, problem) -> Backend:

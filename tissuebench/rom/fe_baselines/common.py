@@ -24,27 +24,11 @@ import dataclasses
 import numpy as np
 import scipy.sparse as sp
 
-from ...cases import load
 from ..base import OnlineModel, StepResult, Training
+from ..training_scene import scene_of
 
 __all__ = ["scene_of", "intact_backend", "DeadLoads", "FieldMap", "FeModel", "contact_load",
            "contact_nodes_of"]
-
-
-def scene_of(training: Training, who: str):
-    """The scene of a training: ``info["scene"]``, else the catalogue case ``info["case"]``
-    (variant, resolution) when its content hash matches ``info["scene_hash"]``; None otherwise."""
-    info = training.info or {}
-    if info.get("scene") is not None:
-        return info["scene"]
-    if "case" not in info:
-        return None
-
-    scene = load(info["case"], resolution=info.get("resolution", "ci"), variant=info.get("variant"))
-    if info.get("scene_hash") and scene.content_hash() != info["scene_hash"]:
-        raise ValueError(f"{who}: the training's scene differs from the catalogue's {info['case']!r} (parameters or "
-                         "mesh of the case entry); pass it as training.info['scene']")
-    return scene
 
 
 def intact_backend(training: Training, scene, who: str):

@@ -20,10 +20,10 @@ import dataclasses
 
 import numpy as np
 
-from ...cases.scene import load
 from ...refsolvers import PointLoad, make_backend
 from ...refsolvers.line_models import assemble_line_model
 from ..base import Training
+from ..training_scene import scene_of as training_scene_of
 from .family import PointLoadFamily, anterior_nodes, line_family, nodal_areas, surface_family
 
 __all__ = ["pgd_training", "scene_of", "uncut_backend", "family_from_training", "contact_force"]
@@ -42,14 +42,8 @@ def pgd_training(scene, backend: str = "skfem") -> Training:
 
 
 def scene_of(training: Training, who: str):
-    """The scene a Training refers to (``info["scene"]`` or ``info["case"]``)."""
-    info = training.info or {}
-    if info.get("scene") is not None:
-        return info["scene"]
-    if "case" in info:
-
-        return load(info["case"], info.get("resolution", "ci"))
-    raise ValueError(f"{who}: training.info needs the scene ('scene') or its name ('case')")
+    """The scene a Training refers to (:func:`~..training_scene.scene_of`); ValueError when it names none."""
+    return training_scene_of(training, who, required=True)
 
 
 def uncut_backend(training: Training, scene, who: str):

@@ -44,6 +44,7 @@ from scipy.linalg import blas, lapack
 __all__ = ["KINDS", "POWER_ITERATIONS", "PRECISIONS", "SINGLE_TOL", "SPARSE_MAX_DENSITY", "StepMatrix"]
 
 KINDS = ("auto", "dense", "cholesky", "sparse")
+KINDS_BUILT = ("dense", "cholesky", "sparse")  # what "auto" chooses from
 PRECISIONS = ("single", "double")
 #: ``auto`` times SuperLU only for a step matrix at most this dense (paper cube, 364 handles:
 #: 24 % dense, SuperLU 24-31 ms a solve against 2.7 ms for the single-precision inverse, and
@@ -127,6 +128,21 @@ def _fastest_solve_s(ops, rhs) -> dict:
     return {name: float(min(t)) for name, t in times.items()}
 
 
+def _candidate(name, c, d, H, precision, exact):
+    """``(operator, (error, rho) or None)``: the ``name`` solve of ``H`` in single precision when
+    asked and the spectral radius of ``P H - I`` of that operator is within :data:`SINGLE_TOL`
+    (its relative error on the seeded ``exact`` solutions reported beside), else in double."""
+    if name == "sparse":
+        return _Sparse(H), None
+    cls = _Dense if name == "dense" else _Cholesky
+    if precision != "single":
+        return cls(c, d, np.float64), None
+    trial = cls(c, d, np.float32)
+    err = max(np.linalg.norm(trial.solve(H @ x) - x) / np.linalg.norm(x) for x in exact)
+    rho = _rounding_radius(trial, H, exact[0])
+    return (trial if rho <= SINGLE_TOL else cls(c, d, np.float64)), (float(err), float(rho))
+
+
 class StepMatrix:
     """Solves with a symmetric positive definite ``H`` (see the module docstring).
 
@@ -162,35 +178,28 @@ class StepMatrix:
         rhs = rng.standard_normal((max(3, int(timing_solves)), len(H)))
         exact = rng.standard_normal((3, len(H)))  # solutions with every eigendirection present
         self.info = {}
-        dtype = np.float64
-        if precision == "single":
-            trial = _Dense(c, d, np.float32)
-            err = max(np.linalg.norm(trial.solve(H @ x) - x) / np.linalg.norm(x) for x in exact)
-            rho = _rounding_radius(trial, H, exact[0])
-            self.info.update(single_error=float(err), single_rho=float(rho))
-            if rho <= SINGLE_TOL:
-                dtype = np.float32
-            else:
-                self.info["single_refused"] = (f"single-precision inverse: spectral radius of P H - I {rho:.2e} "
-                                               f"(> {SINGLE_TOL:g})")
-        self.precision = "single" if dtype == np.float32 else "double"
-        build = {"dense": lambda: _Dense(c, d, dtype), "cholesky": lambda: _Cholesky(c, d, dtype),
-                 "sparse": lambda: _Sparse(H)}
+        names = [kind] if kind != "auto" else list(KINDS_BUILT)
         density = np.count_nonzero(H) / H.size
+        if kind == "auto" and density > SPARSE_MAX_DENSITY:  # not worth its factorisation time (module docstring)
+            names.remove("sparse")
+            self.info["sparse_skipped"] = f"density {density:.2f} > {SPARSE_MAX_DENSITY}"
+        ops, checks = {}, {}
+        for name in names:
+            ops[name], checks[name] = _candidate(name, c, d, H, precision, exact)
         if kind == "auto":
-            if density > SPARSE_MAX_DENSITY:  # not worth its factorisation time (module docstring)
-                build.pop("sparse")
-                self.info["sparse_skipped"] = f"density {density:.2f} > {SPARSE_MAX_DENSITY}"
-            ops = {name: make() for name, make in build.items()}
             cost = _fastest_solve_s(ops, rhs)
             kind = min(cost, key=cost.get)
             self.info["solve_ms"] = {name: round(1e3 * s, 4) for name, s in cost.items()}
-            self._op = ops[kind]
-        else:
-            self._op = build[kind]()
-        self.kind = kind
-        self.info.update(kind=kind, precision=self.precision if kind != "sparse" else "double", n=len(H),
-                         build_s=round(time.perf_counter() - tic, 4))
+        self._op, self.kind = ops[kind], kind
+        # what was built, not what was asked: the single-precision test is of this very operator
+        self.precision = "single" if getattr(self._op, "dtype", np.float64) == np.float32 else "double"
+        if checks[kind] is not None:
+            err, rho = checks[kind]
+            self.info.update(single_error=err, single_rho=rho)
+            if rho > SINGLE_TOL:
+                self.info["single_refused"] = (f"single-precision {kind} solve: spectral radius of P H - I {rho:.2e} "
+                                               f"(> {SINGLE_TOL:g})")
+        self.info.update(kind=kind, precision=self.precision, n=len(H), build_s=round(time.perf_counter() - tic, 4))
 
     def solve(self, b) -> np.ndarray:
         """``H^{-1} b`` (n,) in double precision."""
