@@ -236,3 +236,19 @@ def test_an_io_error_reading_an_entry_is_a_miss_that_leaves_the_entry(url, scene
 def test_an_empty_cache_argument_is_refused_not_read_as_the_default(scene, empty):
     with pytest.raises(ValueError, match="cache = '.*': expected a folder or a URL"):
         cached_solve(scene, cache=empty)
+
+
+def test_cache_report_and_verify_take_the_cache_a_sweep_used(monkeypatch, capsys, scene, tmp_path):
+    """After ``sweep --cache URL`` the other commands that read references reach the same cache
+    with ``--cache URL`` (not only through $TISSUEBENCH_CACHE); a bad URL is refused, named."""
+    from tissuebench.cli import main
+
+    url = f"memory://tb-{uuid.uuid4().hex[:8]}/flag"
+    monkeypatch.setenv("TISSUEBENCH_CACHE", str(tmp_path / "elsewhere"))
+    cached_solve(scene, cache=url)
+    assert main(["cache", "ls", "--cache", url]) == 0
+    assert f"{url}: 1 reference runs" in capsys.readouterr().out
+    assert main(["cache", "ls"]) == 0 and "0 reference runs" in capsys.readouterr().out
+    assert main(["cache", "clear", "--cache", url]) == 0 and "removed 1" in capsys.readouterr().out
+    assert main(["report", str(tmp_path / "none"), "--cache", "nope://x"]) == 2
+    assert "nope://x" in capsys.readouterr().err

@@ -8,7 +8,7 @@
 [--executor serial|processes|dask] [--workers N] [--scheduler ADDR] [--cache URL] [--resume] [--quiet]``
                                             any methods over any scenes, one results store
 ``tissuebench study anm_pod``               alias of ``sweep --preset anm_pod``
-``tissuebench cache ls|clear``              the reference-run cache
+``tissuebench cache ls|clear [--cache URL]`` the reference-run cache
 ``tissuebench report RESULTS [--out report.html] [--require "rate>=500Hz, error<=2%"] [--case C]``
                                             self-contained HTML: which method for which scene
 ``tissuebench check RESULTS --baseline FILE [--update-baseline] [--junit OUT.xml]``
@@ -73,8 +73,10 @@ def _parser():
     _sweep_options(study)
     cache = sub.add_parser("cache", help="the reference-run cache")
     cache.add_argument("action", choices=["ls", "clear"])
+    _cache_option(cache)
     rep = sub.add_parser("report", help="self-contained HTML report of a results folder: which method for a scene")
     rep.add_argument("results", type=Path, help="a sweep's results folder")
+    _cache_option(rep)
     rep.add_argument("--out", type=Path, default=None, help="HTML file (default: RESULTS/_report/report.html)")
     rep.add_argument("--require", default=None,
                      help='e.g. "rate>=500Hz, error<=2%%" (default: 1 kHz on the p99 haptic step, error <= 1 %%)')
@@ -86,6 +88,7 @@ def _parser():
     ver.add_argument("results", type=Path, nargs="?", default=None,
                      help="a sweep's results folder: the table goes to RESULTS/_anchors.parquet (the report shows it)")
     ver.add_argument("--resolution", default="ci", choices=RESOLUTIONS)
+    _cache_option(ver)
     ver.add_argument("--backend", default="ngsolve", choices=BACKEND_NAMES)
     ver.add_argument("--cases", default=None, help="only these anchor cases (comma-separated)")
     ver.add_argument("--no-backends", action="store_true",
@@ -109,6 +112,12 @@ def _parser():
     return p
 
 
+def _cache_option(p):
+    p.add_argument("--cache", default=None,
+                   help="the reference cache: a folder or any fsspec URL (s3://bucket/cache; default "
+                        "$TISSUEBENCH_CACHE, else ~/.cache/tissuebench); on a cluster, one every worker reaches")
+
+
 def _sweep_options(p):
     p.add_argument("--resolution", default=None, choices=RESOLUTIONS,
                    help="mesh resolution of every case and the grid of the methods (default: the spec's, ci)")
@@ -116,9 +125,7 @@ def _sweep_options(p):
     p.add_argument("--executor", default="serial", help="serial (default) | processes | dask")
     p.add_argument("--workers", type=int, default=None, help="worker processes (processes, dask LocalCluster)")
     p.add_argument("--scheduler", default=None, help="address of a running dask scheduler (tcp://host:port)")
-    p.add_argument("--cache", default=None,
-                   help="the reference cache: a folder or any fsspec URL (s3://bucket/cache; default "
-                        "$TISSUEBENCH_CACHE, else ~/.cache/tissuebench); on a cluster, one every worker reaches")
+    _cache_option(p)
     p.add_argument("--resume", action="store_true", help="continue the sweep stored in --out")
     p.add_argument("--cases", default=None, help="only these case ids of the spec (comma-separated)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no per-unit lines")
@@ -508,14 +515,13 @@ def _dispatch(args) -> int:
         return _sweep(args)
     if args.command == "study":
         return _sweep(args, preset=args.name)
-    if args.command == "cache":
-        return _cache(args)
     if args.command == "check":
         return _check(args)
-    if args.command == "report":
-        return _report(args)
-    if args.command == "verify":
-        return _verify(args)
+    if args.command in ("cache", "report", "verify"):  # the reference cache they read: --cache
+        from .studies.reference.location import using_cache
+
+        with using_cache(args.cache):
+            return {"cache": _cache, "report": _report, "verify": _verify}[args.command](args)
     return _run(args)
 
 
