@@ -7,6 +7,7 @@ import hashlib
 import io
 import json
 import uuid
+from pathlib import Path
 
 import fsspec
 import numpy as np
@@ -252,3 +253,18 @@ def test_cache_report_and_verify_take_the_cache_a_sweep_used(monkeypatch, capsys
     assert main(["cache", "clear", "--cache", url]) == 0 and "removed 1" in capsys.readouterr().out
     assert main(["report", str(tmp_path / "none"), "--cache", "nope://x"]) == 2
     assert "nope://x" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["meta.json", "fields.npz"])
+def test_a_folder_where_a_file_belongs_is_damage_not_an_io_hiccup(tmp_path, scene, name):
+    """IsADirectoryError is an OSError, but a folder in place of an entry's file is damage: the
+    entry is removed and recomputed, said "corrupted" (found by the fuzz test of the cache)."""
+    url = f"file://{tmp_path}/cache"
+    cached_solve(scene, cache=url)
+    _, entry = _fs_entry(url, scene)
+    target = Path(entry) / name
+    target.unlink()
+    target.mkdir()
+    with pytest.warns(UserWarning, match="corrupted"):
+        assert not cached_solve(scene, cache=url)[1]
+    assert cached_solve(scene, cache=url)[1]

@@ -35,7 +35,8 @@ def meta_checksum(meta: dict) -> str:
 class EntryUnreadable(OSError):
     """A file of an entry could not be read just now (an I/O error: a timeout or throttling of an
     object store, a permission): not evidence of damage, so never a reason to remove the entry
-    that every worker of a cluster shares."""
+    that every worker of a cluster shares. A file that is missing, or a folder where a file
+    belongs, is damage, not this."""
 
 
 def check_meta(root, entry) -> tuple[dict | None, str]:
@@ -48,6 +49,8 @@ def check_meta(root, entry) -> tuple[dict | None, str]:
         meta = json.loads(root.read_bytes(path).decode("utf-8"))
     except FileNotFoundError:
         return None, "no meta.json"
+    except (IsADirectoryError, NotADirectoryError) as exc:  # the entry's shape is wrong: damage
+        return None, f"meta.json unreadable ({type(exc).__name__})"
     except OSError as exc:
         raise EntryUnreadable(f"meta.json: {type(exc).__name__}: {exc}") from exc
     except (ValueError, RecursionError) as exc:
@@ -90,8 +93,8 @@ def read_files(root, entry, meta: dict) -> tuple[dict, str]:
             if not root.is_file(path) or root.size(path) != rec["bytes"]:
                 return {}, f"{f} does not match its recorded size and checksum"
             raw = root.read_bytes(path)
-        except FileNotFoundError:
-            return {}, f"{f} is missing"
+        except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
+            return {}, f"{f} does not match its recorded size and checksum"
         except OSError as exc:
             raise EntryUnreadable(f"{f}: {type(exc).__name__}: {getattr(exc, 'strerror', None) or exc}") from exc
         if len(raw) != rec["bytes"] or hashlib.sha256(raw).hexdigest() != rec["sha256"]:
