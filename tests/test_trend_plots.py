@@ -184,3 +184,27 @@ def test_pareto_plot_draws_the_papers_points_of_paper_resolution_cases(tmp_path,
     figures.clear()
     plot_pareto(pareto, tmp_path, paper_points(tmp_path / "missing"))
     assert not [c for c in figures[0].axes[0].collections if c.get_label().startswith("paper")]
+
+
+def test_each_energy_curve_starts_from_its_own_window_start():
+    """The reference's E carries the cumulative external work, a model's the load potential:
+    a constant apart. A model whose energy equals the reference's plus that constant draws on
+    top of it (before: one energy scale above it, linear FE included)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from tissuebench.reports.trend_plots import _draw_energy
+
+    x = np.linspace(1.0, 1.5, 6)
+    ref = -0.01 * (x - 1.0)
+    energy = pd.DataFrame({"unit_key": "m", "point": range(6), "x": x, "energy_rel": ref + 1.06,
+                           "reference_energy_rel": ref})
+    chosen = pd.DataFrame({"unit_key": ["m"], "label": ["linear_fe"], "energy_drift": [-0.005]})
+    fig, ax = plt.subplots()
+    _draw_energy(ax, energy, chosen)
+    (rx, ry), (mx, my) = (line.get_data() for line in ax.get_lines()[:2])
+    np.testing.assert_allclose(my, ry, atol=1e-12)
+    assert ry[0] == 0.0 and len(mx) == len(rx) == 6
+    plt.close(fig)

@@ -102,7 +102,11 @@ def _draw_errors(ax, points, chosen, error_metric, legend):
 
 def _draw_energy(ax, energy, chosen):
     """Energy change over the constant-load window, relative to the reference's largest
-    KE + W there; a flat line conserves, a slope is the drift (studies/energy.py)."""
+    KE + W there; a flat line conserves, a slope is the drift (studies/energy.py). Each curve
+    starts from its own first value: the reference's E carries the cumulative external work,
+    a model's the load potential -f.u, which differ by a constant in a constant-load window
+    (drawn from the reference's start, every model sat about one scale above it, linear FE
+    included, whose field is exact to 1e-12)."""
     ref = energy[np.isfinite(energy["reference_energy_rel"])].drop_duplicates("point").sort_values("x")
     e0 = float(ref["reference_energy_rel"].iloc[0]) if len(ref) else 0.0
     ax.plot(ref["x"], ref["reference_energy_rel"] - e0, "k-", lw=2.2, label="reference", zorder=1)
@@ -111,9 +115,10 @@ def _draw_energy(ax, energy, chosen):
         drift = getattr(row, "energy_drift", np.nan)
         # no energy history for the model (a follower load has no potential): the label says so
         text = f"drift {drift:+.2g}" if np.isfinite(drift) else "no energy history"
-        ax.plot(m["x"], m["energy_rel"] - e0, lw=1, label=f"{row.label} ({text})")
+        m0 = float(m["energy_rel"].iloc[0]) if len(m) else 0.0
+        ax.plot(m["x"], m["energy_rel"] - m0, lw=1, label=f"{row.label} ({text})")
     ax.set_yscale("symlog", linthresh=1e-4)
-    ax.set_ylabel("(E - E_ref(t_c)) / max(KE + W)_ref")
+    ax.set_ylabel("(E(t) - E(t_c)) / max(KE + W)_ref")
     ax.set_title("energy E = KE + W - f.u over the constant-load window (paper Fig. 17)", fontsize=9)
     ax.legend(fontsize=6)
     ax.grid(alpha=0.3, which="both")
