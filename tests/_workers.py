@@ -27,8 +27,8 @@ class RunLog(WorkerPlugin):
 
     name = "tissuebench-run-log"
 
-    def __init__(self, path: str):
-        self.path = path
+    def __init__(self, path: str, hold_s: float = 0.0):
+        self.path, self.hold_s = path, hold_s  # hold_s: each solve held that long (misses overlap)
 
     def _write(self, what: str, key: str) -> None:
         with open(self.path, "a") as fh:
@@ -43,6 +43,7 @@ class RunLog(WorkerPlugin):
 
         def solve(scene, backend="skfem", **kw):
             self._write("solve", cache.reference_key(scene, backend, kw.get("linear_solver", "auto")))
+            time.sleep(self.hold_s)
             return real(scene, backend=backend, **kw)
 
         solve.logged = True

@@ -62,7 +62,7 @@ import numpy as np
 from ..refsolvers.backends import make_backend
 from ..rom.pgd.reference import cut_problem, linear_reference
 from .energy import EnergyDrift, conservative_window, reference_drift
-from .kinds import Kind
+from .kinds import Kind, no_references, the_scene
 from .limits import (check_contact_nodes_evaluation, check_cut_lengths_evaluation, check_map_evaluation,
                      check_path_evaluation, check_positions_evaluation, check_trajectory_evaluation)
 from .reference import cached_solve
@@ -192,8 +192,12 @@ def _positions(scene, case, spec, training_spec):
         points += [EvaluationPoint({"load_factor": float(lam), "position": float(s)}, U[:, k],
                                    ref.monitors_at("load_factor", lam), d, group=float(s))
                    for k, lam in enumerate(lams)]
+    pos = scene.parameters["position"]
+    unit = pos.get("unit") or (scene.units.get("length", "") if pos.get("frame") != "bbox"
+                               else "fraction of the bounding box")
     return Evaluation("positions", "distance", points, reference_steps=first,
-                      info={"lattice": lattice.tolist(), "spacing": float(np.diff(lattice).min())})
+                      info={"lattice": lattice.tolist(), "spacing": float(np.diff(lattice).min()), "x_scale": 1.0,
+                            "x_unit": unit})
 
 
 def _scaled(history, scale: float):
@@ -201,8 +205,13 @@ def _scaled(history, scale: float):
     return history if scale == 1.0 else (lambda t: scale * history(t))
 
 
+def _trajectory_run(scene, spec: dict):
+    """The reference run a trajectory evaluation reads: the scene at its ``load_scale`` and ``t_end``."""
+    return scene.at({k: v for k, v in spec.items() if k in ("load_scale", "t_end")})
+
+
 def _trajectory(scene, case, spec):
-    run = scene.at({k: v for k, v in spec.items() if k in ("load_scale", "t_end")})
+    run = _trajectory_run(scene, spec)
     ref, _ = cached_solve(run, case["backend"])
     n = len(ref.steps)
     U = ref.displacement.reshape(n, -1)
@@ -218,7 +227,8 @@ def _trajectory(scene, case, spec):
     t_end = float(run.analysis["t_end"])
     t_c = conservative_window(hist, dt, t_end, float(ref.steps[0]))
     return Evaluation("trajectory", "time", points, dt=dt, state0=state0, reference_steps={"ref": ref, "scene": run},
-                      info={"reference_status": ref.status, "t_end": t_end}, history=hist,
+                      info={"reference_status": ref.status, "t_end": t_end, "x_scale": 1.0,
+                            "x_unit": scene.units.get("time", "s")}, history=hist,
                       reference_energy=None if t_c is None else reference_drift(ref.table, t_c, t_end))
 
 
@@ -316,10 +326,6 @@ def _contact_nodes(scene, case, spec, model):
     return Evaluation("contact_nodes", "load_factor", points, reference_steps=first, info={"nodes": pick.tolist()})
 
 
-def _path_references(case: dict, scene) -> list:
-    return [scene]
-
-
 def _positions_references(case: dict, scene) -> list:
     lattice = lattice_positions(scene, case["training"].get("positions", 5))
     held = (case.get("evaluation") or {}).get("held_out")
@@ -327,30 +333,26 @@ def _positions_references(case: dict, scene) -> list:
 
 
 def _trajectory_references(case: dict, scene) -> list:
-    spec = case.get("evaluation") or {}
-    return [scene.at({k: v for k, v in spec.items() if k in ("load_scale", "t_end")})]
+    return [_trajectory_run(scene, case.get("evaluation") or {})]
 
 
 def _map_references(case: dict, scene) -> list:
     return [scene.at(mu) for mu in (case.get("evaluation") or {}).get("mus", [])]
 
 
-def _model_references(case: dict, scene) -> list:
-    return []  # the cut meshes and contact nodes come from the model: solved inside the unit
-
-
 #: the evaluation kinds (:class:`~.kinds.Kind`): options, value checks, builder, references read
 EVALUATION_KINDS = {k.name: k for k in (
     Kind("path", frozenset({"every", "beyond", "held_out"}), lambda sc, c, o, m: _path(sc, c, o),
-         _path_references, check_path_evaluation),
+         the_scene, check_path_evaluation),
     Kind("positions", frozenset({"held_out"}), lambda sc, c, o, m: _positions(sc, c, o, c["training"]),
          _positions_references, check_positions_evaluation),
     Kind("trajectory", frozenset({"t_end", "load_scale", "from_time"}), lambda sc, c, o, m: _trajectory(sc, c, o),
          _trajectory_references, check_trajectory_evaluation),
     Kind("map", frozenset({"mus"}), lambda sc, c, o, m: _map(sc, c, o), _map_references, check_map_evaluation),
-    Kind("cut_lengths", frozenset({"steps_per_length"}), _cut_lengths, _model_references,
+    # the cut meshes and contact nodes come from the model: their references are solved in the unit
+    Kind("cut_lengths", frozenset({"steps_per_length"}), _cut_lengths, no_references,
          check_cut_lengths_evaluation, needs_model=True),
-    Kind("contact_nodes", frozenset({"count"}), _contact_nodes, _model_references, check_contact_nodes_evaluation,
+    Kind("contact_nodes", frozenset({"count"}), _contact_nodes, no_references, check_contact_nodes_evaluation,
          needs_model=True),
 )}
 #: the kinds built after the model (the incision strip, the contact nodes)
@@ -377,13 +379,6 @@ def build_evaluation(case: dict, scene, model=None) -> Evaluation:
     ev = EVALUATION_KINDS[kind].build(scene, case, spec, model)
     if kind == "cut_lengths":
         return ev
-    if "x_unit" not in ev.info:  # what one unit of the abscissa is, in the scene's units
-        if kind == "positions":
-            pos = scene.parameters["position"]
-            ev.info.update(x_scale=1.0, x_unit=pos.get("unit") or (scene.units.get("length", "") if pos.get(
-                "frame") != "bbox" else "fraction of the bounding box"))
-        elif kind == "trajectory":
-            ev.info.update(x_scale=1.0, x_unit=scene.units.get("time", "s"))
     ref = ev.reference_steps.get("ref")
     if ref is not None:  # what the full model did there: a failure of the reference is data too
         ev.info.update(reference_status=ref.status, reference_message=ref.message[:300],

@@ -179,9 +179,15 @@ def _dask_units(client, units, run, cache, dask_completed):
             if key not in references:
                 references[key] = client.submit(reference_task, scene, u.case["backend"], cache,
                                                 key=f"reference-{key}", pure=False)
+
+    def submit(u, key):  # a unit waits for its references' tasks: their futures are its arguments
+        fut = client.submit(_in_cache, run, cache, u, *needs[u.key], key=key, pure=False)
+        futures[fut] = u
+        return fut
+
     for u, refs in declared:
         needs[u.key] = [references[k] for k in refs]
-        futures[client.submit(_in_cache, run, cache, u, *needs[u.key], key=f"unit-{u.key}", pure=False)] = u
+        submit(u, f"unit-{u.key}")
     tries = {}
     # as_completed without results: with them, a gather that fails inside its tracking coroutine
     # drops the future and the iteration waits forever (seen in the kill soak, seed 5)
@@ -204,9 +210,6 @@ def _dask_units(client, units, run, cache, dask_completed):
             tries[u.key] = tries.get(u.key, 0) + 1
             if tries[u.key] <= RESUBMITS:
                 logger.warning("%s: %s; submitted again (%d of %d)", u.label, why, tries[u.key], RESUBMITS)
-                again = client.submit(_in_cache, run, cache, u, *needs[u.key], pure=False,
-                                      key=f"unit-{u.key}-again-{tries[u.key]}")
-                futures[again] = u
-                done.add(again)
+                done.add(submit(u, f"unit-{u.key}-again-{tries[u.key]}"))
                 continue
         yield u, failed_outcome(u, f"{why}; the sweep went on")

@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
-__all__ = ["Kind"]
+__all__ = ["Kind", "the_scene", "no_references"]
 
 
 @dataclass(frozen=True)
@@ -48,3 +48,13 @@ class Kind:
     check: Callable
     analysis: str | None = None
     needs_model: bool = False
+
+
+def the_scene(case: dict, scene) -> list:
+    """``Kind.references`` of a kind that reads the scene's own reference run (a path)."""
+    return [scene]
+
+
+def no_references(case: dict, scene) -> list:
+    """``Kind.references`` of a kind that reads none, or none known before the model is built."""
+    return []

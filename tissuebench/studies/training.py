@@ -32,7 +32,7 @@ from ..cases.monitors import linear_outputs
 from ..refsolvers.backends import make_backend
 from ..refsolvers.line_models import assemble_line_model
 from ..rom import Training
-from .kinds import Kind
+from .kinds import Kind, no_references, the_scene
 from .limits import check_nothing, check_path_training, check_positions_training, check_trajectory_training
 from .reference import cached_solve, dynamics_system
 
@@ -175,10 +175,6 @@ def _operators(scene, case, spec, info):
     return Training(system=assemble_line_model(scene.line_model()), info=info)
 
 
-def _path_references(case: dict, scene) -> list:
-    return [scene]
-
-
 def _positions_references(case: dict, scene) -> list:
     spec = case["training"]
     return [positional_scene(scene, s, spec) for s in lattice_positions(scene, spec.get("positions", 5))]
@@ -188,18 +184,14 @@ def _trajectory_references(case: dict, scene) -> list:
     return [scene.at(mu) for mu in [{}] + list(case["training"].get("runs", []))]
 
 
-def _no_references(case: dict, scene) -> list:
-    return []  # operators: no reference run
-
-
 #: the training kinds (:class:`~.kinds.Kind`): options, value checks, builder, references read
 TRAINING_KINDS = {k.name: k for k in (
-    Kind("path", frozenset({"every", "repeat"}), _path, _path_references, check_path_training, analysis="static"),
+    Kind("path", frozenset({"every", "repeat"}), _path, the_scene, check_path_training, analysis="static"),
     Kind("positions", frozenset({"positions", "max_load_factor", "load_steps"}), _positions, _positions_references,
          check_positions_training, analysis="static"),
     Kind("trajectory", frozenset({"runs"}), _trajectory, _trajectory_references, check_trajectory_training,
          analysis="dynamic"),
-    Kind("operators", frozenset(), _operators, _no_references, check_nothing),
+    Kind("operators", frozenset(), _operators, no_references, check_nothing),
 )}
 
 
