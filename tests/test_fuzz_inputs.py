@@ -18,7 +18,9 @@ resealed by someone who knows the format reads back consistent or is recomputed;
 and folders in a store are never read as units and are named.
 
 Profiles (tests/conftest.py): ``ci`` (default, seeded) and ``fuzz`` (``--hypothesis-profile=fuzz``,
-5x the examples; 10 000 for each file surface, whose 2 000-example CI runs are marked slow).
+5x the examples; 10 000 for each file surface). Each file surface also has a longer run marked
+slow (CI's second pass): ``LONG_EXAMPLES`` examples, ``$TISSUEBENCH_FUZZ_LONG`` when set
+(``tox -e fuzz-long``: 2 000).
 The counts (tried / accepted / rejected) are printed at the end of the module
 and appended to ``$TISSUEBENCH_FUZZ_REPORT`` when it is set.
 """
@@ -26,6 +28,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import shutil
 import tempfile
 import tomllib
@@ -229,10 +232,18 @@ def test_defective_meshes_read_or_name_the_cells(cell_type, folder, data):
 
 # ------------------------------------------------------------------------------ files the tool reads back
 # Issue 26: _sweep.json, baseline files, reference-cache entries (meta and arrays) and stray files
-# in a results store. >= 2 000 examples each in CI (the slow variants), a few hundred in the fast
-# suite, 10 000 with --hypothesis-profile=fuzz (tox -e fuzz; the fast variant then runs them).
+# in a results store. A few hundred examples each in the fast suite, LONG_EXAMPLES in the slow
+# variants (CI's second pass), 10 000 with --hypothesis-profile=fuzz (tox -e fuzz; the fast
+# variant then runs them). LONG_EXAMPLES = 500 (issue 29, CI time; 2 000 before): defects seeded
+# into the readers (measured 2026-11-26, each the first failing example of the slow variant):
+# the cache fix of 0ef20b7 reverted (a folder where meta.json belongs read as an I/O hiccup)
+# fails at example 12; the store reader crashing on a file pyarrow cannot read at 16; a
+# _sweep.json that is a JSON list accepted at 10; a baseline unit's string or number type
+# check removed at 79 and 18. LONG_EXAMPLES is 6x the latest of them. `tox -e fuzz-long`
+# runs the 2 000 of issue 26 ($TISSUEBENCH_FUZZ_LONG).
 FUZZ_PROFILE = settings.default.max_examples >= 1000
 FILES = settings(suppress_health_check=_HEALTH, deadline=None)
+LONG_EXAMPLES = int(os.environ.get("TISSUEBENCH_FUZZ_LONG", "").strip() or 500)
 
 
 def _examples(default: int) -> int:
@@ -240,7 +251,7 @@ def _examples(default: int) -> int:
 
 
 def _slow_variant(test):
-    """The 2 000-example run of a file-fuzzing test (CI's full suite; skipped in the fuzz profile,
+    """The LONG_EXAMPLES run of a file-fuzzing test (CI's full suite; skipped in the fuzz profile,
     where the fast variant runs 10 000)."""
     return pytest.mark.slow(pytest.mark.skipif(FUZZ_PROFILE, reason="the fuzz profile runs 10 000 examples "
                                                "in the fast variant")(test))
@@ -311,9 +322,9 @@ def test_sweep_manifest_is_accepted_or_refused_naming_the_file(handmade, data):
 
 
 @_slow_variant
-@settings(FILES, max_examples=2000)
+@settings(FILES, max_examples=LONG_EXAMPLES)
 @given(data=st.data())
-def test_sweep_manifest_is_accepted_or_refused_naming_the_file_2000(handmade, data):
+def test_sweep_manifest_is_accepted_or_refused_naming_the_file_long(handmade, data):
     _manifest_example(handmade, data)
 
 
@@ -389,9 +400,9 @@ def test_baseline_file_is_accepted_or_refused_naming_the_key(folder, data):
 
 @_slow_variant
 @baseline_hardened
-@settings(FILES, max_examples=2000)
+@settings(FILES, max_examples=LONG_EXAMPLES)
 @given(data=st.data())
-def test_baseline_file_is_accepted_or_refused_naming_the_key_2000(folder, data):
+def test_baseline_file_is_accepted_or_refused_naming_the_key_long(folder, data):
     _baseline_example(folder, data)
 
 
@@ -553,9 +564,9 @@ def test_cache_entry_damaged_is_never_reused(cache_seed, data):
 
 
 @_slow_variant
-@settings(FILES, max_examples=2000)
+@settings(FILES, max_examples=LONG_EXAMPLES)
 @given(data=st.data())
-def test_cache_entry_damaged_is_never_reused_2000(cache_seed, data):
+def test_cache_entry_damaged_is_never_reused_long(cache_seed, data):
     _cache_example(cache_seed, data)
 
 
@@ -670,7 +681,7 @@ def test_stray_files_in_a_store_are_never_read_as_units(small_store, data):
 
 
 @_slow_variant
-@settings(FILES, max_examples=2000)
+@settings(FILES, max_examples=LONG_EXAMPLES)
 @given(data=st.data())
-def test_stray_files_in_a_store_are_never_read_as_units_2000(small_store, data):
+def test_stray_files_in_a_store_are_never_read_as_units_long(small_store, data):
     _stray_example(small_store, data)
