@@ -128,7 +128,7 @@ def test_verify_compares_both_backends_on_every_scene_of_a_sweep(tmp_path, monke
 
     from tissuebench.cli import main
     from tissuebench.reports import backends as bk
-    from tissuebench.studies.reference import cached_solve
+    from tissuebench.reference import cached_solve
 
     spec = tmp_path / "s.toml"
     spec.write_text('''[sweep]

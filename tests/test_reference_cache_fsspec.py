@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from tissuebench.cases.scene import load
-from tissuebench.studies.reference.cache import (_meta_checksum, cached_solve, cached_table, clear, list_entries,
+from tissuebench.reference.cache import (_meta_checksum, cached_solve, cached_table, clear, list_entries,
                                                  reference_key, stray_items)
-from tissuebench.studies.reference.location import check_cache_url, open_cache, using_cache
+from tissuebench.reference.location import check_cache_url, open_cache, using_cache
 
 
 @pytest.fixture()
@@ -199,7 +199,7 @@ def test_a_reader_leaves_an_entry_being_published_to_its_writer(scene):
     meta = fs.cat_file(f"{entry}/meta.json")
     fs.rm(f"{entry}/meta.json")  # the writer between its last data file and its meta
     root = open_cache(url)
-    from tissuebench.studies.reference.cache import _lookup
+    from tissuebench.reference.cache import _lookup
 
     with pytest.warns(UserWarning, match="no meta.json yet"):
         assert _lookup(root, entry, scene) is None
@@ -215,7 +215,7 @@ def test_an_io_error_reading_an_entry_is_a_miss_that_leaves_the_entry(url, scene
     cached_solve(scene, cache=url)
     fs, entry = _fs_entry(url, scene)
     root = open_cache(url)
-    from tissuebench.studies.reference.cache import _lookup
+    from tissuebench.reference.cache import _lookup
 
     real = type(root).read_bytes
 

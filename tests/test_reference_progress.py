@@ -8,7 +8,7 @@ import warnings
 import pytest
 
 from tissuebench.studies import training as training_module
-from tissuebench.studies.reference import cache as cache_module
+from tissuebench.reference import cache as cache_module
 from tissuebench.studies.run import progress_bar
 from tissuebench.studies.training import POSITION_RETRIES, build_training, case_scene
 

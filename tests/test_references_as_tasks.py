@@ -18,9 +18,9 @@ import pytest
 
 from _workers import RunLog
 
-import tissuebench.studies.reference.cache as cache_module
+import tissuebench.reference.cache as cache_module
 from tissuebench.studies.executors import execute
-from tissuebench.studies.reference import reference_key
+from tissuebench.reference import reference_key
 from tissuebench.studies.results import read_units
 from tissuebench.studies.spec import expand_units, load_spec
 from tissuebench.studies.sweep import run_sweep

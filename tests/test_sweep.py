@@ -235,7 +235,7 @@ def test_a_changed_key_is_recomputed_and_said(serial, tmp_path):
 
 
 def test_second_sweep_hits_the_reference_cache(serial, tmp_path, monkeypatch):
-    import tissuebench.studies.reference.cache as cache
+    import tissuebench.reference.cache as cache
 
     calls = []
     monkeypatch.setattr(cache, "solve", lambda *a, **k: calls.append(a) or pytest.fail("reference recomputed"))

@@ -389,7 +389,7 @@ def _print_check(result, args) -> None:
 
 
 def _cache(args) -> int:
-    from .studies.reference.cache import cache_url, clear, list_entries, stray_items
+    from .reference.cache import cache_url, clear, list_entries, stray_items
 
     where = cache_url()
     stray = stray_items()
@@ -518,7 +518,7 @@ def _dispatch(args) -> int:
     if args.command == "check":
         return _check(args)
     if args.command in ("cache", "report", "verify"):  # the reference cache they read: --cache
-        from .studies.reference.location import using_cache
+        from .reference.location import using_cache
 
         with using_cache(args.cache):
             return {"cache": _cache, "report": _report, "verify": _verify}[args.command](args)

@@ -39,7 +39,7 @@ from ..cases.scene import load
 from ..choices import RESOLUTIONS
 from ..refsolvers.line_models import assemble_line_model
 from ..refsolvers.mixed import static_run
-from ..studies.reference import solve
+from ..reference import solve
 
 __all__ = ["ANCHORS", "Anchor", "external_anchors"]
 

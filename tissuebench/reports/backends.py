@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from ..choices import BACKEND_NAMES
-from ..studies.reference import cached_solve
+from ..reference import cached_solve
 from ..studies.results import SweepManifestError, read_sweep_manifest
 from ..studies.training import case_scene
 

@@ -65,7 +65,7 @@ from .energy import EnergyDrift, conservative_window, reference_drift
 from .kinds import Kind, no_references, the_scene
 from .limits import (check_contact_nodes_evaluation, check_cut_lengths_evaluation, check_map_evaluation,
                      check_path_evaluation, check_positions_evaluation, check_trajectory_evaluation)
-from .reference import cached_solve
+from ..reference import cached_solve
 from .training import lattice_positions, positional_reference, positional_scene, reference_states, training_indices
 
 __all__ = ["EVALUATION_KINDS", "EvaluationPoint", "Evaluation", "build_evaluation", "evaluation_references"]

@@ -34,8 +34,8 @@ import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
-from .reference.cache import cache_url, cached_solve
-from .reference.location import CACHE_ENV, check_cache_url, using_cache
+from ..reference.cache import cache_url, cached_solve
+from ..reference.location import CACHE_ENV, check_cache_url, using_cache
 from .units import failed_outcome, run_unit, unit_references
 
 __all__ = ["EXECUTORS", "execute", "check_executor"]

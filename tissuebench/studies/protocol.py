@@ -40,7 +40,7 @@ from ..refsolvers.dynamics import integrate
 from ..refsolvers.line_models import assemble_line_model
 from ..refsolvers.linear_solvers import DirectSolver
 from ..refsolvers.newton import newton_solve
-from .reference import dynamics_system
+from ..reference import dynamics_system
 from .timing import latency_stats
 
 __all__ = ["Driven", "drive", "time_latency", "calibration_seconds", "reference_step_seconds", "blas_info",

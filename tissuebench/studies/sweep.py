@@ -22,8 +22,8 @@ from pathlib import Path
 import pandas as pd
 
 from .executors import check_executor, execute
-from .reference.cache import PROGRESS_ENV
-from .reference.location import CACHE_ENV, cache_url, check_cache_url
+from ..reference.cache import PROGRESS_ENV
+from ..reference.location import CACHE_ENV, cache_url, check_cache_url
 from .metrics import TOLERANCES, pareto_front
 from .results import ResultsStore, SweepManifestError, read_points, read_sweep_manifest, read_units
 from .spec import SweepSpec, expand_units

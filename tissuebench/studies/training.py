@@ -34,7 +34,7 @@ from ..refsolvers.line_models import assemble_line_model
 from ..rom import Training
 from .kinds import Kind, no_references, the_scene
 from .limits import check_nothing, check_path_training, check_positions_training, check_trajectory_training
-from .reference import cached_solve, dynamics_system
+from ..reference import cached_solve, dynamics_system
 
 __all__ = ["TRAINING_KINDS", "case_scene", "build_training", "training_references", "lattice_positions",
            "reference_states", "training_indices"]

@@ -31,7 +31,7 @@ from .metrics import output_rows, point_rows, seen_points, summarise_points
 from .protocol import (_timing_sequence, blas_info, cached_dynamics_system, calibration_seconds, drive,
                        reference_step_seconds, time_latency)
 from .atomic_folders import code_hash, git_commit, package_versions
-from .reference import reference_key
+from ..reference import reference_key
 from .training import build_training, case_scene, training_references
 
 __all__ = ["WorkUnit", "UnitOutcome", "unit_key", "options_text", "run_unit", "failed_outcome", "unit_references",
