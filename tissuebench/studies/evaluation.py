@@ -54,13 +54,12 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..refsolvers.backends import make_backend
-from ..rom.pgd.reference import cut_problem, linear_reference
+from ..reference.cut import cut_references
 from .energy import EnergyDrift, conservative_window, reference_drift
 from .kinds import Kind, no_references, the_scene
 from .limits import (check_contact_nodes_evaluation, check_cut_lengths_evaluation, check_map_evaluation,
@@ -253,31 +252,13 @@ def _map(scene, case, spec):
     return Evaluation("map", "index", points, reference_steps=first or {})
 
 
-# the linear FE of each cut length of one strip, solved (and its full step timed) once per
-# process: every unit of a sweep on that strip compares with the same fields (a unit took 25 s
-# of its 50 s re-solving them at paper resolution)
-_CUT_REFERENCES: dict = {}
-
-
 def _cut_lengths(scene, case, spec, model):
     """Per cut length of the model's incision: the linear FE of the same cut mesh (module docstring)."""
     strip = getattr(model, "strip", None)
     if strip is None:
         raise ValueError(f"evaluation.kind = 'cut_lengths' needs a cutting model (one with an incision strip); "
                          f"{model.name!r} has none")
-    lengths = range(strip.max_cut_length + 1)
-    key = (scene.content_hash(), case["backend"], strip.depth_fraction, np.asarray(model.force, float).tobytes(),
-           repr(strip.incision(strip.max_cut_length)), tuple(int(strip.tip(c)) for c in lengths))
-    if key not in _CUT_REFERENCES:
-        solved = []
-        for c in lengths:
-            t0 = time.perf_counter()
-            be = make_backend(case["backend"], cut_problem(scene, strip, c, model.force))
-            u, _ = linear_reference(be)
-            solved.append((u, time.perf_counter() - t0))
-        _CUT_REFERENCES.clear()  # one scene's strip at a time: the units of a sweep come case by case
-        _CUT_REFERENCES[key] = solved
-    solved = _CUT_REFERENCES[key]
+    solved = cut_references(scene, case["backend"], strip, model.force)  # once per process and strip
     points = [EvaluationPoint({"node": int(strip.tip(c)), "cut_length": c}, u, {}, float(c))
               for c, (u, _) in enumerate(solved)]
     full_steps = [t for _, t in solved]

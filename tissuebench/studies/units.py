@@ -28,10 +28,9 @@ from .applicability import evaluation_why_not, why_not
 from .energy import EnergyDrift, model_drift
 from .evaluation import NEEDS_MODEL, build_evaluation, evaluation_references
 from .metrics import output_rows, point_rows, seen_points, summarise_points
-from .protocol import (_timing_sequence, blas_info, cached_dynamics_system, calibration_seconds, drive,
-                       reference_step_seconds, time_latency)
+from .protocol import _timing_sequence, blas_info, calibration_seconds, drive, reference_step_seconds, time_latency
 from .atomic_folders import code_hash, git_commit, package_versions
-from ..reference import reference_key
+from ..reference import cached_dynamics_system, reference_key
 from .training import build_training, case_scene, training_references
 
 __all__ = ["WorkUnit", "UnitOutcome", "unit_key", "options_text", "run_unit", "failed_outcome", "unit_references",
