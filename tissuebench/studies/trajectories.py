@@ -21,6 +21,7 @@ from ..cases import load as load_scene
 from ..refsolvers import make_backend
 from ..refsolvers.dynamics import SecondOrderSystem, integrate
 from ..refsolvers.line_models import assemble_line_model
+from ..reference.line import line_monitor_fn
 from ..reference.plan import plan_for
 from ..rom.base import Training
 
@@ -64,8 +65,6 @@ def scene_system(case, resolution: str = "ci", variant: str | None = None, backe
         system = SecondOrderSystem.from_backend(be, scene.history, lumped=plan.mass == "lumped",
                                                 linear=plan.linear)
         return SceneSystem(scene, system, scene.history, be, lambda u: scene.evaluate_monitors(pb, u), 3)
-    from ..reference.line import line_monitor_fn
-
     ls = assemble_line_model(scene.line_model())
     M = ls.M_lumped if plan.mass == "lumped" else ls.M
     system = SecondOrderSystem.linear_system(M, ls.K, ls.load_vector, free=ls.free)
