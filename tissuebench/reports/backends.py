@@ -19,6 +19,7 @@ import pandas as pd
 from ..choices import BACKEND_NAMES
 from ..studies.reference import cached_solve
 from ..studies.results import SweepManifestError, read_sweep_manifest
+from ..studies.case_entry import CaseEntry
 from ..studies.training import case_scene
 
 __all__ = ["RTOL", "backend_agreement", "scenes_of_results"]
@@ -40,7 +41,7 @@ def scenes_of_results(results) -> list:
         if missing:
             raise SweepManifestError(f"{results}/_sweep.json: cases[{i}].{missing[0]}: missing")
         try:
-            out.append((c["id"], case_scene(c)))
+            out.append((c["id"], case_scene(CaseEntry.from_dict(c))))
         except (ValueError, TypeError) as exc:
             raise SweepManifestError(f"{results}/_sweep.json: cases[{i}]: {exc}") from None
     return out
