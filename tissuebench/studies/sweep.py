@@ -127,13 +127,13 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
             check_same_spec(out, spec, units, store)
         pending, skipped, stale = _plan(units, store, resume, log if progress else (lambda *_: None))
         summary = SweepSummary(out, len(units), skipped=[u.key for u in skipped], recomputed=[u.key for u, _ in stale])
-        store.write_manifest(_manifest(spec, units, executor, "running"))
+        store.write_manifest(_manifest(spec, units, executor, "running", cache=cache))
         state = "failed"
         _execute(spec, pending, skipped, stale, store, summary, (executor, workers, scheduler, cache), progress)
         write_derived(out, spec.error_metric, figures)
         summary.wall_s = time.perf_counter() - t_start
         state = "finished"
-        store.write_manifest(_manifest(spec, units, executor, state, summary))
+        store.write_manifest(_manifest(spec, units, executor, state, summary, cache))
         return summary
     except KeyboardInterrupt:
         state = state and "interrupted"
@@ -144,7 +144,7 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
         elif progress:
             os.environ[PROGRESS_ENV] = previous
         if state in ("failed", "interrupted"):
-            _mark(store, spec, units, executor, state)
+            _mark(store, spec, units, executor, state, cache)
         store.release()
 
 
@@ -170,19 +170,23 @@ def _execute(spec, pending, skipped, stale, store, summary, where, progress):
             bar.close()
 
 
-def _mark(store, spec, units, executor, state) -> None:
+def _mark(store, spec, units, executor, state, cache=None) -> None:
     """Best effort: record that the sweep stopped (the folder may have turned read-only)."""
     try:
-        store.write_manifest(_manifest(spec, units, executor, state))
+        store.write_manifest(_manifest(spec, units, executor, state, cache=cache))
     except OSError:
         pass
 
 
-def _manifest(spec, units, executor, state, summary=None) -> dict:
+def _manifest(spec, units, executor, state, summary=None, cache=None) -> dict:
+    """``_sweep.json``; ``cache``: the ``--cache`` the sweep was given (``report`` and ``verify``
+    on this folder read their references from it unless told otherwise), absent when none was."""
     data = provenance(spec_name=spec.name, spec_source=spec.source, spec_hash=spec.hash, spec_text=spec.text,
                       resolution=spec.resolution, error_metric=spec.error_metric, executor=executor, state=state,
                       cases=[c.as_dict() for c in spec.cases], not_applicable=list(spec.skipped),
                       units=[{"key": u.key, "case": u.case.id, "method": u.method, "label": u.label} for u in units])
+    if cache is not None:
+        data["cache"] = cache
     if summary is not None:
         data.update(computed=len(summary.computed), skipped=len(summary.skipped),
                     recomputed=len(summary.recomputed), failed=len(summary.failed), wall_s=summary.wall_s)
