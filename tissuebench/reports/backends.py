@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from ..reference.backend_comparison import RTOL, backend_agreement
 from ..studies.results import SweepManifestError, read_sweep_manifest
+from ..studies.case_entry import CaseEntry
 from ..studies.training import case_scene
 
 __all__ = ["RTOL", "backend_agreement", "scenes_of_results"]  # RTOL, backend_agreement: the reference layer's
@@ -28,7 +29,7 @@ def scenes_of_results(results) -> list:
         if missing:
             raise SweepManifestError(f"{results}/_sweep.json: cases[{i}].{missing[0]}: missing")
         try:
-            out.append((c["id"], case_scene(c)))
+            out.append((c["id"], case_scene(CaseEntry.from_dict(c))))
         except (ValueError, TypeError) as exc:
             raise SweepManifestError(f"{results}/_sweep.json: cases[{i}]: {exc}") from None
     return out

@@ -66,7 +66,7 @@ def _plan(units, store, resume, log):
         old = by_identity.get(u.identity)
         if old is not None:
             stale.append((u, old))
-            log(f"{u.case['id']} {u.label}: stored result has another key (code, scene, mesh file, versions or "
+            log(f"{u.case.id} {u.label}: stored result has another key (code, scene, mesh file, versions or "
                 f"protocol changed): recomputed")
         pending.append(u)
     return pending, skipped, stale
@@ -157,7 +157,7 @@ def _execute(spec, pending, skipped, stale, store, summary, where, progress):
         for unit, outcome in execute(pending, executor, workers, scheduler, cache=cache):
             store.write_unit(outcome)
             if unit.key in stale_old:
-                store.remove_unit(unit.case["id"], unit.method, stale_old[unit.key])
+                store.remove_unit(unit.case.id, unit.method, stale_old[unit.key])
             summary.computed.append(unit.key)
             if outcome.row.get("unit_status") != "ok":
                 summary.failed.append(unit.key)
@@ -183,8 +183,8 @@ def _manifest(spec, units, executor, state, summary=None, cache=None) -> dict:
     on this folder read their references from it unless told otherwise), absent when none was."""
     data = provenance(spec_name=spec.name, spec_source=spec.source, spec_hash=spec.hash, spec_text=spec.text,
                       resolution=spec.resolution, error_metric=spec.error_metric, executor=executor, state=state,
-                      cases=spec.cases, not_applicable=list(spec.skipped),
-                      units=[{"key": u.key, "case": u.case["id"], "method": u.method, "label": u.label} for u in units])
+                      cases=[c.as_dict() for c in spec.cases], not_applicable=list(spec.skipped),
+                      units=[{"key": u.key, "case": u.case.id, "method": u.method, "label": u.label} for u in units])
     if cache is not None:
         data["cache"] = cache
     if summary is not None:
@@ -202,7 +202,7 @@ def _bar(total, initial, enabled):
 
 
 def _line(done, total, unit, row, error_metric="max_rel_l2") -> str:
-    head = f"[{done}/{total}] {unit.case['id']} {unit.label}"
+    head = f"[{done}/{total}] {unit.case.id} {unit.label}"
     if row.get("unit_status") != "ok":
         return f"{head}: FAILED: {row.get('message', '')}"
     error = row.get(error_metric, float("nan"))
