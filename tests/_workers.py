@@ -35,7 +35,7 @@ class RunLog(WorkerPlugin):
             fh.write(f"{what} {key} {os.getpid()}\n")
 
     def setup(self, worker):
-        import tissuebench.studies.reference.cache as cache
+        import tissuebench.reference.cache as cache
 
         real = cache.solve
         if getattr(real, "logged", False):

@@ -26,7 +26,7 @@ from tissuebench.studies.describe import paper_comparison
 from tissuebench.cases.scene import list_cases, load
 from tissuebench.refsolvers import LinearElastic, make_backend
 from tissuebench.refsolvers.line_models import assemble_line_model, frame_step_response
-from tissuebench.studies.reference import solve
+from tissuebench.reference import solve
 
 CASES = [(name, variant) for name in list_cases() for variant in (load(name).variants or (None,))]
 _RUNS = {}

@@ -2,6 +2,7 @@
 ``processes`` pool gave a BrokenProcessPool traceback), tested with real SIGKILLs."""
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing
 import os
 import signal
@@ -11,13 +12,14 @@ import time
 import pytest
 
 from _workers import sleepy
+from tissuebench.studies.case_entry import CaseEntry
 from tissuebench.studies.executors import execute
 from tissuebench.studies.units import WorkUnit, unit_references
 
 
 def _units(*options):
-    case = {"id": "c", "name": "cornea_pinch", "resolution": "ci", "backend": "skfem",
-            "training": {"kind": "path"}, "evaluation": {"kind": "path"}}
+    case = CaseEntry(id="c", name="cornea_pinch", resolution="ci", backend="skfem", training={"kind": "path"},
+                     evaluation={"kind": "path"})
     return [WorkUnit(case, "nearest", o, {}, {"name": "t", "hash": "0" * 64}, f"{i:064x}")
             for i, o in enumerate(options)]
 
@@ -87,9 +89,9 @@ def test_a_unit_that_kills_every_dask_worker_it_runs_on_is_stored_failed_and_the
     done by then.)"""
     import dask
 
-    units = _units({"sleep": 0.1}, {"die": True, "sleep": 3.0}, {"sleep": 0.1})
-    for u in units:  # operators: no reference declared
-        u.case.update(training={"kind": "operators"}, evaluation={"kind": "cut_lengths"})
+    operators = {"training": {"kind": "operators"}, "evaluation": {"kind": "cut_lengths"}}  # no reference declared
+    units = [dataclasses.replace(u, case=dataclasses.replace(u.case, **operators))
+             for u in _units({"sleep": 0.1}, {"die": True, "sleep": 3.0}, {"sleep": 0.1})]
     assert not any(unit_references(u) for u in units)
     with dask.config.set({"distributed.scheduler.allowed-failures": 0, "distributed.scheduler.worker-saturation": 1.0}):
         done = {u.key: o.row for u, o in execute(units, "dask", 2, run=sleepy)}

@@ -128,7 +128,7 @@ def test_verify_compares_both_backends_on_every_scene_of_a_sweep(tmp_path, monke
 
     from tissuebench.cli import main
     from tissuebench.reports import backends as bk
-    from tissuebench.studies.reference import cached_solve
+    from tissuebench.reference import cached_solve
 
     spec = tmp_path / "s.toml"
     spec.write_text('''[sweep]
@@ -170,6 +170,6 @@ name = "nearest"
             ref.displacement = ref.displacement * (1 + 1e-4)
         return ref, hit
 
-    monkeypatch.setattr("tissuebench.reports.backends.cached_solve", perturbed)  # where verify looks it up
+    monkeypatch.setattr("tissuebench.reference.backend_comparison.cached_solve", perturbed)  # where verify looks it up
     rows = bk.backend_agreement(bk.scenes_of_results(out)).set_index("case")
     assert rows.loc["cube", "verdict"] == "disagree" and rows.loc["cube", "field_rel_diff"] == pytest.approx(1e-4)

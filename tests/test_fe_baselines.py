@@ -11,6 +11,7 @@ from tissuebench.refsolvers.newton import newton_solve
 from tissuebench.refsolvers.remesh import gmsh_available
 from tissuebench.rom import Training, make_method
 from tissuebench.rom.fe_baselines.coarse import nodal_map
+from tissuebench.studies.case_entry import CaseEntry
 from tissuebench.studies.evaluation import build_evaluation
 from tissuebench.studies.metrics import point_rows
 from tissuebench.studies.protocol import drive
@@ -79,8 +80,8 @@ def test_condensed_is_the_same_model_and_reports_its_size():
 
 def test_linear_fe_equals_the_linear_reference_in_dynamics():
     """wave_block (linear, HHT, Heaviside pressure): the baseline's trajectory is the reference's."""
-    case = {"id": "w", "name": "wave_block", "variant": "linear", "resolution": "ci", "backend": "skfem",
-            "training": {"kind": "trajectory"}, "evaluation": {"kind": "trajectory"}}
+    case = CaseEntry(id="w", name="wave_block", variant="linear", resolution="ci", backend="skfem",
+                     training={"kind": "trajectory"}, evaluation={"kind": "trajectory"})
     scene = case_scene(case)
     training, ev = build_training(case, scene), build_evaluation(case, scene)
     model = make_method("linear_fe").build(training)
@@ -126,8 +127,8 @@ def _harness_errors(case, method, **options):
 
 
 def test_coarse_fe_at_coarsening_one_is_the_reference():
-    case = {"id": "c", "name": "cube_tension_twist", "variant": "tension", "resolution": "ci", "backend": "skfem",
-            "training": {"kind": "path"}}
+    case = CaseEntry(id="c", name="cube_tension_twist", variant="tension", resolution="ci", backend="skfem",
+                     training={"kind": "path"})
     model, rel = _harness_errors(case, "coarse_fe", coarsening=1.0, rtol=1e-12)
     assert model.info["mesh"].startswith("builder parameters divisions = [12, 3, 3]")
     assert model.info["achieved_ratio"] == pytest.approx(1.0) and rel.max() <= 1e-8
@@ -165,12 +166,11 @@ def test_liver_surface_remeshed_coarser():
 def test_contact_nodes_are_the_vademecums_and_move_the_load():
     from tissuebench.rom.pgd.training import family_from_training
 
-    case = {"id": "c", "name": "cornea_cut", "resolution": "ci", "backend": "skfem",
-            "training": {"kind": "operators"}}
+    case = CaseEntry(id="c", name="cornea_cut", resolution="ci", backend="skfem", training={"kind": "operators"})
     training = build_training(case)
     model = make_method("linear_fe").build(training)
     nodes = family_from_training(training).nodes
-    assert np.array_equal(model.contact_nodes, nodes)
+    assert np.array_equal(model.contact_nodes(), nodes)
     pb = model.fmap.solve
     assert pb.mesh.n_vertices < training.backend.problem.mesh.n_vertices  # the intact cornea, not the cut one
     n = int(nodes[len(nodes) // 2])
@@ -203,9 +203,9 @@ def test_corotational_and_coarse_baselines_step_in_time():
     corotational FE within 1 % of the Mooney-Rivlin reference (measured 0.34 %), the full model on a
     2x coarser box within 15 % (11 % at the first step, where the field is a wave front; 2.4 % at
     0.1 s)."""
-    case = {"id": "c", "name": "cube_tension_twist", "variant": "tension_dynamic", "resolution": "ci",
-            "backend": "skfem", "mu": {"t_end": 0.1}, "training": {"kind": "operators"},
-            "evaluation": {"kind": "trajectory"}}
+    case = CaseEntry(id="c", name="cube_tension_twist", variant="tension_dynamic", resolution="ci",
+                     backend="skfem", mu={"t_end": 0.1}, training={"kind": "operators"},
+                     evaluation={"kind": "trajectory"})
     model, rel = _harness_errors(case, "corotational_fe")
     assert model.kind == "trajectory" and model.info["integrator"] == "backward_euler"
     assert len(rel) == 20 and rel.max() < 0.01, rel

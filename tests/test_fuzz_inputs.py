@@ -47,7 +47,7 @@ from tissuebench.cases.io import read_mesh
 from tissuebench.cases.meshes import box_mesh
 from tissuebench.cases.scene import CATALOGUE_DIR, list_cases, load
 from tissuebench.studies.describe import describe
-from tissuebench.studies.reference.plan import plan_for
+from tissuebench.reference.plan import plan_for
 from tissuebench.studies.spec import PRESETS_DIR, expand_units, load_spec
 
 pytestmark = pytest.mark.fuzz
@@ -410,7 +410,7 @@ def test_baseline_file_is_accepted_or_refused_naming_the_key_long(folder, data):
 @pytest.fixture(scope="module")
 def cache_seed(tmp_path_factory):
     from tissuebench.cases.scene import load as load_scene
-    from tissuebench.studies.reference.cache import cached_solve, reference_key
+    from tissuebench.reference.cache import cached_solve, reference_key
 
     root = tmp_path_factory.mktemp("fuzz_cache")
     scenes = [load_scene("frame_2dof"), load_scene("frame_2dof").at({"load_scale": 0.5})]
@@ -432,7 +432,7 @@ def _files_of(entry):
 
 
 def _reseal(entry, files: bool):
-    from tissuebench.studies.reference.cache import _meta_checksum
+    from tissuebench.reference.cache import _meta_checksum
 
     try:
         meta = json.loads((entry / "meta.json").read_text())
@@ -517,7 +517,7 @@ def _damage_entry(data, entry, other):
 
 
 def _cache_example(cache_seed, data):
-    import tissuebench.studies.reference.cache as cache
+    import tissuebench.reference.cache as cache
 
     root, scenes, results, entries = cache_seed
     which = data.draw(st.integers(0, 1), label="entry")

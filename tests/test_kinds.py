@@ -57,7 +57,7 @@ def test_a_kind_registered_elsewhere_is_validated_from_its_declaration(tmp_path,
     method = method_class("pgd_direct")  # a method that learns from it: the other half of the plug
     monkeypatch.setattr(method, "training_kinds", (*method.training_kinds, "toy"))
     spec = _spec(tmp_path, '{ kind = "toy", alpha = 2 }')
-    assert spec.cases[0]["training"] == {"kind": "toy", "alpha": 2}
+    assert spec.cases[0].training == {"kind": "toy", "alpha": 2}
     assert seen == [("case[0].training", {"kind": "toy", "alpha": 2})]
     with pytest.raises(ValueError, match=r"case\[0\]\.training.*beta"):
         _spec(tmp_path, '{ kind = "toy", beta = 1 }')

@@ -253,7 +253,7 @@ def test_saddle_point_solver(asymmetry, use_ngsolve):
 def test_catalogue_scene_with_mixed_formulation_runs_mixed_on_both_backends():
     """land_beam declares analysis.formulation = "mixed": the scene runner solves the u-p
     problem (not the penalty), the plan says so, and the two backends agree."""
-    from tissuebench.studies.reference import solve
+    from tissuebench.reference import solve
 
     runs = {b: solve("land_beam", backend=b) for b in ("skfem", "ngsolve")}
     for r in runs.values():

@@ -15,6 +15,7 @@ import pytest
 from tissuebench.cases.parameters import ANALYSIS_OVERRIDES
 from tissuebench.rom import METHODS, make_method
 from tissuebench.studies.applicability import evaluation_why_not, why_not
+from tissuebench.studies.case_entry import CaseEntry
 from tissuebench.studies.evaluation import NEEDS_MODEL, build_evaluation
 from tissuebench.studies.protocol import drive
 from tissuebench.studies.spec import load_spec
@@ -51,7 +52,7 @@ _BASE_OF = {"pgd_svk": 4}  # the surface vademecum of the SVK Newton: measured a
 def _base(method):
     for case, evaluation in ([_BASES[_BASE_OF[method]]] if method in _BASE_OF else _BASES):
         entry = _entry(case, evaluation)
-        scene = case_scene(entry)
+        scene = case_scene(CaseEntry.from_dict(entry))
         if not why_not(method, scene, entry["training"]["kind"], _OPTIONS.get(method)):
             return entry, scene
     pytest.fail(f"no base case of {__name__} applies to method {method!r}: add one")
@@ -95,16 +96,17 @@ def _write_spec(path, entry, method, options):
 def _run(entry, method, options):
     """(fields, statuses) of ``method`` driven through ``entry``'s evaluation (an exception: flagged,
     the unit would fail)."""
-    scene = case_scene(entry)
-    why = why_not(method, scene, entry["training"]["kind"], options) or evaluation_why_not(method, entry, scene)
+    case = CaseEntry.from_dict(entry)
+    scene = case_scene(case)
+    why = why_not(method, scene, case.training_kind, options) or evaluation_why_not(method, case, scene)
     if why:
         return None, ["refused: " + why]
     try:
-        training = build_training(entry, scene)
+        training = build_training(case, scene)
         model = make_method(method, **options).build(training)
         if training.outputs:
             model.attach_outputs(training.outputs)
-        ev = build_evaluation(entry, scene, model if entry["evaluation"]["kind"] in NEEDS_MODEL else None)
+        ev = build_evaluation(case, scene, model if case.evaluation_kind in NEEDS_MODEL else None)
         history = ev.history or training.history or (scene.history if ev.kind == "trajectory" else None)
         driven = drive(model, ev, history)
     except Exception as exc:  # noqa: BLE001 - a unit that raises is stored as failed: flagged
@@ -173,8 +175,9 @@ def test_load_scale_reaches_the_model_as_its_load_factor(tmp_path):
     (a linear model outside its training envelope: flagged, and equal to the reference)."""
     entry = _entry({"name": "cornea_pinch", "training": {"kind": "path", "every": 2}},
                    {"kind": "map", "mus": [{"load_scale": 1.25}]})
-    scene = case_scene(entry)
-    ev = build_evaluation(entry, scene)
+    case = CaseEntry.from_dict(entry)
+    scene = case_scene(case)
+    ev = build_evaluation(case, scene)
     assert ev.points[0].mu == {"load_factor": 1.25 * float(scene.analysis.get("max_load_factor", 1.0))}
     fields, statuses = _run(entry, "pod_linear", {"n_modes": 3})
     assert statuses == ["extrapolation"]
@@ -189,11 +192,11 @@ def test_load_scale_is_refused_where_supports_prescribe_a_displacement(tmp_path)
 
 
 def test_analysis_parameters_of_the_other_analysis_are_refused():
-    static = case_scene(_entry({"name": "cornea_pinch", "training": {"kind": "path"}}, {}))
+    static = case_scene(CaseEntry.from_dict(_entry({"name": "cornea_pinch", "training": {"kind": "path"}}, {})))
     for key, value in (("t_end", 2.0), ("dt", 0.1), ("integrator", "hht")):
         with pytest.raises(ValueError, match=f"mu.{key}"):
             static.at({key: value})
-    dynamic = case_scene(_entry({"name": "frame_2dof", "training": {"kind": "trajectory"}}, {}))
+    dynamic = case_scene(CaseEntry.from_dict(_entry({"name": "frame_2dof", "training": {"kind": "trajectory"}}, {})))
     for key, value in (("max_load_factor", 2.0), ("load_steps", 3)):
         with pytest.raises(ValueError, match=f"mu.{key}"):
             dynamic.at({key: value})
@@ -213,7 +216,7 @@ def test_a_trajectory_model_follows_load_scale(method):
     options = _OPTIONS.get(method, {})
     for case, evaluation in _TRAJECTORY_BASES:
         base = _entry(case, evaluation)
-        if not why_not(method, case_scene(base), "trajectory", options):
+        if not why_not(method, case_scene(CaseEntry.from_dict(base)), "trajectory", options):
             break
     else:
         pytest.skip(f"{method}: no trajectory base case applies")

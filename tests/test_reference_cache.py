@@ -12,7 +12,7 @@ import pytest
 
 from tissuebench.cases.scene import load
 from tissuebench.cli import main
-from tissuebench.studies.reference.cache import (_meta_checksum, cached_solve, cached_table, clear, list_entries,
+from tissuebench.reference.cache import (_meta_checksum, cached_solve, cached_table, clear, list_entries,
                                                  reference_key, stray_items)
 
 

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from tissuebench.cases.scene import load
-from tissuebench.studies.reference.cache import (_meta_checksum, cached_solve, cached_table, clear, list_entries,
+from tissuebench.reference.cache import (_meta_checksum, cached_solve, cached_table, clear, list_entries,
                                                  reference_key, stray_items)
-from tissuebench.studies.reference.location import check_cache_url, open_cache, using_cache
+from tissuebench.reference.location import check_cache_url, open_cache, using_cache
 
 
 @pytest.fixture()
@@ -199,7 +199,7 @@ def test_a_reader_leaves_an_entry_being_published_to_its_writer(scene):
     meta = fs.cat_file(f"{entry}/meta.json")
     fs.rm(f"{entry}/meta.json")  # the writer between its last data file and its meta
     root = open_cache(url)
-    from tissuebench.studies.reference.cache import _lookup
+    from tissuebench.reference.cache import _lookup
 
     with pytest.warns(UserWarning, match="no meta.json yet"):
         assert _lookup(root, entry, scene) is None
@@ -215,7 +215,7 @@ def test_an_io_error_reading_an_entry_is_a_miss_that_leaves_the_entry(url, scene
     cached_solve(scene, cache=url)
     fs, entry = _fs_entry(url, scene)
     root = open_cache(url)
-    from tissuebench.studies.reference.cache import _lookup
+    from tissuebench.reference.cache import _lookup
 
     real = type(root).read_bytes
 
@@ -268,3 +268,40 @@ def test_a_folder_where_a_file_belongs_is_damage_not_an_io_hiccup(tmp_path, scen
     with pytest.warns(UserWarning, match="corrupted"):
         assert not cached_solve(scene, cache=url)[1]
     assert cached_solve(scene, cache=url)[1]
+
+
+def test_report_and_verify_read_the_cache_the_sweep_was_given(monkeypatch, capsys, tmp_path):
+    """``sweep --cache URL`` records URL in ``_sweep.json``; ``report`` and ``verify`` on that folder
+    read their references there unless given ``--cache`` (before, they fell back to
+    $TISSUEBENCH_CACHE, another cache, and recomputed); a sweep without --cache records none, and a
+    damaged record is refused naming the key."""
+    from tissuebench.cli import main
+    from tissuebench.reference.location import cache_url
+    from tissuebench.studies.results import SweepManifestError, read_sweep_manifest
+    from tissuebench.studies.spec import load_spec
+    from tissuebench.studies.sweep import run_sweep
+
+    spec = tmp_path / "g.toml"
+    spec.write_text('[sweep]\nname = "g"\n[[case]]\nname = "heat1d_source"\ntraining = { kind = "operators" }\n'
+                    'evaluation = { kind = "map", mus = [{ position = 0.3 }] }\n[[method]]\nname = "pgd"\n'
+                    'list = [{ n_modes = 2, projection = "srb" }]\n')
+    url = f"memory://tb-{uuid.uuid4().hex[:8]}/swept"
+    monkeypatch.setenv("TISSUEBENCH_CACHE", str(tmp_path / "elsewhere"))
+    run_sweep(load_spec(spec), tmp_path / "with", progress=False, cache=url)
+    run_sweep(load_spec(spec), tmp_path / "without", progress=False)
+    assert read_sweep_manifest(tmp_path / "with")["cache"] == url
+    assert "cache" not in read_sweep_manifest(tmp_path / "without")
+
+    seen = []
+    monkeypatch.setattr("tissuebench.cli._report", lambda args: seen.append(cache_url()) or 0)
+    assert main(["report", str(tmp_path / "with")]) == 0
+    assert f"the reference cache the sweep used, {url}" in capsys.readouterr().out
+    assert main(["report", str(tmp_path / "with"), "--cache", str(tmp_path / "mine")]) == 0
+    assert main(["report", str(tmp_path / "without")]) == 0
+    assert seen[0].rstrip("/") == url and seen[1].rstrip("/").endswith("mine")
+    assert seen[2].rstrip("/").endswith("elsewhere")
+
+    manifest = tmp_path / "with" / "_sweep.json"
+    manifest.write_text(json.dumps({**json.loads(manifest.read_text()), "cache": 5}))
+    with pytest.raises(SweepManifestError, match=r"cache = 5: expected a folder path or URL"):
+        read_sweep_manifest(tmp_path / "with")

@@ -7,8 +7,9 @@ import warnings
 
 import pytest
 
+from tissuebench.studies.case_entry import CaseEntry
 from tissuebench.studies import training as training_module
-from tissuebench.studies.reference import cache as cache_module
+from tissuebench.reference import cache as cache_module
 from tissuebench.studies.run import progress_bar
 from tissuebench.studies.training import POSITION_RETRIES, build_training, case_scene
 
@@ -34,8 +35,8 @@ def test_a_reference_computed_in_a_sweep_shows_which_and_how_far(tmp_path, monke
     assert "reference cornea_pinch" not in capsys.readouterr().err
 
 
-CASE = {"id": "p", "name": "cornea_pinch", "variant": None, "resolution": "ci", "backend": "skfem",
-        "training": {"kind": "positions", "positions": 3, "max_load_factor": 1.0, "load_steps": 2}}
+CASE = CaseEntry(id="p", name="cornea_pinch", variant=None, resolution="ci", backend="skfem",
+                 training={"kind": "positions", "positions": 3, "max_load_factor": 1.0, "load_steps": 2})
 
 
 def _stalling(stall_at: float, steps_that_stall):

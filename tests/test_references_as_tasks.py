@@ -18,9 +18,9 @@ import pytest
 
 from _workers import RunLog
 
-import tissuebench.studies.reference.cache as cache_module
+import tissuebench.reference.cache as cache_module
 from tissuebench.studies.executors import execute
-from tissuebench.studies.reference import reference_key
+from tissuebench.reference import reference_key
 from tissuebench.studies.results import read_units
 from tissuebench.studies.spec import expand_units, load_spec
 from tissuebench.studies.sweep import run_sweep
@@ -110,9 +110,9 @@ def test_serial_and_processes_keep_their_cache_argument(spec, tmp_path, counted)
 
 def _ci_cases():
     spec = load_spec(Path(__file__).resolve().parents[1] / "tissuebench" / "studies" / "presets" / "ci.toml")
-    cases = {u.case["id"]: u.case for u in expand_units(spec)}  # every case of the preset, once
+    cases = {u.case.id: u.case for u in expand_units(spec)}  # every case of the preset, once
     return [pytest.param(c, id=i) for i, c in cases.items()
-            if c["training"]["kind"] != "operators" or c["evaluation"].get("kind") == "map"]
+            if c.training_kind != "operators" or c.evaluation_kind == "map"]
 
 
 @pytest.mark.parametrize("case", _ci_cases())
@@ -136,8 +136,8 @@ def test_each_kind_declares_the_references_its_builders_read(case, monkeypatch):
     declared = unit_references(WorkUnit(case, "nearest", {}, {}, {}, "0" * 64))
     scene = case_scene(case)
     training.build_training(case, scene)
-    if case["evaluation"].get("kind") not in evaluation.NEEDS_MODEL:
+    if case.evaluation_kind not in evaluation.NEEDS_MODEL:
         evaluation.build_evaluation(case, scene)
     assert declared and set(declared) <= set(read)
     extra = [s for k, s in read.items() if k not in declared]
-    assert len(extra) == (1 if case["evaluation"].get("beyond") else 0), [s.mu for s in extra]
+    assert len(extra) == (1 if case.evaluation.get("beyond") else 0), [s.mu for s in extra]

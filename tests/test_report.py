@@ -17,7 +17,7 @@ from tissuebench.reports.extremes import ENERGY_DRIFT_TOL, extremes_table
 from tissuebench.reports.html import write_report
 from tissuebench.reports.paper import cached_reference_table, paper_rows
 from tissuebench.reports.recommend import parse_requirement, rank_units
-from tissuebench.studies.reference import cached_solve
+from tissuebench.reference import cached_solve
 from tissuebench.studies.results import ResultsStore, read_points, read_units
 from tissuebench.studies.units import UnitOutcome
 

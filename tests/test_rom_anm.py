@@ -7,7 +7,7 @@ import scipy.sparse.linalg as spla
 
 from tissuebench.cases.meshes import box_mesh
 from tissuebench.refsolvers import Dirichlet, NeoHookean, PointLoad, Problem, SaintVenantKirchhoff, make_backend
-from tissuebench.studies.reference import solve
+from tissuebench.reference import solve
 from tissuebench.refsolvers.newton import newton_solve
 from tissuebench.rom.anm import anm_path, anm_series, reduced_path, reduced_series
 from tissuebench.rom.anm_pod import AnmPod, AnmPodModel

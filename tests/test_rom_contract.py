@@ -22,6 +22,7 @@ from tissuebench.refsolvers.dynamics import SecondOrderSystem, integrate
 from tissuebench.refsolvers.newton import newton_solve
 from tissuebench.refsolvers.remesh import gmsh_available
 from tissuebench.rom import METHODS, MODEL_KINDS, OnlineModel, StepResult, Training, make_method
+from tissuebench.rom.pgd.strip import IncisionStrip
 from tissuebench.studies.units import _jsonable
 
 TIP = 4.0
@@ -73,12 +74,13 @@ def trainings():
 def _operator_training(name):
     """An operators training on the first catalogue case the method builds from (PGD: the 1D
     source problem, or the cut cornea), made by the harness."""
+    from tissuebench.studies.case_entry import CaseEntry
     from tissuebench.studies.training import build_training
 
     errors = []
     for case in ("heat1d_source", "cornea_cut"):
-        entry = {"id": case, "name": case, "variant": None, "resolution": "ci", "backend": "skfem",
-                 "training": {"kind": "operators"}}
+        entry = CaseEntry(id=case, name=case, variant=None, resolution="ci", backend="skfem",
+                          training={"kind": "operators"})
         training = build_training(entry)
         try:
             return training, make_method(name).build(training)
@@ -162,6 +164,28 @@ def test_method_contract(name, trainings):
         model.reconstruct(StepResult(None, "failed", "a failed step"))
     with pytest.raises((ValueError, TypeError)):
         model.step({"nonsense": 1.0})
+    _check_harness_hooks(cls, model)
+
+
+def _check_harness_hooks(cls, model):
+    """The optional hooks the harness calls (``OnlineModel.contact_nodes``, ``incision_strip``,
+    ``contact_force``, ``variant``) answer with their declared types; an attribute of the same
+    name (a hook shadowed by data) fails here."""
+    nodes = model.contact_nodes()
+    if nodes is not None:
+        assert isinstance(nodes, np.ndarray) and nodes.ndim == 1 and len(nodes), nodes
+        assert np.issubdtype(nodes.dtype, np.integer) and nodes.min() >= 0
+    strip, force = model.incision_strip(), model.contact_force()
+    if strip is not None:
+        assert isinstance(strip, IncisionStrip) and strip.max_cut_length >= 1
+        assert force is not None  # the cut references load the tip with it
+    if force is not None:
+        assert np.shape(force) == (3,) and np.all(np.isfinite(force))
+    smaller = {k: 1 for k in cls.nested}
+    sliced = model.variant(**smaller)
+    if sliced is not None:  # the same offline data, fewer modes: a model like a fresh build
+        assert isinstance(sliced, OnlineModel) and sliced.kind == model.kind
+        assert sliced.n_reduced <= min(model.n_reduced, smaller.get("n_modes", model.n_reduced))
 
 
 def test_pod_interp_takes_a_duplicated_snapshot_set_and_refuses_an_ambiguous_one(trainings):

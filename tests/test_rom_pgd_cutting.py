@@ -14,7 +14,7 @@ from tissuebench.refsolvers import make_backend
 from tissuebench.rom import make_method
 from tissuebench.rom.pgd import CuttingModel, pgd_training
 from tissuebench.rom.pgd.enrichment import condense
-from tissuebench.rom.pgd.reference import cut_problem, l2_error, linear_reference
+from tissuebench.reference.cut import cut_problem, l2_error, linear_reference
 from tissuebench.rom.pgd.vademecum import Vademecum
 
 RADII = [1.5, 5.2]

@@ -12,7 +12,7 @@ from tissuebench.cases.scene import load
 from tissuebench.refsolvers.newton import newton_solve
 from tissuebench.rom import make_method
 from tissuebench.rom.pgd import pgd_training
-from tissuebench.rom.pgd.reference import linear_reference
+from tissuebench.reference.cut import linear_reference
 
 
 @pytest.fixture(scope="module")

@@ -119,7 +119,7 @@ def test_run_to_divergence_that_converges_nothing_fails_with_exit_1(tmp_path, ed
 def test_run_to_divergence_with_a_non_finite_residual_fails():
     from types import SimpleNamespace as NS
 
-    from tissuebench.studies.reference.runner import _divergence_verdict
+    from tissuebench.reference.runner import _divergence_verdict
 
     ok = NS(converged=True, residual_norms=[1.0, 1e-12], load_factor=0.5)
     bad = NS(converged=False, residual_norms=[np.inf], load_factor=1.0)

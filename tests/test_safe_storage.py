@@ -12,7 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from tissuebench.cases.scene import load
-from tissuebench.studies.reference.cache import cached_solve, reference_key
+from tissuebench.reference.cache import cached_solve, reference_key
 from tissuebench.studies.results import ResultsStore
 from tissuebench.studies.sweep import _plan
 

@@ -130,7 +130,7 @@ def _spec(tmp_path, group_a='"cube"', variant_b="tension", divisions_b="[12, 3, 
 
 def test_scaling_group_is_kept_on_the_case_entries(tmp_path):
     spec = _spec(tmp_path)
-    assert [c["scaling_group"] for c in spec.cases] == ["cube", "cube"]
+    assert [c.scaling_group for c in spec.cases] == ["cube", "cube"]
 
 
 @pytest.mark.parametrize("group_a, variant_b, divisions_b, message", [

@@ -13,6 +13,7 @@ import pytest
 
 from tissuebench.cases import load
 from tissuebench.cli import main
+from tissuebench.studies.case_entry import CaseEntry
 from tissuebench.studies.evaluation import beyond_scene, build_evaluation
 from tissuebench.studies.metrics import validity_radius
 from tissuebench.studies.results import read_points, read_units
@@ -26,8 +27,8 @@ EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "bring_your_own_org
 
 
 def _case(scene_path, evaluation, training=None):
-    return {"id": "c", "name": str(scene_path), "variant": None, "resolution": "ci", "backend": "skfem",
-            "training": training or {"kind": "path", "every": 2}, "evaluation": evaluation}
+    return CaseEntry(id="c", name=str(scene_path), variant=None, resolution="ci", backend="skfem",
+                     training=training or {"kind": "path", "every": 2}, evaluation=evaluation)
 
 
 def test_held_out_path_states_are_the_ones_the_training_left_out(tmp_path):
@@ -161,7 +162,7 @@ def test_a_new_users_organ_from_mesh_file_to_report(tmp_path, capsys, monkeypatc
     assert re.search(r"pod_linear\s+applies", out) and re.search(r"anm_pod\s+does not apply: material", out)
     assert main(["sweep", "--scene", str(scene), "--all-methods", "--out", str(tmp_path / "kidney"), "--quiet"]) == 0
     spec = tmp_path / "kidney.spec.toml"
-    assert spec.is_file() and load_spec(spec).cases[0]["evaluation"]["held_out"] is True
+    assert spec.is_file() and load_spec(spec).cases[0].evaluation["held_out"] is True
     units = read_units(tmp_path / "kidney")
     # 8 ROM units and the practitioner baselines on the path (issue 28): linear (condensed or not),
     # corotational, a 2x coarser mesh
@@ -191,5 +192,5 @@ def test_a_scene_named_in_a_spec_is_found_from_the_spec_folder(tmp_path, monkeyp
     spec.write_text('[[case]]\nname = "../scene.toml"\ntraining = { kind = "path", every = 2 }\n'
                     '[[method]]\nname = "nearest"\n')
     monkeypatch.chdir(work)  # ../scene.toml from here is the other block
-    name = load_spec(spec).cases[0]["name"]
+    name = load_spec(spec).cases[0].name
     assert Path(name) == (mine / "scene.toml").resolve()

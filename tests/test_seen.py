@@ -11,6 +11,7 @@ import pytest
 
 from tissuebench.reports.recommend import SEEN_REASON, parse_requirement, rank_units
 from tissuebench.reports.report_sections import recommendation
+from tissuebench.studies.case_entry import CaseEntry
 from tissuebench.studies.evaluation import Evaluation, EvaluationPoint, build_evaluation
 from tissuebench.studies.metrics import seen_points
 from tissuebench.studies.results import read_points, read_units
@@ -32,8 +33,8 @@ def test_seen_points_are_the_training_snapshots():
 
 
 def test_path_every_other_state_is_half_seen():
-    case = {"id": "c", "name": "cornea_pinch", "variant": None, "resolution": "ci", "backend": "skfem",
-            "training": {"kind": "path", "every": 2}, "evaluation": {"kind": "path"}}
+    case = CaseEntry(id="c", name="cornea_pinch", variant=None, resolution="ci", backend="skfem",
+                     training={"kind": "path", "every": 2}, evaluation={"kind": "path"})
     scene = case_scene(case)
     training, ev = build_training(case, scene), build_evaluation(case, scene)
     seen = seen_points(ev, training.snapshots)

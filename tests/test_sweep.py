@@ -1,6 +1,7 @@
 """The sweep harness: spec validation, the store, resume, the reference cache, executors."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -110,8 +111,8 @@ def test_presets_load_and_expand_at_both_resolutions():
         ci, paper = expand_units(load_spec(name)), expand_units(load_spec(name, resolution="paper"))
         assert ci and paper
         assert len({u.key for u in ci}) == len(ci)  # every unit has its own key
-    anm = [u for u in expand_units(load_spec("anm_pod", resolution="paper")) if u.case["id"] == "liver_palpation"]
-    assert len([u for u in anm if u.method == "anm_pod"]) == 150 and {u.case["resolution"] for u in anm} == {"paper"}
+    anm = [u for u in expand_units(load_spec("anm_pod", resolution="paper")) if u.case.id == "liver_palpation"]
+    assert len([u for u in anm if u.method == "anm_pod"]) == 150 and {u.case.resolution for u in anm} == {"paper"}
 
 
 def test_case_mesh_overrides_the_builder_parameters_at_its_resolution(tmp_path):
@@ -128,12 +129,12 @@ def test_case_mesh_overrides_the_builder_parameters_at_its_resolution(tmp_path):
     spec = tmp_path / "mesh.toml"
     spec.write_text(text)
     case = load_spec(spec).cases[0]
-    assert case["mesh"] == {"ci": {"divisions": [8, 2, 2]}}
+    assert case.mesh == {"ci": {"divisions": [8, 2, 2]}}
     scene = case_scene(case)
     assert (scene.mesh.n_vertices, scene.mesh.n_cells) == (9 * 3 * 3, 8 * 2 * 2 * 6)
-    plain = case_scene({k: v for k, v in case.items() if k != "mesh"})
+    plain = case_scene(dataclasses.replace(case, mesh=None))
     assert plain.mesh.n_cells == 12 * 3 * 3 * 6 and plain.content_hash() != scene.content_hash()
-    paper = case_scene(dict(case, resolution="paper"))  # no paper entry: the catalogue's paper mesh
+    paper = case_scene(dataclasses.replace(case, resolution="paper"))  # no paper entry: the catalogue's paper mesh
     assert paper.mesh_spec["params"]["divisions"] == [63, 10, 10]
 
 
@@ -235,7 +236,7 @@ def test_a_changed_key_is_recomputed_and_said(serial, tmp_path):
 
 
 def test_second_sweep_hits_the_reference_cache(serial, tmp_path, monkeypatch):
-    import tissuebench.studies.reference.cache as cache
+    import tissuebench.reference.cache as cache
 
     calls = []
     monkeypatch.setattr(cache, "solve", lambda *a, **k: calls.append(a) or pytest.fail("reference recomputed"))
@@ -370,7 +371,7 @@ def test_the_units_of_one_nested_group_run_one_after_another(tmp_path):
 def test_cases_option_keeps_only_the_named_cases():
     spec = load_spec("anm_pod", resolution="paper", only=["liver_palpation", "liver_palpation-heldout"])
     units = expand_units(spec)
-    assert {u.case["id"] for u in units} == {"liver_palpation", "liver_palpation-heldout"}
+    assert {u.case.id for u in units} == {"liver_palpation", "liver_palpation-heldout"}
     # the anm_pod paper grid; held out: anm_pod x2, pod_linear x2, nearest, pod_interp x2; the
     # practitioner baselines on the path: linear_fe x2, corotational_fe, coarse_fe x4
     assert len(units) == 150 + 2 + 2 + 1 + 2 + 7
@@ -385,7 +386,7 @@ def test_progress_line_shows_the_spec_error_metric():
 
     from tissuebench.studies.sweep import _line
 
-    unit = SimpleNamespace(case={"id": "wave"}, label="pgd_direct pod_modes=8")
+    unit = SimpleNamespace(case=SimpleNamespace(id="wave"), label="pgd_direct pod_modes=8")
     row = {"unit_status": "ok", "max_rel_l2": 0.38, "rmse_rel": 0.036, "haptic_median_s": 2e-5, "haptic_p99_s": 3e-5,
            "speedup": 16.0, "n_ok": 200, "n_extrapolation": 0, "n_beyond_validity": 0, "n_failed": 0}
     assert ": rmse_rel 0.036," in _line(1, 2, unit, row, "rmse_rel")

@@ -389,7 +389,7 @@ def _print_check(result, args) -> None:
 
 
 def _cache(args) -> int:
-    from .studies.reference.cache import cache_url, clear, list_entries, stray_items
+    from .reference.cache import cache_url, clear, list_entries, stray_items
 
     where = cache_url()
     stray = stray_items()
@@ -518,11 +518,24 @@ def _dispatch(args) -> int:
     if args.command == "check":
         return _check(args)
     if args.command in ("cache", "report", "verify"):  # the reference cache they read: --cache
-        from .studies.reference.location import using_cache
+        from .reference.location import using_cache
 
-        with using_cache(args.cache):
+        with using_cache(_cache_of(args)):
             return {"cache": _cache, "report": _report, "verify": _verify}[args.command](args)
     return _run(args)
+
+
+def _cache_of(args):
+    """The reference cache a command reads: its ``--cache``, else the one the sweep of its results
+    folder was given (recorded in ``_sweep.json``), else None (``$TISSUEBENCH_CACHE`` or the default)."""
+    if args.cache is not None or getattr(args, "results", None) is None:
+        return args.cache
+    from .studies.results import read_sweep_manifest
+
+    recorded = read_sweep_manifest(args.results, missing_ok=True).get("cache")
+    if recorded is not None:
+        print(f"{args.command}: the reference cache the sweep used, {recorded} (--cache to read another)")
+    return recorded
 
 
 def _one_line_warning(message, category, filename, lineno, line=None) -> str:

@@ -29,7 +29,7 @@ import tissuebench.rom.wsc.method as wsc_method
 from tissuebench.cases import load
 from tissuebench.refsolvers.backends import make_backend
 from tissuebench.rom import Training, make_method
-from tissuebench.studies.reference import cached_solve
+from tissuebench.reference import cached_solve
 
 WARMUP = 20
 ROWS = [(h, c) for c in (1880, 2350, 2820) for h in (74, 108, 150, 180, 220, 250, 290, 327, 364)]

@@ -48,7 +48,7 @@ def test_every_method_has_a_unit():
 def _model(unit):
     scene = case_scene(unit.case)
     training = build_training(unit.case, scene)
-    needs_model = unit.case["evaluation"].get("kind") in NEEDS_MODEL
+    needs_model = unit.case.evaluation_kind in NEEDS_MODEL
     evaluation = None if needs_model else build_evaluation(unit.case, scene)
     model = make_method(unit.method, **unit.options).build(training)
     if needs_model:
@@ -59,7 +59,7 @@ def _model(unit):
     return model, evaluation, history
 
 
-@pytest.mark.parametrize("unit", UNITS, ids=[f"{u.method}-{u.case['id']}" for u in UNITS])
+@pytest.mark.parametrize("unit", UNITS, ids=[f"{u.method}-{u.case.id}" for u in UNITS])
 def test_efficiency(benchmark, unit):
     model, evaluation, history = _model(unit)
     slow = unit.method in ("pod_newton",)  # full assembly per iteration: tens of ms a step
@@ -70,11 +70,11 @@ def test_efficiency(benchmark, unit):
         calibration = calibration_seconds()
     h, f = lat["haptic"], lat["floor"]
     efficiency = f.median / h.median
-    benchmark.extra_info.update(method=unit.method, case=unit.case["id"], options=unit.options,
+    benchmark.extra_info.update(method=unit.method, case=unit.case.id, options=unit.options,
                                 median_us=h.median * 1e6, p99_us=h.p99 * 1e6, floor_us=f.median * 1e6,
                                 efficiency=efficiency, calibration_ms=calibration * 1e3,
                                 load_average=os.getloadavg()[0], steps=h.n)
-    print(f"{unit.method:15s} {unit.case['id']:24s} median {h.median * 1e6:10.2f} us  p99 {h.p99 * 1e6:10.2f} us  "
+    print(f"{unit.method:15s} {unit.case.id:24s} median {h.median * 1e6:10.2f} us  p99 {h.p99 * 1e6:10.2f} us  "
           f"floor {f.median * 1e6:9.2f} us  efficiency {efficiency:5.2f}  (calibration {calibration * 1e3:.3f} ms, "
           f"load {os.getloadavg()[0]:.2f})")
     assert h.n >= steps and f.n == h.n and np.isfinite(efficiency) and efficiency > 0

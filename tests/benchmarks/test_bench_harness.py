@@ -25,6 +25,7 @@ import pytest
 from threadpoolctl import threadpool_limits
 
 from tissuebench.rom import make_method
+from tissuebench.studies.case_entry import CaseEntry
 from tissuebench.studies.evaluation import build_evaluation
 from tissuebench.studies.protocol import DISPLAY_EVERY, time_latency
 from tissuebench.studies.training import build_training, case_scene
@@ -33,8 +34,8 @@ pytestmark = pytest.mark.benchmark
 
 
 def _case(name):
-    return {"id": name, "name": name, "variant": None, "resolution": "ci", "backend": "skfem",
-            "training": {"kind": "path"}, "evaluation": {"kind": "path"}}
+    return CaseEntry(id=name, name=name, variant=None, resolution="ci", backend="skfem", training={"kind": "path"},
+                     evaluation={"kind": "path"})
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,9 @@ independent codes, the rounding of a printed table entry, or a stated tolerance 
 form), the source, and the verdict. ``resolution="paper"`` runs the converged meshes (every
 row is expected inside); ``"ci"`` runs small meshes in seconds to minutes, where only the
 rows that compare like with like (same discretisation as the source, closed forms) are
-expected inside; the others show how far a coarse mesh is (column ``expected_in``).
+expected inside; the others show how far a coarse mesh is (column ``expected_in``). Our
+values are solved by the reference layer (:mod:`tissuebench.reference.anchors`); this module
+holds the anchors, their intervals and sources, and the verdicts.
 
 Sources
 -------
@@ -34,12 +36,10 @@ import numpy as np
 import pandas as pd
 
 from ..cases import cook
-from ..cases.cook import CORNER, MIDPOINT, cook_problem, cook_tip
 from ..cases.scene import load
 from ..choices import RESOLUTIONS
-from ..refsolvers.line_models import assemble_line_model
-from ..refsolvers.mixed import static_run
-from ..studies.reference import solve
+from ..reference.anchors import (clamped_beam_frequency, cook_coupled, cook_decoupled_p2, cook_linear_value,
+                                 cook_value, cube_stress, land_beam, left_ventricle)
 
 __all__ = ["ANCHORS", "Anchor", "external_anchors"]
 
@@ -67,18 +67,12 @@ class Anchor:
 
 
 # ----------------------------------------------------------------------------- Cook
-def _cook_value(n, element, material, plane_strain, point, backend):
-
-    tip, res = cook_tip(cook_problem(n, element, material, plane_strain=plane_strain), backend, point)
-    return tip, f"{element} {n}x{n}" + ("" if res.success else f" ({res.message})")
-
-
 def _cook_q1_row(table, plane_strain, point, label):
 
     n_of = {"ci": 16, "paper": 64}
 
     def compute(res, backend):
-        return _cook_value(n_of[res], "Q1", "decoupled", plane_strain, getattr(cook, point), backend)
+        return cook_value(n_of[res], "Q1", "decoupled", plane_strain, getattr(cook, point), backend)
 
     def anchor(res):
         text = getattr(cook, table)[n_of[res]]
@@ -89,91 +83,12 @@ def _cook_q1_row(table, plane_strain, point, label):
                   compute, anchor, like_for_like=True)
 
 
-def _cook_linear_value(res, backend):
-
-    n = 8 if res == "ci" else 16
-    tip, r = cook_tip(cook_problem(n, "P2", "linear", traction=6.25), backend, CORNER)
-    return tip, f"P2 {n}x{n}" + ("" if r.success else f" ({r.message})")
-
-
-def _cook_coupled(res, backend):
-
-    return _cook_value(8 if res == "ci" else 16, "P2", "coupled", True, CORNER, backend)
-
-
-def _cook_decoupled_p2(res, backend):
-
-    return _cook_value(8 if res == "ci" else 16, "P2", "decoupled", True, MIDPOINT, backend)
-
-
-# ----------------------------------------------------------------------------- cardiac
-def _mixed_scene_value(case, variant, monitors, res, backend, penalty_weight=0.0):
-    """Final monitored values of a catalogue scene solved with the mixed formulation
-    (``penalty_weight``: the fraction of the volumetric penalty kept, see ``refsolvers.mixed``)."""
-
-    scene = load(case, resolution=res, variant=variant)
-    pb = scene.to_problem("P2")
-    a = scene.analysis
-    out = static_run(pb, backend, int(a.get("load_steps", 1)), float(a.get("max_load_factor", 1.0)),
-                     lambda u, f: scene.evaluate_monitors(pb, u, f), penalty_weight=penalty_weight)
-    how = f"mixed P2-P1, {pb.mesh.n_cells} tets, {pb.ndof + pb.mesh.n_vertices} dofs" + (
-        f", penalty kept x{penalty_weight:g}" if penalty_weight else "")
-    if out["status"] != "success":
-        return {m: float("nan") for m in monitors}, f"{how} ({out['message']})"
-    last = out["table"][out["table"]["converged"]].iloc[-1]
-    return {m: float(last[m]) for m in monitors}, how
-
-
-_CACHE: dict = {}
-
-
-def _cached(key, fn):
-    if key not in _CACHE:
-        _CACHE[key] = fn()
-    return _CACHE[key]
-
-
-def _land_beam(res, backend):
-    vals, how = _cached(("land_beam", res, backend),
-                        lambda: _mixed_scene_value("land_beam", None, ("tip_z",), res, backend))
-    return vals["tip_z"], how
-
-
-def _lv(monitor):
-    def compute(res, backend):
-        # the pure u-p run inverts elements at 32 % of the pressure on the ci mesh; keeping a
-        # tenth of the volumetric penalty beside the pressure (refsolvers.mixed: damps what the
-        # P1 pressure cannot see) reaches 10 kPa: -26.51 / -28.26 mm at ci (all of it: -26.49 /
-        # -28.24, in 25 increments instead of 20)
-        vals, how = _cached(("left_ventricle", res, backend), lambda: _mixed_scene_value(
-            "left_ventricle", "guccione", ("apex_endo_z", "apex_epi_z"), res, backend, penalty_weight=0.1))
-        return vals[monitor], how
-    return compute
-
-
 # ----------------------------------------------------------------------------- closed forms
-def _clamped_beam_frequency(res, backend):
-    import scipy.linalg as sla
-
-
-    model = load("clamped_beam", resolution=res).line_model()
-    system = assemble_line_model(model)
-    f = system.free
-    w2 = sla.eigh(system.K[f][:, f].toarray(), system.M[f][:, f].toarray(), eigvals_only=True)
-    return math.sqrt(w2[0]), f"{len(model.mesh.cells)} Hermite beam elements"
-
-
 def _clamped_beam_exact(res):
 
     p = load("clamped_beam").model_params  # unit length
     w = 4.730040745**2 * math.sqrt(p["E"] * p["I"] / (p["rho"] * p["A"]))
     return w, w * (1 - 1e-4), w * (1 + 1e-4)
-
-
-def _cube_stress(res, backend):
-
-    r = solve("cube_tension_twist", backend=backend, resolution=res, variant="tension")
-    return float(r.table["nominal_stress_kPa"].dropna().iloc[-1]), f"P1 penalty, {res} mesh"
 
 
 def _cube_exact(res):
@@ -190,29 +105,29 @@ ANCHORS = [
     _cook_q1_row("DEALII_PLANE_STRAIN_Q1", True, "MIDPOINT", "midpoint, plane strain"),
     _cook_q1_row("DEALII_SLAB_Q1", False, "CORNER", "corner, free slab"),
     Anchor("cook_membrane", "u_y midpoint, plane strain, decoupled neo-Hookean, P2", "mm",
-           f"{GALLERY} (2021), Q2 limit; interval: printed rounding", _cook_decoupled_p2,
+           f"{GALLERY} (2021), Q2 limit; interval: printed rounding", cook_decoupled_p2,
            _fixed(14.74, 14.735, 14.745)),
     Anchor("cook_membrane", "u_y corner, plane strain, coupled neo-Hookean (ours), P2", "mm",
            "internal: converged P2 16x16 / Q1 32x32 of this project (no published value); interval 0.2 %",
-           _cook_coupled, _fixed(13.57, 13.57 * 0.998, 13.57 * 1.002)),
+           cook_coupled, _fixed(13.57, 13.57 * 0.998, 13.57 * 1.002)),
     Anchor("cook_membrane", "u_y corner, plane strain, linear E = 70 MPa, nu = 1/3, P2", "mm",
            "CalculiX / Code_Aster / Elmer very fine quadratic meshes (solids4foam tutorial)",
-           _cook_linear_value, _fixed(32.24, 32.20, 32.28)),
+           cook_linear_value, _fixed(32.24, 32.20, 32.28)),
     Anchor("land_beam", "tip z (10, 0.5, 1), incompressible Guccione", "mm",
            f"{LAND_2015}, fig. 3: consensus 4.17, converged submissions (solids4foam: 4.14 .. 4.20)",
-           _land_beam, _fixed(4.17, 4.151, 4.185)),
+           land_beam, _fixed(4.17, 4.151, 4.185)),
     Anchor("left_ventricle", "endocardial apex z, incompressible isotropic Guccione, 10 kPa", "mm",
-           f"{LAND_2015}, fig. 6: consensus and spread of the submissions", _lv("apex_endo_z"),
+           f"{LAND_2015}, fig. 6: consensus and spread of the submissions", left_ventricle("apex_endo_z"),
            _fixed(-26.6, -26.9, -26.4)),
     Anchor("left_ventricle", "epicardial apex z, incompressible isotropic Guccione, 10 kPa", "mm",
-           f"{LAND_2015}, fig. 6: consensus and spread of the submissions", _lv("apex_epi_z"),
+           f"{LAND_2015}, fig. 6: consensus and spread of the submissions", left_ventricle("apex_epi_z"),
            _fixed(-28.3, -28.5, -28.1)),
     Anchor("clamped_beam", "first angular frequency", "rad/s",
            "Euler-Bernoulli clamped-clamped beam: 4.7300^2 sqrt(EI / (rho A L^4)); interval 1e-4",
-           _clamped_beam_frequency, _clamped_beam_exact, like_for_like=True),
+           clamped_beam_frequency, _clamped_beam_exact, like_for_like=True),
     Anchor("cube_tension_twist", "nominal stress at 30 % stretch", "kPa",
            "incompressible Mooney-Rivlin closed form (mu1 + mu2 / l)(l - l^-2); interval 2 % "
-           "(our bar is compressible, J = 1.06, with clamped ends)", _cube_stress, _cube_exact,
+           "(our bar is compressible, J = 1.06, with clamped ends)", cube_stress, _cube_exact,
            like_for_like=True),
 ]
 

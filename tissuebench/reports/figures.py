@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..studies.reference.result import TABLE_COLUMNS
+from ..reference.result import TABLE_COLUMNS
 
 __all__ = ["pyplot", "plot_monitors", "plot_line_state", "TABLE_COLUMNS"]
 

@@ -8,7 +8,7 @@ Rows come from three places of the scene's catalogue TOML:
   (``[paper.methods]``) when one was measured, else of all methods; the row says which unit
   and how the value is derived. The others are listed with "not measured by this sweep".
 * ``[paper.compare.<monitor>]`` (value, note): our reference run's final monitored value,
-  read **only from the reference cache** (:mod:`tissuebench.studies.reference.cache`; the
+  read **only from the reference cache** (:mod:`tissuebench.reference.cache`; the
   report never solves), with the stated reason they differ.
 * ``[paper.methods.<method>]``: the paper's settings beside the option values measured.
 """
@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from ..studies.describe import paper_comparison
-from ..studies.reference.cache import cached_table
+from ..reference.cache import cached_table
 
 __all__ = ["MEASURED", "best_unit", "paper_rows", "cached_reference_table"]
 
@@ -74,7 +74,7 @@ def _text(v) -> str:
 
 def cached_reference_table(scene, backend: str = "skfem") -> pd.DataFrame | None:
     """The cached reference run's table of ``scene`` (None when not cached or not a valid entry:
-    :func:`~tissuebench.studies.reference.cache.cached_table`); nothing is solved."""
+    :func:`~tissuebench.reference.cache.cached_table`); nothing is solved."""
     return cached_table(scene, backend)
 
 

@@ -9,7 +9,7 @@ import meshio
 import numpy as np
 
 from ..studies.describe import paper_comparison
-from ..studies.reference import ReferenceResult
+from ..reference import ReferenceResult
 from ..studies.run import scene_hash
 from ..studies.atomic_folders import atomic_directory, provenance, write_json_atomic
 from . import plots

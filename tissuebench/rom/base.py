@@ -395,6 +395,36 @@ class OnlineModel(ABC):
     def output_names(self) -> list:
         return list(getattr(self, "_outputs", ((),))[0])
 
+    # ---------------------------------------------------------------- optional hooks of the harness
+    # What the sweep harness (tissuebench.studies) asks of some models: it calls these and reads
+    # no other attribute of a model. The defaults say "not this model's".
+    def contact_nodes(self) -> np.ndarray | None:
+        """The mesh nodes where this model can place its contact (a point load moving over an
+        accessible surface), as ``(n_c,)`` int node ids of the intact mesh; the ``contact_nodes``
+        evaluation measures the model at some of them. Default None: the model has none
+        (surface vademecums and the practitioner baselines built for a contact override it)."""
+        return None
+
+    def incision_strip(self):
+        """The :class:`~tissuebench.rom.pgd.strip.IncisionStrip` this model cuts along
+        (``max_cut_length``, ``incision(c)``, ``tip(c)``, ``depth_fraction``): the
+        ``cut_lengths`` evaluation solves the full model of each cut of it. Default None: the
+        model does not cut."""
+        return None
+
+    def contact_force(self) -> np.ndarray | None:
+        """The ``(3,)`` force [the scene's force unit] this model's contact applies at its node at
+        load factor 1 (what the ``cut_lengths`` references load the tip node with). Default None:
+        no contact force of its own."""
+        return None
+
+    def variant(self, **options) -> "OnlineModel | None":
+        """This model with some of its method's nested options (:attr:`RomMethod.nested`, e.g.
+        fewer ``n_modes``) set to ``options``, sliced from this model's offline data without a
+        new build, and the same as a fresh build with those options. Default None: this model
+        cannot be sliced, the harness builds the variant afresh."""
+        return None
+
 
 class LinearReconstruction:
     """Mixin for models with ``u[free] = B q`` and prescribed values on the fixed dofs.

@@ -27,6 +27,7 @@ the method classes, :meth:`~tissuebench.rom.base.RomMethod.why_not`), never by t
 from __future__ import annotations
 
 from ..rom import METHODS, method_class
+from .case_entry import CaseEntry
 from .training import TRAINING_KINDS
 
 __all__ = ["training_why_not", "why_not", "evaluation_keys", "evaluation_why_not",
@@ -71,9 +72,9 @@ def load_scale_why_not(scene) -> str:
     return ""
 
 
-def evaluation_keys(case: dict) -> list:
+def evaluation_keys(case: CaseEntry) -> list:
     """The scene parameters (``Scene.at`` keys) an evaluation changes from the training's."""
-    ev, kind = case.get("evaluation") or {}, (case.get("evaluation") or {}).get("kind", case["training"]["kind"])
+    ev, kind = case.evaluation, case.evaluation_kind
     keys = set()
     if kind == "positions":
         keys.add("position")
@@ -85,11 +86,11 @@ def evaluation_keys(case: dict) -> list:
     return sorted(keys)
 
 
-def evaluation_why_not(method, case: dict, scene) -> str:
+def evaluation_why_not(method, case: CaseEntry, scene) -> str:
     """Why ``method`` trained as ``case`` says cannot represent a parameter its evaluation
     changes (module docstring, 2), or ``""``."""
     cls = method_class(method)
-    training_kind = case["training"]["kind"]
+    training_kind = case.training_kind
     reads = set(cls.reads(scene, training_kind))
     for key in evaluation_keys(case):
         if key == "load_scale":

@@ -8,22 +8,18 @@ place. Output locations are checked before any work (:func:`check_output_locatio
 from __future__ import annotations
 
 import contextlib
-import functools
 import datetime as _dt
 import hashlib
-import importlib.metadata
 import json
 import os
 import platform
 import re
 import shutil
-import subprocess
 import tempfile
 import time
 from pathlib import Path
 
-_PACKAGES = ("tissuebench", "numpy", "scipy", "ngsolve", "scikit-fem", "pyamg", "meshio", "pandas",
-             "pyarrow", "pyvista", "matplotlib")
+from ..reference.provenance import code_hash, git_commit, package_versions  # re-exported: results record them
 
 
 def check_output_location(out: Path, overwrite: bool = False) -> None:
@@ -150,44 +146,6 @@ def write_json_atomic(path: Path, data) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-
-
-@functools.lru_cache(maxsize=1)
-def git_commit() -> str:
-    """HEAD of the repository the package lives in ("unknown" outside one)."""
-    try:
-        root = Path(__file__).resolve().parents[2]
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
-                              timeout=5).stdout.strip() or "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
-@functools.lru_cache(maxsize=1)
-def package_versions() -> dict:
-    """Installed versions of the packages a result depends on (None when absent)."""
-    versions = {}
-    for pkg in _PACKAGES:
-        try:
-            versions[pkg] = importlib.metadata.version(pkg)
-        except importlib.metadata.PackageNotFoundError:
-            versions[pkg] = None
-    return versions
-
-
-@functools.lru_cache(maxsize=8)
-def code_hash(*subpackages: str) -> str:
-    """SHA-256 over the Python sources (and scene/preset TOMLs) of the named subpackages of
-    tissuebench (all of it without arguments): a result computed by other code differs by
-    this, committed or not."""
-    root = Path(__file__).resolve().parents[1]
-    dirs = [root / p for p in subpackages] if subpackages else [root]
-    h = hashlib.sha256()
-    for d in dirs:
-        for f in sorted(d.rglob("*")):
-            if f.suffix in (".py", ".toml") and "__pycache__" not in f.parts:
-                h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes())
-    return h.hexdigest()
 
 
 def provenance(**extra) -> dict:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pandas as pd
 
 from ..cases.scene import RESOLUTIONS, list_cases, load
-from .reference.plan import plan_for
+from ..reference.plan import plan_for
 
 __all__ = ["catalogue_table", "describe", "mesh_size"]
 

@@ -54,19 +54,22 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..refsolvers.backends import make_backend
-from ..rom.pgd.reference import cut_problem, linear_reference
+from ..reference.cut import cut_references
 from .energy import EnergyDrift, conservative_window, reference_drift
 from .kinds import Kind, no_references, the_scene
 from .limits import (check_contact_nodes_evaluation, check_cut_lengths_evaluation, check_map_evaluation,
                      check_path_evaluation, check_positions_evaluation, check_trajectory_evaluation)
-from .reference import cached_solve
+from ..reference import cached_solve
 from .training import lattice_positions, positional_reference, positional_scene, reference_states, training_indices
+
+if TYPE_CHECKING:  # annotations only: case_entry imports this module's kind registry
+    from .case_entry import CaseEntry
 
 __all__ = ["EVALUATION_KINDS", "EvaluationPoint", "Evaluation", "build_evaluation", "evaluation_references"]
 
@@ -102,21 +105,21 @@ class Evaluation:
 
 
 def _path(scene, case, spec):
-    ref, _ = cached_solve(scene, case["backend"])
+    ref, _ = cached_solve(scene, case.backend)
     U, lams = reference_states(ref)
     every = int(spec.get("every", 1))
     idx = np.arange(len(lams))[::-1][::every][::-1]
     if spec.get("held_out"):  # the states the path training did not keep (training._path's choice)
-        trained = set(training_indices(len(lams) + 1, case["training"].get("every", 1)) - 1)
+        trained = set(training_indices(len(lams) + 1, case.training.get("every", 1)) - 1)
         idx = np.array([k for k in idx if k not in trained], dtype=int)
     points = [EvaluationPoint({"load_factor": float(lams[k])}, U[:, k], ref.monitors_at("load_factor", lams[k]),
                               float(lams[k])) for k in idx]
     top = float(lams[-1]) if len(lams) else float(scene.analysis.get("max_load_factor", 1.0))
-    info = {"reference_status": ref.status, "reference_top": top, **load_measure(scene, ref, case["backend"])}
+    info = {"reference_status": ref.status, "reference_top": top, **load_measure(scene, ref, case.backend)}
     factors = sorted(float(f) for f in spec.get("beyond", []))
     reached = top
     if factors and factors[-1] > 1.0 and ref.status == "success":
-        ext, _ = cached_solve(beyond_scene(scene, factors[-1] * top), case["backend"])
+        ext, _ = cached_solve(beyond_scene(scene, factors[-1] * top), case.backend)
         Ue, lams_e = reference_states(ext) if len(ext.steps) > 1 else (np.zeros((U.shape[0], 0)), np.zeros(0))
         past = [k for k, lam in enumerate(lams_e) if top * (1 + 1e-12) < lam <= factors[-1] * top * (1 + 1e-9)]
         points += [EvaluationPoint({"load_factor": float(lams_e[k])}, Ue[:, k],
@@ -185,7 +188,7 @@ def _positions(scene, case, spec, training_spec):
     lattice = lattice_positions(scene, training_spec.get("positions", 5))
     points, first = [], None
     for s in _held_out(lattice, spec.get("held_out")):
-        ref, _ = positional_reference(scene, s, training_spec, case["backend"])
+        ref, _ = positional_reference(scene, s, training_spec, case.backend)
         U, lams = reference_states(ref)
         d = float(np.min(np.abs(lattice - s)))
         first = first or {"ref": ref, "scene": positional_scene(scene, s, training_spec)}
@@ -212,7 +215,7 @@ def _trajectory_run(scene, spec: dict):
 
 def _trajectory(scene, case, spec):
     run = _trajectory_run(scene, spec)
-    ref, _ = cached_solve(run, case["backend"])
+    ref, _ = cached_solve(run, case.backend)
     n = len(ref.steps)
     U = ref.displacement.reshape(n, -1)
     # the model is driven by the load factor: the run's loads are load_scale times the training's
@@ -245,7 +248,7 @@ def _map(scene, case, spec):
     points, first = [], None
     for mu in spec.get("mus", []):
         s = scene.at(mu)
-        ref, _ = cached_solve(s, case["backend"])
+        ref, _ = cached_solve(s, case.backend)
         U, lams = reference_states(ref)
         first = first or {"ref": ref, "scene": s}
         points.append(EvaluationPoint(model_mu(mu, lams[-1]), U[:, -1], ref.monitors_at("load_factor", lams[-1]),
@@ -253,31 +256,13 @@ def _map(scene, case, spec):
     return Evaluation("map", "index", points, reference_steps=first or {})
 
 
-# the linear FE of each cut length of one strip, solved (and its full step timed) once per
-# process: every unit of a sweep on that strip compares with the same fields (a unit took 25 s
-# of its 50 s re-solving them at paper resolution)
-_CUT_REFERENCES: dict = {}
-
-
 def _cut_lengths(scene, case, spec, model):
     """Per cut length of the model's incision: the linear FE of the same cut mesh (module docstring)."""
-    strip = getattr(model, "strip", None)
-    if strip is None:
+    strip, force = model.incision_strip(), model.contact_force()
+    if strip is None or force is None:
         raise ValueError(f"evaluation.kind = 'cut_lengths' needs a cutting model (one with an incision strip); "
                          f"{model.name!r} has none")
-    lengths = range(strip.max_cut_length + 1)
-    key = (scene.content_hash(), case["backend"], strip.depth_fraction, np.asarray(model.force, float).tobytes(),
-           repr(strip.incision(strip.max_cut_length)), tuple(int(strip.tip(c)) for c in lengths))
-    if key not in _CUT_REFERENCES:
-        solved = []
-        for c in lengths:
-            t0 = time.perf_counter()
-            be = make_backend(case["backend"], cut_problem(scene, strip, c, model.force))
-            u, _ = linear_reference(be)
-            solved.append((u, time.perf_counter() - t0))
-        _CUT_REFERENCES.clear()  # one scene's strip at a time: the units of a sweep come case by case
-        _CUT_REFERENCES[key] = solved
-    solved = _CUT_REFERENCES[key]
+    solved = cut_references(scene, case.backend, strip, force)  # once per process and strip
     points = [EvaluationPoint({"node": int(strip.tip(c)), "cut_length": c}, u, {}, float(c))
               for c, (u, _) in enumerate(solved)]
     full_steps = [t for _, t in solved]
@@ -304,8 +289,7 @@ def contact_scene(scene, node: int):
 
 def _contact_nodes(scene, case, spec, model):
     """Per contact node of the model: the reference path of the intact scene loaded there."""
-    family = getattr(getattr(model, "vademecum", None), "family", None)
-    nodes = getattr(model, "contact_nodes", None) if family is None else family.nodes  # or a baseline's
+    nodes = model.contact_nodes()  # a vademecum's parameter nodes, or a baseline's accessible surface
     if nodes is None:
         raise ValueError(f"evaluation.kind = 'contact_nodes' needs a surface vademecum (pgd, pgd_svk on a 3D "
                          f"scene); {model.name!r} has no contact nodes")
@@ -317,7 +301,7 @@ def _contact_nodes(scene, case, spec, model):
     points, first = [], None
     for node in pick.tolist():
         s = contact_scene(intact, node)
-        ref, _ = cached_solve(s, case["backend"])
+        ref, _ = cached_solve(s, case.backend)
         U, lams = reference_states(ref)
         first = first or {"ref": ref, "scene": s}
         points += [EvaluationPoint({"node": node, "load_factor": float(lam)}, U[:, k],
@@ -326,25 +310,25 @@ def _contact_nodes(scene, case, spec, model):
     return Evaluation("contact_nodes", "load_factor", points, reference_steps=first, info={"nodes": pick.tolist()})
 
 
-def _positions_references(case: dict, scene) -> list:
-    lattice = lattice_positions(scene, case["training"].get("positions", 5))
-    held = (case.get("evaluation") or {}).get("held_out")
-    return [positional_scene(scene, s, case["training"]) for s in _held_out(lattice, held)]
+def _positions_references(case: CaseEntry, scene) -> list:
+    lattice = lattice_positions(scene, case.training.get("positions", 5))
+    held = case.evaluation.get("held_out")
+    return [positional_scene(scene, s, case.training) for s in _held_out(lattice, held)]
 
 
-def _trajectory_references(case: dict, scene) -> list:
-    return [_trajectory_run(scene, case.get("evaluation") or {})]
+def _trajectory_references(case: CaseEntry, scene) -> list:
+    return [_trajectory_run(scene, case.evaluation)]
 
 
-def _map_references(case: dict, scene) -> list:
-    return [scene.at(mu) for mu in (case.get("evaluation") or {}).get("mus", [])]
+def _map_references(case: CaseEntry, scene) -> list:
+    return [scene.at(mu) for mu in case.evaluation.get("mus", [])]
 
 
 #: the evaluation kinds (:class:`~.kinds.Kind`): options, value checks, builder, references read
 EVALUATION_KINDS = {k.name: k for k in (
     Kind("path", frozenset({"every", "beyond", "held_out"}), lambda sc, c, o, m: _path(sc, c, o),
          the_scene, check_path_evaluation),
-    Kind("positions", frozenset({"held_out"}), lambda sc, c, o, m: _positions(sc, c, o, c["training"]),
+    Kind("positions", frozenset({"held_out"}), lambda sc, c, o, m: _positions(sc, c, o, c.training),
          _positions_references, check_positions_evaluation),
     Kind("trajectory", frozenset({"t_end", "load_scale", "from_time"}), lambda sc, c, o, m: _trajectory(sc, c, o),
          _trajectory_references, check_trajectory_evaluation),
@@ -359,21 +343,19 @@ EVALUATION_KINDS = {k.name: k for k in (
 NEEDS_MODEL = tuple(name for name, k in EVALUATION_KINDS.items() if k.needs_model)
 
 
-def evaluation_references(case: dict, scene) -> list:
+def evaluation_references(case: CaseEntry, scene) -> list:
     """The scenes whose reference runs :func:`build_evaluation` reads for ``case``, known from the
     case entry alone, nothing solved (see :func:`~.training.training_references`). Not declared:
     the continuation of a path past its top (``beyond``: its length is the reference's last load
     factor, and it is run only when the path succeeded), the kinds that need the model
     (:data:`NEEDS_MODEL`), a held-out position solved again with more load steps."""
-    kind = (case.get("evaluation") or {}).get("kind", case["training"]["kind"])
-    return EVALUATION_KINDS[kind].references(case, scene)
+    return EVALUATION_KINDS[case.evaluation_kind].references(case, scene)
 
 
-def build_evaluation(case: dict, scene, model=None) -> Evaluation:
+def build_evaluation(case: CaseEntry, scene, model=None) -> Evaluation:
     """The :class:`Evaluation` of a case entry (module docstring); ``model`` for the kinds
     in :data:`NEEDS_MODEL`."""
-    spec = dict(case.get("evaluation") or {})
-    kind = spec.pop("kind", case["training"]["kind"])
+    spec, kind = case.evaluation_options(), case.evaluation_kind
     if kind not in EVALUATION_KINDS:
         raise ValueError(f"evaluation.kind = {kind!r}; valid: {list(EVALUATION_KINDS)}")
     ev = EVALUATION_KINDS[kind].build(scene, case, spec, model)

@@ -34,8 +34,8 @@ import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
-from .reference.cache import cache_url, cached_solve
-from .reference.location import CACHE_ENV, check_cache_url, using_cache
+from ..reference.cache import cache_url, cached_solve
+from ..reference.location import CACHE_ENV, check_cache_url, using_cache
 from .units import failed_outcome, run_unit, unit_references
 
 __all__ = ["EXECUTORS", "execute", "check_executor"]
@@ -177,7 +177,7 @@ def _dask_units(client, units, run, cache, dask_completed):
     for u, refs in declared:  # every reference first: submitted earlier, they run first
         for key, scene in refs.items():
             if key not in references:
-                references[key] = client.submit(reference_task, scene, u.case["backend"], cache,
+                references[key] = client.submit(reference_task, scene, u.case.backend, cache,
                                                 key=f"reference-{key}", pure=False)
 
     def submit(u, key):  # a unit waits for its references' tasks: their futures are its arguments

@@ -35,6 +35,7 @@ import pandas as pd
 
 from ..rom import make_method
 from .ab_ref import code_env
+from .case_entry import CaseEntry
 from .evaluation import NEEDS_MODEL, build_evaluation
 from .protocol import _start, _timing_sequence
 from .spec import expand_units, load_spec
@@ -55,14 +56,16 @@ class PreparedUnit:
     stop_on_failure: bool  # a trajectory cannot go on past a failed step
 
 
-def prepare_unit(case: dict, method: str, options: dict, steps: int, seed: int = 0) -> PreparedUnit:
+def prepare_unit(case: CaseEntry | dict, method: str, options: dict, steps: int, seed: int = 0) -> PreparedUnit:
     """Build the unit's model and its timing sequence as the sweep does (:func:`.units.run_unit`).
 
     The stable entry point the A/B probe calls into the code under test: keep its signature
-    (the probe falls back to the 0.1 internals for code from before it)."""
+    (the probe falls back to the 0.1 internals for code from before it). ``case``: the entry or
+    its dict form (:meth:`~.case_entry.CaseEntry.as_dict`: what the probe's JSON job carries)."""
+    case = case if isinstance(case, CaseEntry) else CaseEntry.from_dict(case)
     scene = case_scene(case)
     training = build_training(case, scene)
-    needs_model = (case.get("evaluation") or {}).get("kind") in NEEDS_MODEL
+    needs_model = case.evaluation_kind in NEEDS_MODEL
     evaluation = None if needs_model else build_evaluation(case, scene)
     model = make_method(method, **options).build(training)
     if needs_model:
@@ -79,7 +82,7 @@ class ABUnit:
     """One unit to re-time: its identity in the store and what the probe needs to build it."""
 
     uid: str
-    case: dict
+    case: dict  # the entry's dict form (CaseEntry.as_dict): the probe hands it to either side's code
     method: str
     options: dict
     steps: int
@@ -104,8 +107,8 @@ def ab_units(results_dir, rows: pd.DataFrame) -> list[ABUnit]:
             raise ValueError(f"{results_dir}: unit {row['case']} {row['label']} is not in the sweep's spec "
                              f"(_sweep.json spec_text): the store and its spec disagree")
         p = u.protocol
-        out.append(ABUnit(row["unit_key"], u.case, u.method, u.options, int(p["latency_steps"]), int(p["warmup"]),
-                          int(p.get("blas_threads") or 0)))
+        out.append(ABUnit(row["unit_key"], u.case.as_dict(), u.method, u.options, int(p["latency_steps"]),
+                          int(p["warmup"]), int(p.get("blas_threads") or 0)))
     return out
 
 

@@ -29,22 +29,16 @@ For every unit, in one process, one unit at a time, with the BLAS thread count l
 from __future__ import annotations
 
 import time
-from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
 from threadpoolctl import threadpool_info
 
-from ..refsolvers.backends import make_backend
-from ..refsolvers.dynamics import integrate
-from ..refsolvers.line_models import assemble_line_model
-from ..refsolvers.linear_solvers import DirectSolver
-from ..refsolvers.newton import newton_solve
-from .reference import dynamics_system
+from ..reference.step_timing import reference_step_seconds as step_seconds
 from .timing import latency_stats
 
 __all__ = ["Driven", "drive", "time_latency", "calibration_seconds", "reference_step_seconds", "blas_info",
-           "cached_dynamics_system", "HAPTIC_HZ", "DISPLAY_HZ", "DISPLAY_EVERY"]
+           "HAPTIC_HZ", "DISPLAY_HZ", "DISPLAY_EVERY"]
 
 
 @dataclass
@@ -231,86 +225,14 @@ def blas_info() -> dict:
             "blas_threads": max((i["num_threads"] for i in info), default=0)}
 
 
-_REFERENCE_STEP: dict = {}  # (scene hash, backend, samples) -> seconds, measured once per process
-
-
 def reference_step_seconds(evaluation, backend: str = "skfem", samples: int = 3) -> float:
-    """Median wall time [s] of the reference's own step (module docstring, 3), measured once per
-    process and scene; NaN when the evaluation has no reference run to step from."""
+    """Median wall time [s] of the reference's own step (module docstring, 3; measured by
+    :func:`tissuebench.reference.step_timing.reference_step_seconds`, once per process and
+    scene), the evaluation's own when it timed it; NaN when the evaluation has no reference
+    run to step from."""
     if evaluation.reference_step_s is not None:
         return float(evaluation.reference_step_s)
     ctx = evaluation.reference_steps
     if not ctx:
         return float("nan")
-    key = (ctx["scene"].content_hash(), backend, samples)
-    if key not in _REFERENCE_STEP:
-        _REFERENCE_STEP[key] = _reference_step(ctx["ref"], ctx["scene"], backend, samples)
-    return _REFERENCE_STEP[key]
-
-
-def _reference_step(ref, scene, backend, samples) -> float:
-    if ref.plan.analysis == "dynamic":
-        return _dynamic_step(ref, scene, backend, samples)
-    if not scene.is_fe:
-        system = assemble_line_model(scene.line_model())
-        K = system.K[system.free][:, system.free]
-        lu = DirectSolver().factorize(K)
-        f = system.load_vector(1.0)[system.free]
-        return _median_of(lambda: lu.solve(f), samples)
-    be = make_backend(backend, ref.problem)
-    if ref.plan.linear:
-        free = ref.problem.free_dofs
-        lu = DirectSolver().factorize(be.tangent(np.zeros(be.ndof))[free][:, free])
-        f = be.external_force(np.zeros(be.ndof), 1.0)[free]
-        return _median_of(lambda: lu.solve(f), samples)
-    U = ref.displacement.reshape(len(ref.steps), -1)
-    ks = _middle_indices(len(ref.steps) - 1, samples)
-    times = []
-    for k in ks:
-        t0 = time.perf_counter()
-        newton_solve(be, float(ref.steps[k + 1]), u0=U[k], n_increments=1, min_increment=1.0, store_states=False)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times)) if times else float("nan")
-
-
-_SYSTEMS: OrderedDict = OrderedDict()  # (scene hash, backend) -> SecondOrderSystem, the last two
-
-
-def cached_dynamics_system(scene, backend: str = "skfem"):
-    """:func:`~.reference.dynamics_system` of ``scene``, built once per process for the units of
-    a scene (the reference-step timing and the energy drift share it)."""
-    key = (scene.content_hash(), backend)
-    if key not in _SYSTEMS:
-        _SYSTEMS[key] = dynamics_system(scene, backend)
-        while len(_SYSTEMS) > 2:
-            _SYSTEMS.popitem(last=False)
-    return _SYSTEMS[key]
-
-
-def _dynamic_step(ref, scene, backend, samples):
-    system = cached_dynamics_system(scene, backend)
-    n = len(ref.steps)
-    k = n // 2
-    U, V = ref.displacement.reshape(n, -1), ref.velocity.reshape(n, -1)
-    dt = float(scene.analysis["dt"])
-    t0 = float(ref.steps[k])
-    res = integrate(system, U[k], V[k], dt, t0 + samples * dt, method=scene.analysis.get("integrator", "hht"),
-                    t0=t0, **scene.analysis.get("integrator_options", {}))
-    return float(np.median(res.wall_time[1:])) if len(res.wall_time) > 1 else float("nan")
-
-
-def _middle_indices(n, k):
-    """Up to ``k`` consecutive indices in ``range(n)`` around its middle."""
-    if n <= 0:
-        return []
-    start = max(0, n // 2 - k // 2)
-    return list(range(start, min(n, start + k)))
-
-
-def _median_of(fn, samples):
-    times = []
-    for _ in range(max(samples, 1)):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
+    return step_seconds(ctx["ref"], ctx["scene"], backend, samples)

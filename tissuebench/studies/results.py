@@ -378,6 +378,8 @@ _MANIFEST_KEYS = {"spec_name": (_is_str, "a string"), "spec_source": (_is_str, "
                   "machine": (lambda v: isinstance(v, dict), "a table"),
                   "computed": (_is_count, "a count"), "skipped": (_is_count, "a count"),
                   "recomputed": (_is_count, "a count"), "failed": (_is_count, "a count"),
+                  "cache": (lambda v: isinstance(v, str) and bool(v.strip()) and "\x00" not in v,
+                            "a folder path or URL (the sweep's --cache)"),
                   "wall_s": (_is_seconds, "a finite number of seconds >= 0"),
                   "not_applicable": (lambda v: isinstance(v, list) and all(
                       isinstance(e, dict) and all(isinstance(x, str) for x in e.values()) for e in v),

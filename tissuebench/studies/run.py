@@ -22,7 +22,8 @@ from pathlib import Path
 
 
 from ..cases.scene import Scene, load
-from .reference import ReferenceResult, solve
+from ..reference import ReferenceResult, solve
+from ..reference.runner import progress_bar
 
 __all__ = ["run_case", "scene_hash", "progress_bar", "default_out", "safe_name"]
 
@@ -32,27 +33,6 @@ def scene_hash(scene) -> str:
     h = hashlib.sha256(Path(scene.path).read_bytes())
     h.update(f"\0{scene.variant}\0{scene.resolution}".encode())
     return h.hexdigest()
-
-
-def progress_bar(label: str, analysis: str, time_unit: str = "s", file=None, leave: bool = True):
-    """A tqdm bar of a reference run and its ``update(done, total)`` callback.
-
-    The bar counts what the solver reports, in its unit: the load factor reached (statics,
-    ``load factor 0.45/1``) or the time (dynamics, ``t 0.25/5 s``), with the percentage beside
-    and the time left. A solver's last time may pass its end by round-off (k dt > t_end): the
-    bar stops at its total (tqdm would warn "clamping frac to range [0, 1]")."""
-    from tqdm import tqdm
-
-    what = "t {n:.4g}/{total:.4g} " + time_unit if analysis == "dynamic" else "load factor {n:.4g}/{total:.4g}"
-    bar = tqdm(total=1.0, desc=label, file=file, leave=leave, bar_format="{desc}: {percentage:3.0f}%|{bar}| " + what
-               + " [{elapsed}<{remaining}]")
-
-    def update(done, total):
-        total = float(total)
-        bar.total = total
-        bar.n = min(max(float(done), 0.0), total) if total > 0 else float(done)
-        bar.refresh()
-    return bar, update
 
 
 def default_out(scene, backend: str, resolution: str) -> Path:

@@ -31,6 +31,7 @@ from pathlib import Path
 from ..cases.scene import load
 from ..rom import METHODS
 from .applicability import evaluation_why_not, load_scale_why_not, why_not
+from .case_entry import CaseEntry
 from .ladder import RUNG_METHODS
 
 __all__ = ["METHOD_OPTIONS", "scene_cases", "scene_spec_text", "write_scene_spec"]
@@ -134,7 +135,8 @@ def scene_spec_text(scene, scene_name: str, variant: str | None = None,
         for c in cases:
             if c["training"]["kind"] not in cls.training_kinds:
                 continue
-            why = why_not(cls, scene, c["training"]["kind"], fixed) or evaluation_why_not(cls, c, scene)
+            why = why_not(cls, scene, c["training"]["kind"], fixed) or evaluation_why_not(cls, CaseEntry.from_dict(c),
+                                                                                        scene)
             if c["evaluation"]["kind"] in ("cut_lengths", "contact_nodes") and not why:
                 needs = "cut_lengths" if cls.applies.needs_cut else "contact_nodes"
                 why = "" if c["evaluation"]["kind"] == needs else f"measured on {needs}, not here"

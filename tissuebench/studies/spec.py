@@ -56,6 +56,7 @@ from ..choices import BACKEND_NAMES
 from ..cases.schema import c_nonneg, c_pos, c_str, check_table, key_text, value_text
 from ..rom import METHODS, method_class
 from .applicability import evaluation_why_not, why_not
+from .case_entry import CaseEntry, default_evaluation_kind
 from .evaluation import EVALUATION_KINDS
 from .limits import MAX_UNITS, check_option_values, check_protocol
 from .scaling import check_group_name, check_scaling_groups
@@ -97,7 +98,7 @@ class SweepSpec:
     resolution: str
     error_metric: str
     protocol: dict
-    cases: list
+    cases: list  # of CaseEntry, in spec order
     methods: list
     text: str
     source: str
@@ -149,7 +150,7 @@ def _check_case(i, c, resolution, default_resolution, folder: Path | None = None
     _table(f"{path}.training", training, {"kind"} | TRAINING_KINDS[kind].keys)
     evaluation = dict(_table(f"{path}.evaluation", c.get("evaluation", {}), {"kind"} | set().union(
         *(k.keys for k in EVALUATION_KINDS.values()))))
-    ekind = evaluation.setdefault("kind", kind if kind in EVALUATION_KINDS else "map")
+    ekind = evaluation.setdefault("kind", default_evaluation_kind(kind))
     if not isinstance(ekind, str) or ekind not in EVALUATION_KINDS:
         _fail(f"{path}.evaluation.kind", ekind, f"valid: {list(EVALUATION_KINDS)}")
     _table(f"{path}.evaluation", evaluation, {"kind"} | EVALUATION_KINDS[ekind].keys)
@@ -172,6 +173,7 @@ def _check_case(i, c, resolution, default_resolution, folder: Path | None = None
                                              _PAPER_POINT, required=tuple(_PAPER_POINT)) for j, p in enumerate(points)]
     if "scaling_group" in c:  # one scene on several meshes: the cost-versus-size fits (studies/scaling.py)
         entry["scaling_group"] = check_group_name(f"{path}.scaling_group", c["scaling_group"])
+    entry = _named(path, CaseEntry, **entry)
     scene = _named(path, case_scene, entry)  # the scene must load and take the mu (their errors name the key)
     TRAINING_KINDS[kind].check(f"{path}.training", training, scene, None)
     EVALUATION_KINDS[ekind].check(f"{path}.evaluation", evaluation, scene, training)
@@ -185,10 +187,10 @@ def _is_file(name: str) -> bool:
         return False
 
 
-def _named(path, fn, *args):
-    """Call ``fn(*args)``; a ValueError it raises is re-raised prefixed with the spec ``path``."""
+def _named(path, fn, *args, **kwargs):
+    """Call ``fn(*args, **kwargs)``; a ValueError it raises is re-raised prefixed with the spec ``path``."""
     try:
-        return fn(*args)
+        return fn(*args, **kwargs)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
 
@@ -248,27 +250,27 @@ def _check_method(i, m, cases, resolution, max_sets, scenes, skipped):
     else:
         src, opath = m, path
     sets = _option_sets(opath, src, cls, max_sets)
-    ids = [c["id"] for c in cases]
+    ids = [c.id for c in cases]
     wanted = m.get("cases")
     if wanted is None:
-        chosen = [c for c in cases if c["training"]["kind"] in cls.training_kinds]
+        chosen = [c for c in cases if c.training_kind in cls.training_kinds]
         if not chosen:
             _fail(f"{path}.name", name, f"learns from {list(cls.training_kinds)} training sets; no case of the spec "
-                  f"offers one (case trainings: {[c['training']['kind'] for c in cases]})")
+                  f"offers one (case trainings: {[c.training_kind for c in cases]})")
     else:
         if not isinstance(wanted, list) or not wanted:
             _fail(f"{path}.cases", wanted, "expected a non-empty list of case ids")
         for w in wanted:
             if w not in ids:
                 _fail(f"{path}.cases", w, f"not a case id of this spec; valid: {ids}")
-        chosen = [c for c in cases if c["id"] in wanted]
+        chosen = [c for c in cases if c.id in wanted]
         for c in chosen:
-            if c["training"]["kind"] not in cls.training_kinds:
-                _fail(f"{path}.cases", c["id"], f"its training kind {c['training']['kind']!r} is not one method "
+            if c.training_kind not in cls.training_kinds:
+                _fail(f"{path}.cases", c.id, f"its training kind {c.training_kind!r} is not one method "
                       f"{name!r} learns from ({list(cls.training_kinds)})")
     chosen, excluded = _applicable(path, cls, chosen, wanted is not None, sets, scenes, skipped)
     protocol = _table(f"{path}.protocol", m.get("protocol", {}), set(DEFAULT_PROTOCOL))
-    return {"name": name, "cases": [c["id"] for c in chosen], "option_sets": sets, "protocol": protocol,
+    return {"name": name, "cases": [c.id for c in chosen], "option_sets": sets, "protocol": protocol,
             "excluded": excluded}
 
 
@@ -279,22 +281,22 @@ def _applicable(path, cls, chosen, explicit, sets, scenes, skipped):
     ``skipped`` (``{"case", "method", "options", "why"}``, one line each in the CLI)."""
     keep, excluded, reasons = [], [], []
     for c in chosen:
-        scene = scenes[c["id"]]
-        why = why_not(cls, scene, c["training"]["kind"]) or evaluation_why_not(cls, c, scene)
+        scene = scenes[c.id]
+        why = why_not(cls, scene, c.training_kind) or evaluation_why_not(cls, c, scene)
         bad = {} if why else {options_text(o): r for o in sets if (r := cls.why_not(scene, o))}
         if why or len(bad) == len(sets):
             why = why or next(iter(bad.values()))
             if explicit:
-                _fail(f"{path}.cases", c["id"], f"method {cls.name!r} does not apply to this case: {why}")
-            skipped.append({"case": c["id"], "method": cls.name, "options": "", "why": why})
-            reasons.append(f"{c['id']}: {why}")
+                _fail(f"{path}.cases", c.id, f"method {cls.name!r} does not apply to this case: {why}")
+            skipped.append({"case": c.id, "method": cls.name, "options": "", "why": why})
+            reasons.append(f"{c.id}: {why}")
             continue
         for text, r in bad.items():
             if explicit:
-                _fail(f"{path}.cases", c["id"], f"method {cls.name!r} with options {text} does not apply to this "
+                _fail(f"{path}.cases", c.id, f"method {cls.name!r} with options {text} does not apply to this "
                       f"case: {r}")
-            skipped.append({"case": c["id"], "method": cls.name, "options": text, "why": r})
-            excluded.append((c["id"], text))
+            skipped.append({"case": c.id, "method": cls.name, "options": text, "why": r})
+            excluded.append((c.id, text))
         keep.append(c)
     if not keep:
         _fail(f"{path}.name", cls.name, "applies to no case of the spec: " + "; ".join(reasons))
@@ -355,11 +357,11 @@ def load_spec(spec_or_preset, resolution: str | None = None, only: list | None =
     if not isinstance(raw_cases, list) or not raw_cases:
         raise ValueError(f"case: a sweep needs at least one [[case]] ({path})")
     checked = [_check_case(i, c, resolution, res, path.parent) for i, c in enumerate(raw_cases)]
-    cases, scenes = [c for c, _ in checked], {c["id"]: s for c, s in checked}
-    ids = [c["id"] for c in cases]
+    cases, scenes = [c for c, _ in checked], {c.id: s for c, s in checked}
+    ids = [c.id for c in cases]
     if len(set(ids)) != len(ids):
         _fail("case", ids, "case ids must be unique (give `id` to a case listed twice)")
-    check_scaling_groups(cases)
+    check_scaling_groups([c.as_dict() for c in cases])
     raw_methods = raw.get("method", [])
     if not isinstance(raw_methods, list) or not raw_methods:
         raise ValueError(f"method: a sweep needs at least one [[method]] ({path})")
@@ -369,7 +371,7 @@ def load_spec(spec_or_preset, resolution: str | None = None, only: list | None =
         unknown = sorted(set(only) - set(ids)) if isinstance(only, (list, tuple, set)) and only else [only]
         if unknown:
             _fail("--cases", unknown[0], f"not a case id of {path.name}; valid: {ids}")
-        cases = [c for c in cases if c["id"] in only]
+        cases = [c for c in cases if c.id in only]
         skipped = [s for s in skipped if s["case"] in only]
         methods = [{**m, "cases": [c for c in m["cases"] if c in only],
                     "excluded": [e for e in m["excluded"] if e[0] in only]} for m in methods]
@@ -394,8 +396,8 @@ def expand_units(spec: SweepSpec) -> list[WorkUnit]:
     parent once (a grid whose nested option varies fastest would otherwise interleave the
     groups and rebuild their parents unit after unit). A unit planned twice (the same
     ``[[method]]`` listed twice) is kept once. Linear in the number of units."""
-    scene_hashes = {c["id"]: case_scene(c).content_hash() for c in spec.cases}
-    by_id = {c["id"]: c for c in spec.cases}
+    scene_hashes = {c.id: case_scene(c).content_hash() for c in spec.cases}
+    by_id = {c.id: c for c in spec.cases}
     meta = {"name": spec.name, "hash": spec.hash}
     units, seen = [], set()
     for m in spec.methods:

@@ -22,8 +22,8 @@ from pathlib import Path
 import pandas as pd
 
 from .executors import check_executor, execute
-from .reference.cache import PROGRESS_ENV
-from .reference.location import CACHE_ENV, cache_url, check_cache_url
+from ..reference.cache import PROGRESS_ENV
+from ..reference.location import CACHE_ENV, cache_url, check_cache_url
 from .metrics import TOLERANCES, pareto_front
 from .results import ResultsStore, SweepManifestError, read_points, read_sweep_manifest, read_units
 from .spec import SweepSpec, expand_units
@@ -66,7 +66,7 @@ def _plan(units, store, resume, log):
         old = by_identity.get(u.identity)
         if old is not None:
             stale.append((u, old))
-            log(f"{u.case['id']} {u.label}: stored result has another key (code, scene, mesh file, versions or "
+            log(f"{u.case.id} {u.label}: stored result has another key (code, scene, mesh file, versions or "
                 f"protocol changed): recomputed")
         pending.append(u)
     return pending, skipped, stale
@@ -127,13 +127,13 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
             check_same_spec(out, spec, units, store)
         pending, skipped, stale = _plan(units, store, resume, log if progress else (lambda *_: None))
         summary = SweepSummary(out, len(units), skipped=[u.key for u in skipped], recomputed=[u.key for u, _ in stale])
-        store.write_manifest(_manifest(spec, units, executor, "running"))
+        store.write_manifest(_manifest(spec, units, executor, "running", cache=cache))
         state = "failed"
         _execute(spec, pending, skipped, stale, store, summary, (executor, workers, scheduler, cache), progress)
         write_derived(out, spec.error_metric, figures)
         summary.wall_s = time.perf_counter() - t_start
         state = "finished"
-        store.write_manifest(_manifest(spec, units, executor, state, summary))
+        store.write_manifest(_manifest(spec, units, executor, state, summary, cache))
         return summary
     except KeyboardInterrupt:
         state = state and "interrupted"
@@ -144,7 +144,7 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
         elif progress:
             os.environ[PROGRESS_ENV] = previous
         if state in ("failed", "interrupted"):
-            _mark(store, spec, units, executor, state)
+            _mark(store, spec, units, executor, state, cache)
         store.release()
 
 
@@ -157,7 +157,7 @@ def _execute(spec, pending, skipped, stale, store, summary, where, progress):
         for unit, outcome in execute(pending, executor, workers, scheduler, cache=cache):
             store.write_unit(outcome)
             if unit.key in stale_old:
-                store.remove_unit(unit.case["id"], unit.method, stale_old[unit.key])
+                store.remove_unit(unit.case.id, unit.method, stale_old[unit.key])
             summary.computed.append(unit.key)
             if outcome.row.get("unit_status") != "ok":
                 summary.failed.append(unit.key)
@@ -170,19 +170,23 @@ def _execute(spec, pending, skipped, stale, store, summary, where, progress):
             bar.close()
 
 
-def _mark(store, spec, units, executor, state) -> None:
+def _mark(store, spec, units, executor, state, cache=None) -> None:
     """Best effort: record that the sweep stopped (the folder may have turned read-only)."""
     try:
-        store.write_manifest(_manifest(spec, units, executor, state))
+        store.write_manifest(_manifest(spec, units, executor, state, cache=cache))
     except OSError:
         pass
 
 
-def _manifest(spec, units, executor, state, summary=None) -> dict:
+def _manifest(spec, units, executor, state, summary=None, cache=None) -> dict:
+    """``_sweep.json``; ``cache``: the ``--cache`` the sweep was given (``report`` and ``verify``
+    on this folder read their references from it unless told otherwise), absent when none was."""
     data = provenance(spec_name=spec.name, spec_source=spec.source, spec_hash=spec.hash, spec_text=spec.text,
                       resolution=spec.resolution, error_metric=spec.error_metric, executor=executor, state=state,
-                      cases=spec.cases, not_applicable=list(spec.skipped),
-                      units=[{"key": u.key, "case": u.case["id"], "method": u.method, "label": u.label} for u in units])
+                      cases=[c.as_dict() for c in spec.cases], not_applicable=list(spec.skipped),
+                      units=[{"key": u.key, "case": u.case.id, "method": u.method, "label": u.label} for u in units])
+    if cache is not None:
+        data["cache"] = cache
     if summary is not None:
         data.update(computed=len(summary.computed), skipped=len(summary.skipped),
                     recomputed=len(summary.recomputed), failed=len(summary.failed), wall_s=summary.wall_s)
@@ -198,7 +202,7 @@ def _bar(total, initial, enabled):
 
 
 def _line(done, total, unit, row, error_metric="max_rel_l2") -> str:
-    head = f"[{done}/{total}] {unit.case['id']} {unit.label}"
+    head = f"[{done}/{total}] {unit.case.id} {unit.label}"
     if row.get("unit_status") != "ok":
         return f"{head}: FAILED: {row.get('message', '')}"
     error = row.get(error_metric, float("nan"))

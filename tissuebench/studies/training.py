@@ -25,6 +25,8 @@ Reference runs go through the content-hashed cache (:mod:`.reference.cache`).
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..cases import load
@@ -34,21 +36,24 @@ from ..refsolvers.line_models import assemble_line_model
 from ..rom import Training
 from .kinds import Kind, no_references, the_scene
 from .limits import check_nothing, check_path_training, check_positions_training, check_trajectory_training
-from .reference import cached_solve, dynamics_system
+from ..reference import cached_solve, dynamics_system
+
+if TYPE_CHECKING:  # annotations only: case_entry imports this module (through evaluation)
+    from .case_entry import CaseEntry
 
 __all__ = ["TRAINING_KINDS", "case_scene", "build_training", "training_references", "lattice_positions",
            "reference_states", "training_indices"]
 
 
-def case_scene(case: dict):
+def case_scene(case: CaseEntry):
     """The scene of a case entry (``name``, ``variant``, ``resolution``, on the mesh of its
     ``mesh.<resolution>`` builder parameters if any, evaluated at its ``mu``: e.g.
     ``{nu = 0.499}`` trains and measures every method of that case at that parameter)."""
-    scene = load(case["name"], resolution=case["resolution"], variant=case.get("variant"))
-    mesh = case.get("mesh", {}).get(case["resolution"])
+    scene = load(case.name, resolution=case.resolution, variant=case.variant)
+    mesh = case.mesh_at_resolution()
     if mesh:
         scene = scene.with_mesh(mesh)
-    return scene.at(case["mu"]) if case.get("mu") else scene
+    return scene.at(case.mu) if case.mu else scene
 
 
 def reference_states(ref) -> tuple[np.ndarray, np.ndarray]:
@@ -72,14 +77,14 @@ def _outputs(scene, problem) -> dict:
 
 
 def _path(scene, case, spec, info):
-    ref, _ = cached_solve(scene, case["backend"])
+    ref, _ = cached_solve(scene, case.backend)
     # the initial state (load factor 0, at rest) belongs to the path: known exactly for free,
     # it anchors interpolation between the origin and the first converged state
     U = ref.displacement.reshape(len(ref.displacement), -1).T
     lams = np.asarray(ref.steps, float)
     keep = training_indices(len(lams), spec.get("every", 1))
     keep = np.tile(keep, int(spec.get("repeat", 1)))  # a duplicated snapshot set (extremes)
-    be = make_backend(case["backend"], ref.problem)
+    be = make_backend(case.backend, ref.problem)
     return Training(U[:, keep], [{"load_factor": float(lams[k])} for k in keep], be,
                     outputs=_outputs(scene, ref.problem), info={**info, "reference_status": ref.status})
 
@@ -120,14 +125,14 @@ def positional_reference(scene, s, spec, backend):
 def _positions(scene, case, spec, info):
     groups, cols, params, failed, retried = {}, [], [], [], {}
     for s in lattice_positions(scene, spec.get("positions", 5)):
-        ref, finer = positional_reference(scene, s, spec, case["backend"])
+        ref, finer = positional_reference(scene, s, spec, case.backend)
         if finer is not None:
             retried[float(s)] = finer
         if ref.status != "success":  # the other positions still run (and are cached): all failures named
             failed.append(f"position {s:g}: {ref.message}")
             continue
         U, lams = reference_states(ref)
-        be = make_backend(case["backend"], ref.problem)
+        be = make_backend(case.backend, ref.problem)
         groups[float(s)] = Training(U, [{"load_factor": float(x)} for x in lams], be)
         cols.append(U)
         params += [{"position": float(s), "load_factor": float(x)} for x in lams]
@@ -146,7 +151,7 @@ def _trajectory(scene, case, spec, info):
     runs = [{}] + list(spec.get("runs", []))
     cols, vels, params, ids = [], [], [], []
     for k, mu in enumerate(runs):
-        ref, _ = cached_solve(scene.at(mu), case["backend"])
+        ref, _ = cached_solve(scene.at(mu), case.backend)
         if ref.status != "success":
             raise RuntimeError(f"{scene.name}: training run {mu or 'base'} failed: {ref.message}")
         n = len(ref.steps)
@@ -155,8 +160,8 @@ def _trajectory(scene, case, spec, info):
         hist = scene.at(mu).history
         params += [{"time": float(t), "load_factor": float(hist(t))} for t in ref.steps]
         ids += [k] * n
-    system = dynamics_system(scene, case["backend"])
-    backend = make_backend(case["backend"], scene.to_problem()) if scene.is_fe else None
+    system = dynamics_system(scene, case.backend)
+    backend = make_backend(case.backend, scene.to_problem()) if scene.is_fe else None
     return Training(np.hstack(cols), params, backend, free_dofs=np.asarray(system.free),
                     velocities=np.hstack(vels), trajectories=np.array(ids), system=system,
                     history=scene.history, dt=float(scene.analysis["dt"]),
@@ -169,19 +174,19 @@ def _operators(scene, case, spec, info):
     info = {**info, "scene": scene}
     if scene.is_fe:
         pb = scene.to_problem()
-        return Training(backend=make_backend(case["backend"], pb), outputs=_outputs(scene, pb), info=info)
+        return Training(backend=make_backend(case.backend, pb), outputs=_outputs(scene, pb), info=info)
     if scene.analysis["type"] == "dynamic":
         return Training(system=dynamics_system(scene), info=info)
     return Training(system=assemble_line_model(scene.line_model()), info=info)
 
 
-def _positions_references(case: dict, scene) -> list:
-    spec = case["training"]
+def _positions_references(case: CaseEntry, scene) -> list:
+    spec = case.training
     return [positional_scene(scene, s, spec) for s in lattice_positions(scene, spec.get("positions", 5))]
 
 
-def _trajectory_references(case: dict, scene) -> list:
-    return [scene.at(mu) for mu in [{}] + list(case["training"].get("runs", []))]
+def _trajectory_references(case: CaseEntry, scene) -> list:
+    return [scene.at(mu) for mu in [{}] + list(case.training.get("runs", []))]
 
 
 #: the training kinds (:class:`~.kinds.Kind`): options, value checks, builder, references read
@@ -195,22 +200,21 @@ TRAINING_KINDS = {k.name: k for k in (
 )}
 
 
-def training_references(case: dict, scene=None) -> list:
+def training_references(case: CaseEntry, scene=None) -> list:
     """The scenes whose reference runs :func:`build_training` reads for ``case`` (on its
-    ``case["backend"]``), known from the case entry alone, nothing solved: the dask executor
+    ``case.backend``), known from the case entry alone, nothing solved: the dask executor
     computes each as a task the unit waits for. Not declared: a stored position solved again
     with more load steps (:func:`positional_reference`: only when the first run stalled)."""
     scene = scene or case_scene(case)
-    return TRAINING_KINDS[case["training"]["kind"]].references(case, scene)
+    return TRAINING_KINDS[case.training_kind].references(case, scene)
 
 
-def build_training(case: dict, scene=None) -> Training:
+def build_training(case: CaseEntry, scene=None) -> Training:
     """The :class:`~tissuebench.rom.Training` of a case entry (module docstring)."""
     scene = scene or case_scene(case)
-    spec = dict(case["training"])
-    kind = spec.pop("kind")
+    spec, kind = case.training_options(), case.training_kind
     # the scene travels with every training: the practitioner baselines (rom.fe_baselines) rebuild it
     # on a coarser mesh and read its integrator
     info = {"case": scene.name, "variant": scene.variant, "resolution": scene.resolution,
-            "backend": case["backend"], "training_kind": kind, "scene_hash": scene.content_hash(), "scene": scene}
+            "backend": case.backend, "training_kind": kind, "scene_hash": scene.content_hash(), "scene": scene}
     return TRAINING_KINDS[kind].build(scene, case, spec, info)

@@ -5,7 +5,7 @@ The sweep harness builds its trajectory trainings from the cached reference runs
 any step, horizon or integrator (the direct integrator's studies and tests).
 
 :func:`reference_run` integrates a scene's semi-discrete system exactly as the reference
-runner does (same system, mass, integrator and options as ``studies.reference.solve``) but keeps
+runner does (same system, mass, integrator and options as ``reference.solve``) but keeps
 every step's displacement *and velocity*; :func:`trajectory_training` wraps it in a
 :class:`~tissuebench.rom.base.Training` of kind "trajectory" (snapshots, velocities,
 ``{"time", "load_factor"}`` per column, the system, the load history, ``dt``) with the
@@ -21,7 +21,8 @@ from ..cases import load as load_scene
 from ..refsolvers import make_backend
 from ..refsolvers.dynamics import SecondOrderSystem, integrate
 from ..refsolvers.line_models import assemble_line_model
-from .reference.plan import plan_for
+from ..reference.line import line_monitor_fn
+from ..reference.plan import plan_for
 from ..rom.base import Training
 
 __all__ = ["SceneSystem", "output_functionals", "reference_run", "scene_system", "trajectory_training"]
@@ -64,8 +65,6 @@ def scene_system(case, resolution: str = "ci", variant: str | None = None, backe
         system = SecondOrderSystem.from_backend(be, scene.history, lumped=plan.mass == "lumped",
                                                 linear=plan.linear)
         return SceneSystem(scene, system, scene.history, be, lambda u: scene.evaluate_monitors(pb, u), 3)
-    from .reference.line import line_monitor_fn
-
     ls = assemble_line_model(scene.line_model())
     M = ls.M_lumped if plan.mass == "lumped" else ls.M
     system = SecondOrderSystem.linear_system(M, ls.K, ls.load_vector, free=ls.free)

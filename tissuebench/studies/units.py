@@ -25,13 +25,13 @@ from threadpoolctl import threadpool_limits
 
 from ..rom import make_method, method_class
 from .applicability import evaluation_why_not, why_not
+from .case_entry import CaseEntry
 from .energy import EnergyDrift, model_drift
 from .evaluation import NEEDS_MODEL, build_evaluation, evaluation_references
 from .metrics import output_rows, point_rows, seen_points, summarise_points
-from .protocol import (_timing_sequence, blas_info, cached_dynamics_system, calibration_seconds, drive,
-                       reference_step_seconds, time_latency)
+from .protocol import _timing_sequence, blas_info, calibration_seconds, drive, reference_step_seconds, time_latency
 from .atomic_folders import code_hash, git_commit, package_versions
-from .reference import reference_key
+from ..reference import cached_dynamics_system, reference_key
 from .training import build_training, case_scene, training_references
 
 __all__ = ["WorkUnit", "UnitOutcome", "unit_key", "options_text", "run_unit", "failed_outcome", "unit_references",
@@ -45,9 +45,10 @@ def options_text(options: dict) -> str:
     return json.dumps(options, sort_keys=True, separators=(",", ":"))
 
 
-def unit_key(case: dict, scene_hash: str, method: str, options: dict, protocol: dict) -> str:
-    """SHA-256 identifying a unit's result (module docstring)."""
-    content = {"case": case, "scene": scene_hash, "method": method, "options": options, "protocol": protocol,
+def unit_key(case: CaseEntry, scene_hash: str, method: str, options: dict, protocol: dict) -> str:
+    """SHA-256 identifying a unit's result (module docstring); the case entry enters in its dict
+    form (:meth:`~.case_entry.CaseEntry.as_dict`)."""
+    content = {"case": case.as_dict(), "scene": scene_hash, "method": method, "options": options, "protocol": protocol,
                "code": code_hash(), "versions": package_versions()}
     return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()
 
@@ -56,7 +57,7 @@ def unit_key(case: dict, scene_hash: str, method: str, options: dict, protocol: 
 class WorkUnit:
     """One (case entry, method, options) of a sweep, with its protocol and key."""
 
-    case: dict
+    case: CaseEntry
     method: str
     options: dict
     protocol: dict
@@ -72,7 +73,7 @@ class WorkUnit:
     @property
     def identity(self) -> tuple:
         """What the unit measures, whatever the code version: (case id, method, options)."""
-        return self.case["id"], self.method, options_text(self.options)
+        return self.case.id, self.method, options_text(self.options)
 
 
 @dataclass
@@ -102,8 +103,8 @@ def _nbytes(obj, seen=None, depth=0) -> int:
 
 def _base_row(unit: WorkUnit) -> dict:
     c = unit.case
-    return {"unit_key": unit.key, "case": c["id"], "case_name": c["name"], "variant": c.get("variant") or "",
-            "resolution": c["resolution"], "backend": c["backend"], "method": unit.method,
+    return {"unit_key": unit.key, "case": c.id, "case_name": c.name, "variant": c.variant or "",
+            "resolution": c.resolution, "backend": c.backend, "method": unit.method,
             "kind": method_class(unit.method).kind, "options": options_text(unit.options), "label": unit.label,
             "spec_name": unit.spec["name"], "spec_hash": unit.spec["hash"]}
 
@@ -150,7 +151,7 @@ def unit_references(unit: WorkUnit) -> dict:
     try:
         scene = case_scene(unit.case)
         scenes = training_references(unit.case, scene) + evaluation_references(unit.case, scene)
-        return {reference_key(s, unit.case["backend"]): s for s in scenes}
+        return {reference_key(s, unit.case.backend): s for s in scenes}
     except Exception:  # noqa: BLE001 - reported by the unit's run, which meets the same error
         return {}
 
@@ -165,12 +166,12 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
     scene = case_scene(unit.case)
     # checked at spec load; again here, so that a unit built another way never returns a model's
     # training answer at a parameter it does not read as an ok result
-    refusal = why_not(unit.method, scene, unit.case["training"]["kind"], unit.options) or evaluation_why_not(
+    refusal = why_not(unit.method, scene, unit.case.training_kind, unit.options) or evaluation_why_not(
         unit.method, unit.case, scene)
     if refusal:
-        raise ValueError(f"{unit.method} does not apply to case {unit.case['id']!r}: {refusal}")
+        raise ValueError(f"{unit.method} does not apply to case {unit.case.id!r}: {refusal}")
     training = build_training(unit.case, scene)
-    needs_model = unit.case["evaluation"].get("kind") in NEEDS_MODEL
+    needs_model = unit.case.evaluation_kind in NEEDS_MODEL
     evaluation = None if needs_model else build_evaluation(unit.case, scene)
     model, offline, peak = _build(unit, training)
     if needs_model:
@@ -179,14 +180,14 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
         model.attach_outputs(training.outputs)
     history = evaluation.history or training.history or (scene.history if evaluation.kind == "trajectory" else None)
     driven = drive(model, evaluation, history)
-    energy, histories = _energy_drift(evaluation, driven, unit.case["backend"])
+    energy, histories = _energy_drift(evaluation, driven, unit.case.backend)
     points = pd.DataFrame(point_rows(evaluation, driven, seen_points(evaluation, training.snapshots))).assign(
         **histories)
     outputs = pd.DataFrame(output_rows(evaluation, driven), columns=["point", "x", "monitor", "reference", "rom",
                                                                        "rel_error"])
     lat = time_latency(model, evaluation, history, int(p["latency_steps"]), int(p["warmup"]), int(p["seed"]))
     notes, label = _asked_versus_done(unit, model, evaluation, history, training.info)
-    ref_step = reference_step_seconds(evaluation, unit.case["backend"], int(p["reference_samples"]))
+    ref_step = reference_step_seconds(evaluation, unit.case.backend, int(p["reference_samples"]))
     calib = calibration_seconds()
     h, r = lat["haptic"], lat["reconstruct"]
     n_dof = len(evaluation.points[0].reference) if evaluation.points and evaluation.points[0].reference is not None \
@@ -284,16 +285,16 @@ def _build(unit: WorkUnit, training):
     parent_opts = unit.parent_options
     if not parent_opts or parent_opts == unit.options:
         return _timed_build(unit.method, unit.options, training)
-    key = (unit.case["id"], training.info.get("scene_hash"), unit.method, options_text(parent_opts))
+    key = (unit.case.id, training.info.get("scene_hash"), unit.method, options_text(parent_opts))
     if key not in _PARENTS:
         _PARENTS[key] = _timed_build(unit.method, parent_opts, training)
         while len(_PARENTS) > 2:
             _PARENTS.popitem(last=False)
     parent, seconds, peak = _PARENTS[key]
-    if not hasattr(parent, "variant"):
-        return _timed_build(unit.method, unit.options, training)
     t0 = time.perf_counter()
-    model = parent.variant(**unit.options)
+    model = parent.variant(**unit.options)  # OnlineModel.variant: None where the model cannot be sliced
+    if model is None:
+        return _timed_build(unit.method, unit.options, training)
     model.info = {**getattr(model, "info", {}), "sliced_from": parent_opts}
     return model, seconds + time.perf_counter() - t0, peak
 

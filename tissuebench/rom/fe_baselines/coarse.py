@@ -274,7 +274,7 @@ class CoarseFe(RomMethod):
             if atol is not None:
                 opts["atol"] = info["newton_atol"] = atol
             model = NewtonPathModel(self.name, loaded, fmap, info, opts, contact)
-        model.contact_nodes = contact_nodes_of(scene, fine) if contact else None
+        model.accessible_nodes = contact_nodes_of(scene, fine) if contact else None
         return model
 
 

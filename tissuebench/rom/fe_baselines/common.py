@@ -165,10 +165,16 @@ class FeModel(OnlineModel):
     prescribed motion); else they are the prescribed values at ``mu["load_factor"]``."""
 
     kind = "map"
+    #: the accessible contact nodes (:func:`contact_nodes_of`) when the build found a single point
+    #: load to move over them, else None: what :meth:`contact_nodes` answers
+    accessible_nodes: np.ndarray | None = None
 
     def __init__(self, name: str, fmap: FieldMap, info: dict):
         self.name, self.fmap, self.info = name, fmap, dict(info)
         self.ndof = fmap.ndof
+
+    def contact_nodes(self) -> np.ndarray | None:
+        return self.accessible_nodes
 
     @property
     def n_reduced(self) -> int:

@@ -94,5 +94,5 @@ class CorotationalFe(RomMethod):
         info["linear_solver"] = opts["linear_solver"]
         contact = _contact_of(be.problem)
         model = NewtonPathModel(self.name, be, fmap, info, opts, contact)
-        model.contact_nodes = contact_nodes_of(scene, be.problem) if contact else None
+        model.accessible_nodes = contact_nodes_of(scene, be.problem) if contact else None
         return model

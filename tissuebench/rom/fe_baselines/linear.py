@@ -217,7 +217,7 @@ class LinearFe(RomMethod):
             return TrajectoryModel(self.name, system, integ, fmap, info, history)
         contact = _contact_of(be.problem)
         model = linear_static_model(self.name, be, fmap, info, self.condensed, contact)
-        model.contact_nodes = contact_nodes_of(scene, be.problem) if contact and not self.condensed else None
+        model.accessible_nodes = contact_nodes_of(scene, be.problem) if contact and not self.condensed else None
         return model
 
 

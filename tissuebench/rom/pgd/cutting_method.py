@@ -85,6 +85,17 @@ class CuttingModel(OnlineModel):
     def n_reduced(self) -> int:
         return self.r + 3 * int(self.strip.n_enriched[self._c])
 
+    # ------------------------------------------------------------------ hooks of the harness (base.py)
+    def contact_nodes(self) -> np.ndarray | None:
+        """The accessible strip's nodes (the vademecum's parameter nodes)."""
+        return self.vademecum.family.nodes
+
+    def incision_strip(self):
+        return self.strip
+
+    def contact_force(self) -> np.ndarray:
+        return self.force
+
     @property
     def envelope(self) -> dict:
         return {"position": (0, self.vademecum.family.n_parameters - 1), "cut_length": (0, self.strip.max_cut_length)}

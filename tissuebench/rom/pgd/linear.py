@@ -101,6 +101,10 @@ class PgdModel(LinearReconstruction, OnlineModel):
     def n_reduced(self) -> int:
         return self.basis.shape[1]
 
+    def contact_nodes(self) -> np.ndarray | None:
+        """The surface family's parameter nodes (None for a line family)."""
+        return self.vademecum.family.nodes
+
     @property
     def envelope(self) -> dict:
         fam = self.vademecum.family

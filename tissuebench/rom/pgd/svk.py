@@ -90,6 +90,10 @@ class PgdSvkModel(LinearReconstruction, OnlineModel):
     def n_reduced(self) -> int:
         return self.basis.shape[1]
 
+    def contact_nodes(self) -> np.ndarray | None:
+        """The surface family's parameter nodes: where the contact is placed."""
+        return self.vademecum.family.nodes
+
     @property
     def envelope(self) -> dict:
         return {"position": (0, self.vademecum.family.n_parameters - 1)}

@@ -1,6 +1,6 @@
 """Reference runs of the 1D scenes (poisson1d, frame2dof, hermite_beam).
 
-Called by :func:`tissuebench.studies.reference.solve`; assembles the
+Called by :func:`tissuebench.reference.solve`; assembles the
 :class:`~.line_models.LineSystem` of the scene once and either solves it at the static
 load factors or integrates it in time with the scene's integrator (explicit schemes get
 the lumped mass).
@@ -12,8 +12,8 @@ import time
 import numpy as np
 import pandas as pd
 
-from ...refsolvers.dynamics import SecondOrderSystem, integrate
-from ...refsolvers.line_models import assemble_line_model, solve_static
+from ..refsolvers.dynamics import SecondOrderSystem, integrate
+from ..refsolvers.line_models import assemble_line_model, solve_static
 from .result import dynamics_output
 
 __all__ = ["solve_line", "line_monitor_fn", "line_dynamics_system"]

@@ -14,17 +14,17 @@ import time
 import numpy as np
 import pandas as pd
 
-from ...cases.scene import Scene, load
-from ...refsolvers.backends import make_backend
-from ...refsolvers.dynamics import SecondOrderSystem, integrate
-from ...refsolvers.mixed import static_run
-from ...refsolvers.sparse_direct import factorized
-from ...refsolvers.newton import NewtonOptions, newton_solve
+from ..cases.scene import Scene, load
+from ..refsolvers.backends import make_backend
+from ..refsolvers.dynamics import SecondOrderSystem, integrate
+from ..refsolvers.mixed import static_run
+from ..refsolvers.sparse_direct import factorized
+from ..refsolvers.newton import NewtonOptions, newton_solve
 from .line import line_dynamics_system, solve_line
 from .plan import plan_for
 from .result import ReferenceResult, dynamics_output
 
-__all__ = ["ReferenceResult", "solve", "dynamics_system"]
+__all__ = ["ReferenceResult", "solve", "dynamics_system", "progress_bar"]
 
 
 def _scene_of(case, resolution, variant):
@@ -69,6 +69,27 @@ def solve(case, backend: str = "skfem", resolution: str = "ci", variant: str | N
             **out.pop("info", {})}
     return ReferenceResult(case=scene.name, variant=scene.variant, resolution=scene.resolution,
                            backend=backend_name, plan=plan, wall_s=time.perf_counter() - t0, info=info, **out)
+
+
+def progress_bar(label: str, analysis: str, time_unit: str = "s", file=None, leave: bool = True):
+    """A tqdm bar of a reference run and its ``update(done, total)`` callback.
+
+    The bar counts what the solver reports, in its unit: the load factor reached (statics,
+    ``load factor 0.45/1``) or the time (dynamics, ``t 0.25/5 s``), with the percentage beside
+    and the time left. A solver's last time may pass its end by round-off (k dt > t_end): the
+    bar stops at its total (tqdm would warn "clamping frac to range [0, 1]")."""
+    from tqdm import tqdm
+
+    what = "t {n:.4g}/{total:.4g} " + time_unit if analysis == "dynamic" else "load factor {n:.4g}/{total:.4g}"
+    bar = tqdm(total=1.0, desc=label, file=file, leave=leave, bar_format="{desc}: {percentage:3.0f}%|{bar}| " + what
+               + " [{elapsed}<{remaining}]")
+
+    def update(done, total):
+        total = float(total)
+        bar.total = total
+        bar.n = min(max(float(done), 0.0), total) if total > 0 else float(done)
+        bar.refresh()
+    return bar, update
 
 
 # ============================================================================ FE statics

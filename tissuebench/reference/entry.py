@@ -15,7 +15,7 @@ import json
 
 import numpy as np
 
-from ...cases.schema import is_num
+from ..cases.schema import is_num
 from .location import as_buffer
 
 __all__ = ["FILES", "STATUSES", "EntryUnreadable", "meta_checksum", "check_meta", "read_files", "arrays_of"]

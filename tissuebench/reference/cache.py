@@ -4,7 +4,7 @@ A reference run is computed once and reused by every sweep unit and every later 
 key is the SHA-256 of everything that changes it: the scene's content
 (:meth:`~tissuebench.cases.scene.Scene.content`, with ``mu`` and the mesh files' hashes),
 the backend, the solver settings, the package versions and the source hash of the code
-that computes it (``refsolvers``, ``cases``, ``studies/reference``).
+that computes it (``refsolvers``, ``cases``, ``reference``).
 
 An entry is a folder ``<cache>/references/<key>/`` holding ``fields.npz`` (steps, points,
 cells, displacement, velocity), ``table.parquet`` (one row per load increment or time step)
@@ -38,13 +38,13 @@ import warnings
 import numpy as np
 import pandas as pd
 
-from ..atomic_folders import code_hash, package_versions
 from .entry import FILES, EntryUnreadable, arrays_of, check_meta, read_files
 from .entry import meta_checksum as _meta_checksum  # the tests reseal entries with it
 from .location import CACHE_ENV, as_buffer, cache_url, open_cache
 from .plan import ModelPlan
+from .provenance import code_hash, package_versions
 from .result import ReferenceResult
-from .runner import solve
+from .runner import progress_bar, solve
 
 __all__ = ["CACHE_ENV", "cache_url", "reference_key", "cached_solve", "cached_table", "list_entries",
            "clear", "stray_items", "PROGRESS_ENV"]
@@ -63,7 +63,7 @@ def reference_key(scene, backend: str = "skfem", linear_solver: str = "auto") ->
     content = {"scene": scene.content(), "backend": backend if scene.is_fe else "line",
                "solver": {"linear_solver": linear_solver},
                "versions": {k: versions.get(k) for k in _PACKAGES},
-               "code": code_hash("refsolvers", "cases", "studies/reference")}
+               "code": code_hash("refsolvers", "cases", "reference")}
     return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -189,8 +189,6 @@ def cached_solve(scene, backend: str = "skfem", linear_solver: str = "auto", pro
 def _reference_bar(scene, backend):
     """A bar naming the reference being computed: its case, variant, parameters and backend
     (``reference kidney [load_steps=20] skfem: 45%|... load factor 0.9/2 [00:41<00:50]``)."""
-    from ..run import progress_bar
-
     mu = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in sorted(scene.mu.items()))
     label = f"reference {scene.name}" + (f" [{scene.variant}]" if scene.variant else "") + (f" ({mu})" if mu else "")
     return progress_bar(f"{label} {backend if scene.is_fe else 'line'}", scene.analysis["type"],
