@@ -475,7 +475,9 @@ class RomMethod(ABC):
     """The offline phase: options in the constructor, :meth:`build` from a :class:`Training`.
 
     Class attributes: ``name`` (registry key), ``kind`` (of the online model), ``nested``
-    (options a sweep may slice from one build of their largest value, e.g. ``n_modes``),
+    (options a sweep slices from one build of their largest value, e.g. ``n_modes``: declared
+    only by a method whose model's :meth:`OnlineModel.variant` slices them, which the contract
+    test checks; a method that cannot slice declares none, so no parent is built for nothing),
     ``training_kinds`` (the training sets it can learn from: "path", "positions",
     "trajectory", "operators"), ``applies`` (:class:`Applies`: what it needs of a scene and
     the parameters its step reads; checked before any work).

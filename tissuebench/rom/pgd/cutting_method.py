@@ -261,7 +261,6 @@ class PgdCutting(RomMethod):
 
     name = "pgd_cutting"
     kind = "map"
-    nested = ("n_modes",)
     training_kinds = ("operators",)
     applies = Applies(point_load=True, homogeneous_dirichlet=True, needs_cut=True, mesh_builders=("cornea_dome",),
                       linear_model=True)  # mu: node and cut_length (evaluation cut_lengths), not Scene.at keys

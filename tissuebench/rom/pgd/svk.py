@@ -43,7 +43,6 @@ class PgdSvk(RomMethod):
 
     name = "pgd_svk"
     kind = "map"
-    nested = ("n_modes",)
     training_kinds = ("operators",)
     applies = Applies(materials=POLYNOMIAL_MATERIALS, dead_loads=True, point_load=True, homogeneous_dirichlet=True,
                       mesh_builders=("cornea_dome",))  # mu: node / accessible-node index, not a Scene.at key
