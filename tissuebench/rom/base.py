@@ -135,6 +135,11 @@ class Training:
         Load factor versus time ``history(t)`` of the training runs (dynamics).
     dt : float, optional
         Time step of the training runs [s].
+    scene : Scene, optional
+        The validated scene (:class:`~tissuebench.cases.scene.Scene`) the training comes from,
+        for methods that build from the scene itself: the PGD vademecums (geometry, ``[cut]``,
+        ``[methods.*]``) and the practitioner baselines (a coarser mesh, the integrator). The
+        harness always passes it; read it with :func:`~.training_scene.scene_of`.
     info : dict
         Provenance (case, backend, resolution ...).
     """
@@ -150,6 +155,7 @@ class Training:
     system: Any = None
     history: Any = None
     dt: float | None = None
+    scene: Any = None
     info: dict = field(default_factory=dict)
 
     def __post_init__(self):

@@ -310,7 +310,7 @@ class PgdCutting(RomMethod):
         info = dict(training.info or {})
         if self.accessible == "strip":
             info["accessible_nodes"] = st.accessible
-        fam = family_from_training(Training(backend=be, info=info), self.name)
+        fam = family_from_training(Training(backend=be, scene=training.scene, info=info), self.name)
         vad = build_vademecum(fam, self.n_modes, self.tol, self.max_fixed_point, self.fixed_point_tol, self.seed)
         F_cut = self.F_cut or float(scene.paper.get("methods", {}).get("pgd_cutting", {}).get("F_cut_N", 3.0))
         enr = enrichment_operators(scene, be, st)

@@ -65,7 +65,7 @@ class PgdSvk(RomMethod):
             raise ValueError(f"{self.name}: needs a finite-element scene, {scene.name!r} is {scene.model!r}")
         be = uncut_backend(training, scene, self.name)
         check_polynomial_problem(be.problem, self.name)
-        fam = family_from_training(Training(backend=be, info=training.info), self.name)
+        fam = family_from_training(Training(backend=be, scene=training.scene, info=training.info), self.name)
         vad = build_vademecum(fam, self.n_modes, self.tol, self.max_fixed_point, self.fixed_point_tol, self.seed)
         Q, _ = np.linalg.qr(vad.X)
         poly = reduced_polynomial(be, Q, fam.free_dofs)
