@@ -289,7 +289,7 @@ def _manifest_consumers(root, manifest, everything):
 
 
 def _manifest_example(handmade, data):
-    from tissuebench.studies.results import read_sweep_manifest
+    from tissuebench.studies.sweep_manifest import read_sweep_manifest
 
     root, seed = handmade
     path = root / "_sweep.json"

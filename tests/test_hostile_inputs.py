@@ -12,8 +12,8 @@ import pytest
 from _report_store import build_store
 from tissuebench.cli import main
 from tissuebench.reports.html import write_report
-from tissuebench.studies.results import (StoreError, SweepManifestError, foreign_files, read_points,
-                                         read_sweep_manifest, read_units)
+from tissuebench.studies.results import StoreError, foreign_files, read_points, read_units
+from tissuebench.studies.sweep_manifest import SweepManifestError, read_sweep_manifest
 from tissuebench.studies.spec import expand_units, load_spec
 from tissuebench.studies.sweep import run_sweep
 

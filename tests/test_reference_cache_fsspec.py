@@ -277,7 +277,7 @@ def test_report_and_verify_read_the_cache_the_sweep_was_given(monkeypatch, capsy
     damaged record is refused naming the key."""
     from tissuebench.cli import main
     from tissuebench.reference.location import cache_url
-    from tissuebench.studies.results import SweepManifestError, read_sweep_manifest
+    from tissuebench.studies.sweep_manifest import SweepManifestError, read_sweep_manifest
     from tissuebench.studies.spec import load_spec
     from tissuebench.studies.sweep import run_sweep
 

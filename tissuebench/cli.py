@@ -530,7 +530,7 @@ def _cache_of(args):
     folder was given (recorded in ``_sweep.json``), else None (``$TISSUEBENCH_CACHE`` or the default)."""
     if args.cache is not None or getattr(args, "results", None) is None:
         return args.cache
-    from .studies.results import read_sweep_manifest
+    from .studies.sweep_manifest import read_sweep_manifest
 
     recorded = read_sweep_manifest(args.results, missing_ok=True).get("cache")
     if recorded is not None:

@@ -9,7 +9,7 @@ Verification section shows the table (:mod:`.report_sections`).
 from __future__ import annotations
 
 from ..reference.backend_comparison import RTOL, backend_agreement
-from ..studies.results import SweepManifestError, read_sweep_manifest
+from ..studies.sweep_manifest import SweepManifestError, read_sweep_manifest
 from ..studies.case_entry import CaseEntry
 from ..studies.training import case_scene
 
