@@ -29,7 +29,8 @@ from tissuebench.cases.scene import CATALOGUE_DIR, load
 from tissuebench.cli import main
 from tissuebench.refsolvers.mesh import Mesh
 from tissuebench.reports.run_files import write_result
-from tissuebench.studies.run import default_out, progress_bar, run_case, safe_name
+from tissuebench.reference.runner import progress_bar
+from tissuebench.studies.run import default_out, run_case, safe_name
 from tissuebench.studies.atomic_folders import clean_leftovers
 
 ROOT = Path(__file__).resolve().parents[1]

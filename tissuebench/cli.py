@@ -439,7 +439,8 @@ def _verify(args) -> int:
 
 def _verify_backends(results) -> int:
     """Backend agreement of every scene of the sweep in ``results``; the number that disagree."""
-    from .reports.backends import backend_agreement, scenes_of_results
+    from .reference.backend_comparison import backend_agreement
+    from .reports.backends import scenes_of_results
     from .studies.results import write_table
 
     table = backend_agreement(scenes_of_results(results), progress=lambda c: print(f"verify: {c} on both backends",
