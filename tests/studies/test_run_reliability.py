@@ -33,7 +33,7 @@ from tissuebench.reference.runner import progress_bar
 from tissuebench.studies.run import default_out, run_case, safe_name
 from tissuebench.studies.atomic_folders import clean_leftovers
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def scene_copy(tmp_path, case, replace=(), name=None):

@@ -23,7 +23,7 @@ from tissuebench.studies.training import build_training, case_scene
 
 from test_mesh_file_scene import scene_file, write_block
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "bring_your_own_organ"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "bring_your_own_organ"
 
 
 def _case(scene_path, evaluation, training=None):

@@ -19,7 +19,7 @@ from _report_store import build_store
 from tissuebench.cli import _parser, main
 from tissuebench.studies.sweep_manifest import read_sweep_manifest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SUBCOMMANDS = ["run", "cases", "sweep", "study", "cache", "report", "check", "verify", "describe", "scene", "methods"]
 
 ONE = """

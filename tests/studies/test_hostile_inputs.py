@@ -1,6 +1,6 @@
 """Issue 26: the defects found by hostile input in the sweep spec, the store, the manifest and the
 report's output, each with the test that failed on 415936c (the CLI contract is in
-tests/test_cli_contract.py, the cache in tests/test_reference_cache.py)."""
+tests/cli/test_cli_contract.py, the cache in tests/reference/test_reference_cache.py)."""
 from __future__ import annotations
 
 import shutil

@@ -1,6 +1,6 @@
 """The reference cache on an fsspec file system (issue 30, ``--cache URL``): on ``memory://`` and
 ``file://`` an entry is written, read back, and refused when damaged, with the same checks as on a
-local folder (tests/test_reference_cache.py); a URL fsspec cannot open is a clear ValueError."""
+local folder (tests/reference/test_reference_cache.py); a URL fsspec cannot open is a clear ValueError."""
 from __future__ import annotations
 
 import hashlib

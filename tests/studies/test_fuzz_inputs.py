@@ -322,7 +322,7 @@ def test_sweep_manifest_is_accepted_or_refused_naming_the_file_2000(handmade, da
 def _baseline_seed():
     import tomllib
 
-    doc = tomllib.loads((Path(__file__).resolve().parents[1] / "baselines" / "ci.toml").read_text())
+    doc = tomllib.loads((Path(__file__).resolve().parents[2] / "baselines" / "ci.toml").read_text())
     return {"defaults": doc["defaults"], "unit": doc["unit"][:3]}
 
 

@@ -21,7 +21,7 @@ from tissuebench.studies.spec import expand_units, list_presets, load_spec
 from tissuebench.reports.derived_figures import draw_derived
 from tissuebench.studies.sweep import run_sweep
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 # what differs between two runs of the same unit: timings, their ratios, dates, memory
 VOLATILE = {"haptic_median_s", "haptic_p99_s", "reconstruct_median_s", "reconstruct_p99_s", "reference_step_s",
             "speedup", "calibration_s", "haptic_per_calibration", "floor_s", "efficiency", "offline_s",
@@ -140,7 +140,7 @@ def test_case_mesh_overrides_the_builder_parameters_at_its_resolution(tmp_path):
 
 def test_example_sweep_specs_load_and_expand():
     """The sweep specs shipped in examples/sweeps (run by hand, quoted in the notes) stay valid."""
-    specs = sorted((Path(__file__).parents[1] / "examples" / "sweeps").glob("*.toml"))
+    specs = sorted((Path(__file__).parents[2] / "examples" / "sweeps").glob("*.toml"))
     assert specs
     for path in specs:
         units = expand_units(load_spec(str(path)))
