@@ -122,12 +122,17 @@ def test_3_the_unit_count_is_refused_before_the_grid_expands(tmp_path):
 
 def test_3_expansion_is_linear_4000_units_in_well_under_a_second(tmp_path):
     """4000 units load and expand in 0.4 s (1.2 s at a load average of 10; 57 s on 415936c, whose
-    expansion was quadratic); 4x the units take less than 8x the time (quadratic: 16x)."""
+    expansion was quadratic); 4x the units take less than 8x the time (quadratic: 16x). Each size
+    is the best of 3 runs: the minimum is what the code costs, the rest is the machine's load (a
+    single run failed the ratio at 10x beside a loaded test run)."""
     def timed(n_modes):
         path = _grid(tmp_path, n_modes, 2)
-        t0 = time.perf_counter()
-        units = expand_units(load_spec(path))
-        return time.perf_counter() - t0, units, path
+        best = float("inf")
+        for _ in range(3):
+            t0 = time.perf_counter()
+            units = expand_units(load_spec(path))
+            best = min(best, time.perf_counter() - t0)
+        return best, units, path
 
     small, _, _ = timed(500)
     seconds, units, path = timed(2000)
