@@ -21,7 +21,7 @@ def reference_cache(tmp_path_factory):
     os.environ.pop("TISSUEBENCH_CACHE", None)
 
 
-# Property-based fuzzing (tests/test_fuzz_inputs.py): seeded (derandomized) profiles, no
+# Property-based fuzzing (tests/studies/test_fuzz_inputs.py): seeded (derandomized) profiles, no
 # example database. ``ci`` is the default; ``pytest --hypothesis-profile=fuzz`` runs 5x more.
 from hypothesis import HealthCheck, settings  # noqa: E402
 

@@ -439,7 +439,8 @@ def _verify(args) -> int:
 
 def _verify_backends(results) -> int:
     """Backend agreement of every scene of the sweep in ``results``; the number that disagree."""
-    from .reports.backends import backend_agreement, scenes_of_results
+    from .reference.backend_comparison import backend_agreement
+    from .reports.backends import scenes_of_results
     from .studies.results import write_table
 
     table = backend_agreement(scenes_of_results(results), progress=lambda c: print(f"verify: {c} on both backends",
@@ -530,7 +531,7 @@ def _cache_of(args):
     folder was given (recorded in ``_sweep.json``), else None (``$TISSUEBENCH_CACHE`` or the default)."""
     if args.cache is not None or getattr(args, "results", None) is None:
         return args.cache
-    from .studies.results import read_sweep_manifest
+    from .studies.sweep_manifest import read_sweep_manifest
 
     recorded = read_sweep_manifest(args.results, missing_ok=True).get("cache")
     if recorded is not None:

@@ -3,7 +3,7 @@
     python docs/studies/cluster_throughput.py [--workers 1,2] [--repeats 3] [--warm]
 
 The sweep is ``cluster_throughput.toml`` beside this file (the 12 units of the kill soak,
-tests/test_cluster_soak.py: the ci cube bar pulled 30 %, POD family and the practitioner
+tests/studies/test_cluster_soak.py: the ci cube bar pulled 30 %, POD family and the practitioner
 baselines). Per worker count a LocalCluster of that many single-threaded worker processes is
 started and its workers import tissuebench before the clock starts (``startup_s`` is reported
 apart); then the sweep runs on it into a fresh results folder with a fresh reference cache

@@ -81,7 +81,7 @@ def test_gate_power(tmp_path):
         pytest.skip(f"no git history to take REF from: {why}")
     if "TISSUEBENCH_GATE_POWER_RUNS" not in os.environ:  # minutes of A/B: a measurement, not a CI test
         pytest.skip("the gate's power benchmark runs with TISSUEBENCH_GATE_POWER_RUNS=N (tox -e gate-power); "
-                    "CI keeps the mechanism by tests/test_check_ab.py (synthetic power, 2x end to end)")
+                    "CI keeps the mechanism by tests/studies/test_check_ab.py (synthetic power, 2x end to end)")
     runs = int(os.environ["TISSUEBENCH_GATE_POWER_RUNS"])
     spec = tmp_path / "power.toml"
     spec.write_text(SPEC)

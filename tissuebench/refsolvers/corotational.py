@@ -18,7 +18,7 @@ collisions", SIGGRAPH, eq. 2-4)::
          = 2 mu (F - R) + lambda (tr S - 3) R,
 
 ``sigma(e) = lambda tr(e) I + 2 mu e`` the linear stress, because ``sigma(S - I) S`` is
-symmetric (the terms of dR/dx drop out; ``tests/test_corotational.py`` checks the element
+symmetric (the terms of dR/dx drop out; ``tests/refsolvers/test_corotational.py`` checks the element
 force against ``R K_e (R^T x - X)`` on random tetrahedra). :class:`Corotational` is that
 material, so the rotation is per quadrature point: per element on P1 tetrahedra (the
 SOFA/Vega method), per Gauss point on Q1 hexahedra (SOFA's hexahedra take one rotation per

@@ -8,12 +8,11 @@ Verification section shows the table (:mod:`.report_sections`).
 """
 from __future__ import annotations
 
-from ..reference.backend_comparison import RTOL, backend_agreement
-from ..studies.results import SweepManifestError, read_sweep_manifest
+from ..studies.sweep_manifest import SweepManifestError, read_sweep_manifest
 from ..studies.case_entry import CaseEntry
 from ..studies.training import case_scene
 
-__all__ = ["RTOL", "backend_agreement", "scenes_of_results"]  # RTOL, backend_agreement: the reference layer's
+__all__ = ["scenes_of_results"]
 
 
 def scenes_of_results(results) -> list:

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..studies.results import read_latency, read_outputs, read_points, read_sweep_manifest
+from ..studies.results import read_latency, read_outputs, read_points
+from ..studies.sweep_manifest import read_sweep_manifest
 from ..studies.scaling import scaling_points
 from ..studies.sweep import paper_points
 from .ladder import plot_ladder

@@ -30,7 +30,7 @@ import jinja2
 import numpy as np
 import pandas as pd
 
-from ..studies.atomic_folders import git_commit, package_versions
+from ..reference.provenance import git_commit, package_versions
 from .extremes import extremes_table
 from .format import seconds
 from .ladder import ladder_section, versus_baselines

@@ -4,7 +4,7 @@ tables, the manifest and the optional anchors table.
 Nothing here writes or computes anything expensive: a missing derived table is recomputed
 from the unit rows (:func:`~tissuebench.studies.metrics.pareto_front`), a missing manifest
 gives the error metric ``max_rel_l2`` and empty provenance, both said in ``notes``. A damaged
-manifest is refused (:func:`~tissuebench.studies.results.read_sweep_manifest`); files that are
+manifest is refused (:func:`~tissuebench.studies.sweep_manifest.read_sweep_manifest`); files that are
 not part of the store (a foreign Parquet file ...) are ignored and named in ``notes``.
 """
 from __future__ import annotations
@@ -15,7 +15,8 @@ from pathlib import Path
 import pandas as pd
 
 from ..studies.metrics import pareto_front
-from ..studies.results import read_outputs, read_points, read_sweep_manifest, read_units
+from ..studies.results import read_outputs, read_points, read_units
+from ..studies.sweep_manifest import read_sweep_manifest
 
 __all__ = ["ReportData", "load_results", "ANCHOR_COLUMNS"]
 

@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from ..cases import load
+from ..reference.backend_comparison import RTOL
 from .extremes import ENERGY_DRIFT_TOL
 from .format import hz, nbytes, number, percent, seconds
 from .recommend import rank_units
@@ -178,8 +179,6 @@ def _monitor_diff(r) -> str:
 
 
 def backends_table(name: str, agreement: pd.DataFrame) -> dict:
-    from .backends import RTOL
-
     rows = [[str(r.case), f"{r.scene} {r.variant}".strip(), _count(r.ndof) if np.isfinite(r.ndof) else "-",
              f"{r.skfem_status} / {r.ngsolve_status}" if isinstance(r.skfem_status, str) else "-",
              number(r.field_rel_diff, 2),

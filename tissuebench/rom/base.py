@@ -135,6 +135,11 @@ class Training:
         Load factor versus time ``history(t)`` of the training runs (dynamics).
     dt : float, optional
         Time step of the training runs [s].
+    scene : Scene, optional
+        The validated scene (:class:`~tissuebench.cases.scene.Scene`) the training comes from,
+        for methods that build from the scene itself: the PGD vademecums (geometry, ``[cut]``,
+        ``[methods.*]``) and the practitioner baselines (a coarser mesh, the integrator). The
+        harness always passes it; read it with :func:`~.training_scene.scene_of`.
     info : dict
         Provenance (case, backend, resolution ...).
     """
@@ -150,6 +155,7 @@ class Training:
     system: Any = None
     history: Any = None
     dt: float | None = None
+    scene: Any = None
     info: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -475,7 +481,9 @@ class RomMethod(ABC):
     """The offline phase: options in the constructor, :meth:`build` from a :class:`Training`.
 
     Class attributes: ``name`` (registry key), ``kind`` (of the online model), ``nested``
-    (options a sweep may slice from one build of their largest value, e.g. ``n_modes``),
+    (options a sweep slices from one build of their largest value, e.g. ``n_modes``: declared
+    only by a method whose model's :meth:`OnlineModel.variant` slices them, which the contract
+    test checks; a method that cannot slice declares none, so no parent is built for nothing),
     ``training_kinds`` (the training sets it can learn from: "path", "positions",
     "trajectory", "operators"), ``applies`` (:class:`Applies`: what it needs of a scene and
     the parameters its step reads; checked before any work).

@@ -157,7 +157,6 @@ class PodInterp(RomMethod):
 
     name = "pod_interp"
     kind = "map"
-    nested = ("n_modes",)
     training_kinds = ("path", "positions")
     applies = Applies(models=("fe", "poisson1d", "frame2dof", "hermite_beam"), parameters={"positions": ("position",)})
 

@@ -20,7 +20,7 @@ up to order). Averaging a mode with its sign-flipped neighbour cancels it. Two a
 keeps the mode-by-mode meaning of PODI; ``"procrustes"`` (``R = argmin ||A_k R - A_ref||_F``)
 pairs principal vectors instead, which for two neighbours puts PODI + QR on the Grassmann
 geodesic (same subspaces, another speed, equal at the midpoint). On a cantilever with a
-moving point load (tests/test_rom_interpolation.py) "modes" projected ~20 % better than the
+moving point load (tests/rom/test_rom_interpolation.py) "modes" projected ~20 % better than the
 geodesic with 3 modes but ~5 % worse with 2 or 4; its real advantage is that reduced
 coordinates stay meaningful across neighbours (the paper's exp form rotates them).
 """

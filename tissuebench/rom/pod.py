@@ -155,7 +155,6 @@ class _PodStatic(RomMethod):
     POD's input as it stands.
     """
 
-    nested = ("n_modes",)
     training_kinds = ("path",)
 
     def __init__(self, n_modes: int | None = None, energy: float = 0.999, inner: str = "euclidean"):

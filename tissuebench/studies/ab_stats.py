@@ -27,7 +27,7 @@ the geometric midpoint between no change and the tolerance, ``sqrt(tolerance)`` 
   and says it was undecided. Judging by the estimate alone flagged identical code: in CI (main
   17841ea against its parent, which differ in a test file only) units ended undecided with
   estimates 1.35 and 1.60 and intervals [0.747, 1.683] and [0.738, 1.696], readable as 25 %
-  faster as well as 60 % slower. On the synthetic noise models of ``tests/test_check_ab.py``
+  faster as well as 60 % slower. On the synthetic noise models of ``tests/studies/test_check_ab.py``
   the undecided 1.3x slowdowns have lower ends 0.82-0.94 (1 in 100 would be lost) and no
   identical run is flagged.
 

@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from ..reference.provenance import code_hash, git_commit, package_versions  # re-exported: results record them
+from ..reference.provenance import code_hash, git_commit, package_versions
 
 
 def check_output_location(out: Path, overwrite: bool = False) -> None:

@@ -20,15 +20,14 @@ count as finished.
 Everything read back is validated like user input: :func:`read_units` and the side-table
 readers read only files at their place in the layout whose columns and types are the
 schema's (a foreign or damaged Parquet file, or any other file, is named and ignored, or
-refused with ``foreign="raise"``: :class:`StoreError`), and :func:`read_sweep_manifest`
-checks ``_sweep.json`` (:class:`SweepManifestError` names the file and the key).
+refused with ``foreign="raise"``: :class:`StoreError`), and :func:`~.sweep_manifest.read_sweep_manifest`
+checks ``_sweep.json`` (:class:`~.sweep_manifest.SweepManifestError` names the file and the key).
 """
 from __future__ import annotations
 
 import json
 import os
 import platform
-import re
 import warnings
 from pathlib import Path
 from urllib.parse import unquote
@@ -37,17 +36,15 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from ..cases.schema import is_num
-from ..choices import RESOLUTIONS
-from .schema import LATENCY_COLUMNS, OUTPUT_COLUMNS, POINT_COLUMNS, UNIT_COLUMNS, conform
+from .schema import LATENCY_COLUMNS, OUTPUT_COLUMNS, POINT_COLUMNS, SAFE_NAME, UNIT_COLUMNS, conform
+from .sweep_manifest import MANIFEST, SweepManifestError, read_sweep_manifest
 from .atomic_folders import process_alive, write_json_atomic
 
-__all__ = ["ResultsStore", "SweepLocked", "StoreError", "SweepManifestError", "read_units", "read_points",
-           "read_outputs", "read_latency", "read_sweep_manifest", "foreign_files", "MANIFEST", "MANIFEST_STATES"]
+__all__ = ["ResultsStore", "SweepLocked", "StoreError", "read_units", "read_points", "read_outputs", "read_latency",
+           "foreign_files"]
 
 _SIDE_TABLES = ("_points", "_outputs", "_latency")
 
-_SAFE = re.compile(r"[A-Za-z0-9_.-]+")
 
 
 class SweepLocked(RuntimeError):
@@ -55,7 +52,7 @@ class SweepLocked(RuntimeError):
 
 
 def _safe(name: str, what: str) -> str:
-    if not _SAFE.fullmatch(name) or name in (".", ".."):
+    if not SAFE_NAME.fullmatch(name) or name in (".", ".."):
         raise ValueError(f"{what} = {name!r}: only letters, digits, '_', '.', '-' may name a results partition")
     return name
 
@@ -158,7 +155,7 @@ class ResultsStore:
             (base / rel).unlink(missing_ok=True)
 
     def write_manifest(self, data: dict) -> None:
-        write_json_atomic(self.root / "_sweep.json", data)
+        write_json_atomic(self.root / MANIFEST, data)
 
 
 def _read_lock(lock: Path) -> dict | None:
@@ -172,7 +169,6 @@ class StoreError(ValueError):
     """A file of a results folder that is not what the store wrote there (the message names it)."""
 
 
-_KEY = re.compile(r"[0-9a-f]{64}")
 _DATASETS = {"": UNIT_COLUMNS, "_points": POINT_COLUMNS, "_outputs": OUTPUT_COLUMNS, "_latency": LATENCY_COLUMNS}
 # files of a results folder's top level that are not unit rows (written by sweep, verify, report)
 _KNOWN_TOP = {"_sweep.json", ".lock", "_anchors.parquet", "_backends.parquet"}
@@ -201,7 +197,7 @@ def _scan(root: Path, dataset: str) -> tuple[list, list]:
             parts = path.relative_to(base).parts
             if (len(parts) == 3 and parts[0].startswith("case=") and len(parts[0]) > 5
                     and parts[1].startswith("method=") and len(parts[1]) > 7
-                    and name.endswith(".parquet") and _SAFE.fullmatch(name[:-8])):
+                    and name.endswith(".parquet") and SAFE_NAME.fullmatch(name[:-8])):
                 files.append(path)
             else:
                 foreign.append((path, "not at a place of the store's layout case=<id>/method=<name>/<key>.parquet"))
@@ -340,123 +336,3 @@ def read_latency(root, foreign="warn") -> pd.DataFrame:
     """The timed haptic steps of every unit (``LATENCY_COLUMNS``; empty for a folder written
     before they were stored)."""
     return _read_dataset(Path(root), "_latency", foreign)
-
-
-# ------------------------------------------------------------------------------ _sweep.json
-MANIFEST = "_sweep.json"
-MANIFEST_STATES = ("running", "finished", "failed", "interrupted")
-_MAX_MANIFEST_BYTES = 64 << 20
-
-
-class SweepManifestError(ValueError):
-    """A ``_sweep.json`` that is not what a sweep writes (the message names the file and the key)."""
-
-
-def _is_str(v):
-    return isinstance(v, str)
-
-
-def _is_count(v):
-    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
-
-
-def _is_seconds(v):
-    return is_num(v) and v >= 0  # is_num: not a bool, finite, no integer beyond the float range
-
-
-def _is_hash(v):
-    return isinstance(v, str) and _KEY.fullmatch(v) is not None
-
-
-_MANIFEST_KEYS = {"spec_name": (_is_str, "a string"), "spec_source": (_is_str, "a string"),
-                  "spec_hash": (_is_hash, "64 hexadecimal digits"), "spec_text": (_is_str, "a string"),
-                  "resolution": (lambda v: v in RESOLUTIONS, f"one of {list(RESOLUTIONS)}"),
-                  "executor": (_is_str, "a string"),
-                  "state": (lambda v: v in MANIFEST_STATES, f"one of {MANIFEST_STATES}"),
-                  "git_commit": (_is_str, "a string"), "code_hash": (_is_str, "a string"),
-                  "date": (_is_str, "a string"), "versions": (lambda v: isinstance(v, dict), "a table"),
-                  "machine": (lambda v: isinstance(v, dict), "a table"),
-                  "computed": (_is_count, "a count"), "skipped": (_is_count, "a count"),
-                  "recomputed": (_is_count, "a count"), "failed": (_is_count, "a count"),
-                  "cache": (lambda v: isinstance(v, str) and bool(v.strip()) and "\x00" not in v,
-                            "a folder path or URL (the sweep's --cache)"),
-                  "wall_s": (_is_seconds, "a finite number of seconds >= 0"),
-                  "not_applicable": (lambda v: isinstance(v, list) and all(
-                      isinstance(e, dict) and all(isinstance(x, str) for x in e.values()) for e in v),
-                      "a list of tables of strings {case, method, options, why}")}
-_CASE_KEYS = {"id": _is_str, "name": _is_str, "resolution": lambda v: v in RESOLUTIONS, "backend": _is_str,
-              "variant": lambda v: v is None or isinstance(v, str), "training": lambda v: isinstance(v, dict),
-              "evaluation": lambda v: isinstance(v, dict), "mu": lambda v: isinstance(v, dict),
-              "mesh": lambda v: isinstance(v, dict), "paper_points": lambda v: isinstance(v, list),
-              "scaling_group": _is_str}
-_POINT_KEYS = {"label": _is_str, "step_ms": _is_seconds, "error": _is_seconds}
-_UNIT_KEYS = {"key": lambda v: isinstance(v, str) and _SAFE.fullmatch(v) is not None, "case": _is_str,
-              "method": _is_str, "label": _is_str}
-
-
-def _manifest_fail(path, key, value, what):
-    shown = repr(value)
-    shown = shown if len(shown) <= 80 else shown[:77] + "..."
-    raise SweepManifestError(f"{path}: {key} = {shown}: expected {what}")
-
-
-def _check_entries(path, key, value, schema, required):
-    if not isinstance(value, list):
-        _manifest_fail(path, key, value, "a list of tables")
-    for i, entry in enumerate(value):
-        if not isinstance(entry, dict):
-            _manifest_fail(path, f"{key}[{i}]", entry, "a table")
-        for k in required:
-            if k not in entry:
-                raise SweepManifestError(f"{path}: {key}[{i}].{k}: missing")
-        for k, ok in schema.items():
-            if k in entry and not ok(entry[k]):
-                _manifest_fail(path, f"{key}[{i}].{k}", entry[k], "another value (the sweep writes it)")
-        if key == "cases" and "paper_points" in entry:
-            _check_entries(path, f"{key}[{i}].paper_points", entry["paper_points"], _POINT_KEYS, tuple(_POINT_KEYS))
-
-
-def read_sweep_manifest(results_dir, missing_ok: bool = False) -> dict:
-    """The validated ``_sweep.json`` of a results folder.
-
-    Raises :class:`SweepManifestError` (a ValueError) naming the file and the key when it is
-    not a JSON object, truncated or invalid JSON, has an ``error_metric`` that is not one of
-    the error columns of the store schema (:data:`~.spec.ERROR_METRICS`), or a value of
-    another type than the sweep writes. A missing file is an error too, or ``{}`` with
-    ``missing_ok``. ``error_metric`` is filled in (``max_rel_l2``) when absent.
-    """
-    from .spec import ERROR_METRICS
-
-    path = Path(results_dir) / MANIFEST
-    try:
-        size = path.stat().st_size
-        if size > _MAX_MANIFEST_BYTES:
-            raise SweepManifestError(f"{path}: {size} bytes; a sweep manifest is at most {_MAX_MANIFEST_BYTES}")
-        text = path.read_bytes().decode("utf-8")
-    except FileNotFoundError:
-        if missing_ok:
-            return {}
-        raise SweepManifestError(f"{path}: missing (not a folder written by `tissuebench sweep`)") from None
-    except UnicodeDecodeError as exc:
-        raise SweepManifestError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
-    except OSError as exc:
-        raise SweepManifestError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    try:
-        data = json.loads(text)
-    except ValueError as exc:
-        raise SweepManifestError(f"{path}: not valid JSON (truncated or damaged): {exc}") from None
-    except RecursionError:
-        raise SweepManifestError(f"{path}: not valid JSON (nested too deeply)") from None
-    if not isinstance(data, dict):
-        raise SweepManifestError(f"{path}: expected a JSON object, found {type(data).__name__}")
-    metric = data.setdefault("error_metric", "max_rel_l2")
-    if not isinstance(metric, str) or metric not in ERROR_METRICS or UNIT_COLUMNS.get(metric) != pa.float64():
-        _manifest_fail(path, "error_metric", metric, f"one of the error columns {list(ERROR_METRICS)}")
-    for key, (ok, what) in _MANIFEST_KEYS.items():
-        if key in data and not ok(data[key]):
-            _manifest_fail(path, key, data[key], what)
-    if "cases" in data:
-        _check_entries(path, "cases", data["cases"], _CASE_KEYS, ("id",))
-    if "units" in data:
-        _check_entries(path, "units", data["units"], _UNIT_KEYS, tuple(_UNIT_KEYS))
-    return data

@@ -25,7 +25,7 @@ from ..cases.scene import Scene, load
 from ..reference import ReferenceResult, solve
 from ..reference.runner import progress_bar
 
-__all__ = ["run_case", "scene_hash", "progress_bar", "default_out", "safe_name"]
+__all__ = ["run_case", "scene_hash", "default_out", "safe_name"]
 
 
 def scene_hash(scene) -> str:

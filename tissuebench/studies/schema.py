@@ -9,12 +9,17 @@ exactly its schema, so the datasets read back with one set of columns and types.
 """
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pandas as pd
 import pyarrow as pa
 
 __all__ = ["UNIT_COLUMNS", "POINT_COLUMNS", "OUTPUT_COLUMNS", "LATENCY_COLUMNS", "PARTITIONS", "arrow_schema",
            "conform"]
+
+#: a file or folder name the store writes (case ids, method names, unit keys): no path separator
+SAFE_NAME = re.compile(r"[A-Za-z0-9_.-]+")
 
 PARTITIONS = ("case", "method")
 

@@ -25,7 +25,8 @@ from .executors import check_executor, execute
 from ..reference.cache import PROGRESS_ENV
 from ..reference.location import CACHE_ENV, cache_url, check_cache_url
 from .metrics import TOLERANCES, pareto_front
-from .results import ResultsStore, SweepManifestError, read_points, read_sweep_manifest, read_units
+from .results import ResultsStore, read_points, read_units
+from .sweep_manifest import SweepManifestError, read_sweep_manifest
 from .spec import SweepSpec, expand_units
 from .atomic_folders import _writable, check_output_location, provenance
 

@@ -17,7 +17,7 @@ A case entry of a sweep spec names what its methods learn from (``training``) wi
                 load history and dt; ``runs = [{load_scale = 0.5}, ...]`` adds runs of
                 the scene at other parameters (one trajectory id per run).
 ``operators``   no snapshots: the backend (FE), or the assembled 1D model (its dynamics
-                system for a dynamic scene), and the scene in ``info["scene"]``, for methods
+                system for a dynamic scene), and the scene (``Training.scene``, on every training), for methods
                 that build from operators (PGD).
 
 Every training carries the scene's linear output functionals (``Training.outputs``).
@@ -169,9 +169,6 @@ def _trajectory(scene, case, spec, info):
 
 
 def _operators(scene, case, spec, info):
-    # the scene itself travels with the operators: a method that builds from them (PGD) reads
-    # its geometry ([cut], the accessible surface, the 1D model's parameters)
-    info = {**info, "scene": scene}
     if scene.is_fe:
         pb = scene.to_problem()
         return Training(backend=make_backend(case.backend, pb), outputs=_outputs(scene, pb), info=info)
@@ -213,8 +210,10 @@ def build_training(case: CaseEntry, scene=None) -> Training:
     """The :class:`~tissuebench.rom.Training` of a case entry (module docstring)."""
     scene = scene or case_scene(case)
     spec, kind = case.training_options(), case.training_kind
-    # the scene travels with every training: the practitioner baselines (rom.fe_baselines) rebuild it
-    # on a coarser mesh and read its integrator
     info = {"case": scene.name, "variant": scene.variant, "resolution": scene.resolution,
-            "backend": case.backend, "training_kind": kind, "scene_hash": scene.content_hash(), "scene": scene}
-    return TRAINING_KINDS[kind].build(scene, case, spec, info)
+            "backend": case.backend, "training_kind": kind, "scene_hash": scene.content_hash()}
+    training = TRAINING_KINDS[kind].build(scene, case, spec, info)
+    # the scene travels with every training (Training.scene): PGD builds from its geometry, the
+    # practitioner baselines (rom.fe_baselines) rebuild it on a coarser mesh and read its integrator
+    training.scene = scene
+    return training

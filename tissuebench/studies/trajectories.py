@@ -134,7 +134,7 @@ def trajectory_training(case, resolution: str = "ci", variant: str | None = None
     return Training(snapshots=res.u.T.copy(), parameters=params, backend=ss.backend,
                     free_dofs=np.asarray(ss.system.free), outputs=output_functionals(ss),
                     trajectories=np.zeros(len(t), dtype=np.int64), velocities=res.v.T.copy(), system=ss.system,
-                    history=ss.history, dt=float(res.dt),
+                    history=ss.history, dt=float(res.dt), scene=ss.scene,
                     info={"case": ss.scene.name, "variant": ss.scene.variant, "resolution": ss.scene.resolution,
                           "integrator": res.method, "options": res.options, "status": res.status,
                           "n_comp": ss.n_comp})

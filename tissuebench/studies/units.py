@@ -30,7 +30,7 @@ from .energy import EnergyDrift, model_drift
 from .evaluation import NEEDS_MODEL, build_evaluation, evaluation_references
 from .metrics import output_rows, point_rows, seen_points, summarise_points
 from .protocol import _timing_sequence, blas_info, calibration_seconds, drive, reference_step_seconds, time_latency
-from .atomic_folders import code_hash, git_commit, package_versions
+from ..reference.provenance import code_hash, git_commit, package_versions
 from ..reference import cached_dynamics_system, reference_key
 from .training import build_training, case_scene, training_references
 

@@ -4,7 +4,7 @@ Independent of the NumPy material kernels of :mod:`~tissuebench.refsolvers.mater
 each strain-energy density W(F) is a CoefficientFunction; ``Variation(W dx)`` gives
 f_int (``Apply``), K_t (``AssembleLinearization``) and the energy (``Energy``).
 
-NGSolve conventions met here (checked by ``tests/test_ngsolve_backend.py``):
+NGSolve conventions met here (checked by ``tests/refsolvers/test_ngsolve_backend.py``):
 
 * Vertex numbers and cell order are kept (``AddPoints``/``AddElements``).
 * Netgen's tetrahedra have the opposite orientation to VTK's: a positive VTK tet

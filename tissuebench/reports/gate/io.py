@@ -16,7 +16,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from ...studies.results import read_sweep_manifest, read_units, write_table
+from ...studies.results import read_units, write_table
+from ...studies.sweep_manifest import read_sweep_manifest
 
 __all__ = ["GateOutputError", "read_gate_results", "write_ab_artifacts", "write_junit"]
 
@@ -28,7 +29,7 @@ class GateOutputError(OSError):
 def read_gate_results(results_dir) -> tuple[dict, str]:
     """``({(case, method, canonical options): unit row}, error metric)`` of a results folder,
     ``error`` set to the sweep's metric. ValueError naming the folder or file when there are
-    no units, the manifest is damaged (:func:`~tissuebench.studies.results.read_sweep_manifest`),
+    no units, the manifest is damaged (:func:`~tissuebench.studies.sweep_manifest.read_sweep_manifest`),
     a file in the store is not one the store wrote (refused, not skipped: a gate must not pass
     on what it could not read), or a unit appears twice."""
     root = Path(results_dir)

@@ -109,7 +109,7 @@ def coarse_problem(problem, coarsening: float):
     """``(problem on its mesh remeshed by gmsh at coarsening x its mean edge length, how)`` for a
     problem without a scene: its Dirichlet sets must select nodes by a callable of the coordinates."""
     if any(not callable(d.nodes) for d in problem.dirichlet):
-        raise ValueError("coarse_fe: without a scene (training.info['scene']) every Dirichlet set must select its "
+        raise ValueError("coarse_fe: without a scene (Training.scene) every Dirichlet set must select its "
                          "nodes by a callable of the coordinates, to be resolved on the coarser mesh")
     if problem.mesh.cell_type != "tetra":
         raise ValueError("coarse_fe: without a scene only a tetrahedral mesh can be coarsened (gmsh remeshing)")

@@ -4,7 +4,7 @@ Each baseline solves a full finite-element problem (the scene's mesh or a coarse
 hands back the field on the scene's own mesh, so it is measured against the reference like
 any ROM. The pieces:
 
-* :func:`scene_of`: the scene of a training (``info["scene"]``, else loaded by name and
+* :func:`scene_of`: the scene of a training (``Training.scene``, else loaded by name and
   checked against ``info["scene_hash"]``), None when the training names none;
 * :func:`intact_backend`: the backend of the scene without its ``[cut]`` (a baseline is not a
   cutting model; on cornea_cut it is the intact organ the PGD vademecums also start from);

@@ -261,7 +261,6 @@ class PgdCutting(RomMethod):
 
     name = "pgd_cutting"
     kind = "map"
-    nested = ("n_modes",)
     training_kinds = ("operators",)
     applies = Applies(point_load=True, homogeneous_dirichlet=True, needs_cut=True, mesh_builders=("cornea_dome",),
                       linear_model=True)  # mu: node and cut_length (evaluation cut_lengths), not Scene.at keys
@@ -311,7 +310,7 @@ class PgdCutting(RomMethod):
         info = dict(training.info or {})
         if self.accessible == "strip":
             info["accessible_nodes"] = st.accessible
-        fam = family_from_training(Training(backend=be, info=info), self.name)
+        fam = family_from_training(Training(backend=be, scene=training.scene, info=info), self.name)
         vad = build_vademecum(fam, self.n_modes, self.tol, self.max_fixed_point, self.fixed_point_tol, self.seed)
         F_cut = self.F_cut or float(scene.paper.get("methods", {}).get("pgd_cutting", {}).get("F_cut_N", 3.0))
         enr = enrichment_operators(scene, be, st)

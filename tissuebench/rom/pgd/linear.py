@@ -52,7 +52,6 @@ class Pgd(RomMethod):
 
     name = "pgd"
     kind = "map"
-    nested = ("n_modes",)
     training_kinds = ("operators",)
     # a 1D point source, or a point load on the anterior surface of a layered shell (cornea_dome)
     applies = Applies(models=("fe", "poisson1d"), point_load=True, homogeneous_dirichlet=True,

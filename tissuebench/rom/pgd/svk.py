@@ -43,7 +43,6 @@ class PgdSvk(RomMethod):
 
     name = "pgd_svk"
     kind = "map"
-    nested = ("n_modes",)
     training_kinds = ("operators",)
     applies = Applies(materials=POLYNOMIAL_MATERIALS, dead_loads=True, point_load=True, homogeneous_dirichlet=True,
                       mesh_builders=("cornea_dome",))  # mu: node / accessible-node index, not a Scene.at key
@@ -66,7 +65,7 @@ class PgdSvk(RomMethod):
             raise ValueError(f"{self.name}: needs a finite-element scene, {scene.name!r} is {scene.model!r}")
         be = uncut_backend(training, scene, self.name)
         check_polynomial_problem(be.problem, self.name)
-        fam = family_from_training(Training(backend=be, info=training.info), self.name)
+        fam = family_from_training(Training(backend=be, scene=training.scene, info=training.info), self.name)
         vad = build_vademecum(fam, self.n_modes, self.tol, self.max_fixed_point, self.fixed_point_tol, self.seed)
         Q, _ = np.linalg.qr(vad.X)
         poly = reduced_polynomial(be, Q, fam.free_dofs)

@@ -8,7 +8,7 @@
   (the vademecum is the response of the intact organ; cuts are enriched online), whose
   linear stiffness ``tangent(0)`` and point-load force vector are used.
 
-``info["scene"]`` carries the scene itself (mesh, ``[cut]``, ``[methods.*]``, model
+``Training.scene`` carries the scene itself (mesh, ``[cut]``, ``[methods.*]``, model
 parameters). :func:`family_from_training` turns such a Training into the
 :class:`~.family.PointLoadFamily` of the vademecum. A Training made by other code may
 instead give ``info["case"]`` (+ ``"resolution"``) and, for FE scenes, optionally
@@ -31,14 +31,14 @@ __all__ = ["pgd_training", "scene_of", "uncut_backend", "family_from_training", 
 
 def pgd_training(scene, backend: str = "skfem") -> Training:
     """The operators Training of ``scene`` (module docstring)."""
-    info = {"scene": scene, "case": scene.name, "resolution": scene.resolution, "training": "operators"}
+    info = {"case": scene.name, "resolution": scene.resolution, "training": "operators"}
     if not scene.is_fe:
-
-        return Training(system=assemble_line_model(scene.line_model()), info=info)
+        return Training(system=assemble_line_model(scene.line_model()), scene=scene, info=info)
 
     uncut = dataclasses.replace(scene, cut=None)
     be = make_backend(backend, uncut.to_problem())
-    return Training(backend=be, free_dofs=np.asarray(be.problem.free_dofs), info={**info, "backend": backend})
+    return Training(backend=be, free_dofs=np.asarray(be.problem.free_dofs), scene=scene,
+                    info={**info, "backend": backend})
 
 
 def scene_of(training: Training, who: str):

@@ -86,7 +86,7 @@ def _path_floor_example():
 
     name = "pgd_cut_path_floor"
     if name not in sys.modules:
-        path = Path(__file__).resolve().parents[1] / "examples" / f"{name}.py"
+        path = Path(__file__).resolve().parents[2] / "examples" / f"{name}.py"
         spec = importlib.util.spec_from_file_location(name, path)
         sys.modules[name] = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(sys.modules[name])

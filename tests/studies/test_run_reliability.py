@@ -29,10 +29,11 @@ from tissuebench.cases.scene import CATALOGUE_DIR, load
 from tissuebench.cli import main
 from tissuebench.refsolvers.mesh import Mesh
 from tissuebench.reports.run_files import write_result
-from tissuebench.studies.run import default_out, progress_bar, run_case, safe_name
+from tissuebench.reference.runner import progress_bar
+from tissuebench.studies.run import default_out, run_case, safe_name
 from tissuebench.studies.atomic_folders import clean_leftovers
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def scene_copy(tmp_path, case, replace=(), name=None):

@@ -1,6 +1,6 @@
 """Issue 26: the defects found by hostile input in the sweep spec, the store, the manifest and the
 report's output, each with the test that failed on 415936c (the CLI contract is in
-tests/test_cli_contract.py, the cache in tests/test_reference_cache.py)."""
+tests/cli/test_cli_contract.py, the cache in tests/reference/test_reference_cache.py)."""
 from __future__ import annotations
 
 import shutil
@@ -12,8 +12,8 @@ import pytest
 from _report_store import build_store
 from tissuebench.cli import main
 from tissuebench.reports.html import write_report
-from tissuebench.studies.results import (StoreError, SweepManifestError, foreign_files, read_points,
-                                         read_sweep_manifest, read_units)
+from tissuebench.studies.results import StoreError, foreign_files, read_points, read_units
+from tissuebench.studies.sweep_manifest import SweepManifestError, read_sweep_manifest
 from tissuebench.studies.spec import expand_units, load_spec
 from tissuebench.studies.sweep import run_sweep
 
@@ -122,12 +122,17 @@ def test_3_the_unit_count_is_refused_before_the_grid_expands(tmp_path):
 
 def test_3_expansion_is_linear_4000_units_in_well_under_a_second(tmp_path):
     """4000 units load and expand in 0.4 s (1.2 s at a load average of 10; 57 s on 415936c, whose
-    expansion was quadratic); 4x the units take less than 8x the time (quadratic: 16x)."""
+    expansion was quadratic); 4x the units take less than 8x the time (quadratic: 16x). Each size
+    is the best of 3 runs: the minimum is what the code costs, the rest is the machine's load (a
+    single run failed the ratio at 10x beside a loaded test run)."""
     def timed(n_modes):
         path = _grid(tmp_path, n_modes, 2)
-        t0 = time.perf_counter()
-        units = expand_units(load_spec(path))
-        return time.perf_counter() - t0, units, path
+        best = float("inf")
+        for _ in range(3):
+            t0 = time.perf_counter()
+            units = expand_units(load_spec(path))
+            best = min(best, time.perf_counter() - t0)
+        return best, units, path
 
     small, _, _ = timed(500)
     seconds, units, path = timed(2000)

@@ -109,7 +109,7 @@ def test_serial_and_processes_keep_their_cache_argument(spec, tmp_path, counted)
 
 
 def _ci_cases():
-    spec = load_spec(Path(__file__).resolve().parents[1] / "tissuebench" / "studies" / "presets" / "ci.toml")
+    spec = load_spec(Path(__file__).resolve().parents[2] / "tissuebench" / "studies" / "presets" / "ci.toml")
     cases = {u.case.id: u.case for u in expand_units(spec)}  # every case of the preset, once
     return [pytest.param(c, id=i) for i, c in cases.items()
             if c.training_kind != "operators" or c.evaluation_kind == "map"]

@@ -143,9 +143,9 @@ def test_bad_input(training, models):
 def _rotated(training, angle):
     import dataclasses
 
-    scene = training.info["scene"]
+    scene = training.scene
     cut = {**scene.cut, "incisions": [{"angle_deg": angle, "radii": RADII}]}
-    return dataclasses.replace(training, info={**training.info, "scene": dataclasses.replace(scene, cut=cut)})
+    return dataclasses.replace(training, scene=dataclasses.replace(scene, cut=cut))
 
 
 def test_condensed_enrichment_leaves_only_the_vademecum_error(scene, models, references):

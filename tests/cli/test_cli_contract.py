@@ -17,8 +17,9 @@ import pytest
 
 from _report_store import build_store
 from tissuebench.cli import _parser, main
+from tissuebench.studies.sweep_manifest import read_sweep_manifest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SUBCOMMANDS = ["run", "cases", "sweep", "study", "cache", "report", "check", "verify", "describe", "scene", "methods"]
 
 ONE = """
@@ -212,7 +213,7 @@ def test_14_a_results_folder_that_turns_read_only_mid_sweep_exits_2_naming_it(fi
     assert f"cannot use {out}" in err and "Permission denied" in err and "resume with" in err
     assert len(list(out.glob("case=*/method=*/*.parquet"))) == 1
     monkeypatch.setattr(results, "_write_table", real)
-    assert results.read_sweep_manifest(out)["state"] == "failed"
+    assert read_sweep_manifest(out)["state"] == "failed"
     assert not (out / ".lock").exists()
     code, err = cli(["sweep", str(spec), "--out", str(out), "--quiet", "--resume"], capsys)
     assert code == 0 and len(list(out.glob("case=*/method=*/*.parquet"))) == 2

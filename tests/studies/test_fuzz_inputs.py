@@ -300,7 +300,7 @@ def _manifest_consumers(root, manifest, everything):
 
 
 def _manifest_example(handmade, data):
-    from tissuebench.studies.results import read_sweep_manifest
+    from tissuebench.studies.sweep_manifest import read_sweep_manifest
 
     root, seed = handmade
     path = root / "_sweep.json"
@@ -333,7 +333,7 @@ def test_sweep_manifest_is_accepted_or_refused_naming_the_file_long(handmade, da
 def _baseline_seed():
     import tomllib
 
-    doc = tomllib.loads((Path(__file__).resolve().parents[1] / "baselines" / "ci.toml").read_text())
+    doc = tomllib.loads((Path(__file__).resolve().parents[2] / "baselines" / "ci.toml").read_text())
     return {"defaults": doc["defaults"], "unit": doc["unit"][:3]}
 
 

@@ -16,7 +16,7 @@ import tissuebench
 from tissuebench.cases import load
 from tissuebench.cases.io import DATA_ENV
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_self_contained_package_is_the_one_under_test():

@@ -16,7 +16,7 @@ from tissuebench.reference.cache import cached_solve, reference_key
 from tissuebench.studies.results import ResultsStore
 from tissuebench.studies.sweep import _plan
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 UNSAFE_MODULES = {"pickle", "cPickle", "_pickle", "dill", "joblib", "shelve", "marshal"}
 
 

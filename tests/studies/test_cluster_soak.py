@@ -31,7 +31,7 @@ from tissuebench.studies.sweep import run_sweep
 
 distributed = pytest.importorskip("distributed")
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SPEC = """
 [sweep]
 name = "soak"
@@ -66,7 +66,7 @@ N_UNITS = 12
 # more kill schedules: TISSUEBENCH_SOAK_SEEDS=0-19 (a soak is as good as the schedules it tried)
 _SEEDS = os.environ.get("TISSUEBENCH_SOAK_SEEDS", "0-1")
 SEEDS = list(range(int(_SEEDS.split("-")[0]), int(_SEEDS.split("-")[-1]) + 1))
-# what differs between two runs of one unit (tests/test_sweep.py's VOLATILE): timings, their
+# what differs between two runs of one unit (tests/studies/test_sweep.py's VOLATILE): timings, their
 # ratios, dates, memory, the machine's name and threads
 VOLATILE = {"haptic_median_s", "haptic_p99_s", "reconstruct_median_s", "reconstruct_p99_s", "reference_step_s",
             "speedup", "calibration_s", "haptic_per_calibration", "floor_s", "efficiency", "offline_s",

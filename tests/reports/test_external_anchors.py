@@ -13,6 +13,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from tissuebench.reference.backend_comparison import backend_agreement
 from tissuebench.cases.scene import load
 from tissuebench.refsolvers import make_backend
 from tissuebench.refsolvers.mixed import static_run
@@ -171,5 +172,5 @@ name = "nearest"
         return ref, hit
 
     monkeypatch.setattr("tissuebench.reference.backend_comparison.cached_solve", perturbed)  # where verify looks it up
-    rows = bk.backend_agreement(bk.scenes_of_results(out)).set_index("case")
+    rows = backend_agreement(bk.scenes_of_results(out)).set_index("case")
     assert rows.loc["cube", "verdict"] == "disagree" and rows.loc["cube", "field_rel_diff"] == pytest.approx(1e-4)

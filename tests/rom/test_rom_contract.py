@@ -183,6 +183,9 @@ def _check_harness_hooks(cls, model):
         assert np.shape(force) == (3,) and np.all(np.isfinite(force))
     smaller = {k: 1 for k in cls.nested}
     sliced = model.variant(**smaller)
+    # a declared nested option is one the model slices: otherwise the harness would build a
+    # parent for every group only to build each unit afresh (issue 29)
+    assert (sliced is not None) == bool(cls.nested), (cls.name, cls.nested, sliced)
     if sliced is not None:  # the same offline data, fewer modes: a model like a fresh build
         assert isinstance(sliced, OnlineModel) and sliced.kind == model.kind
         assert sliced.n_reduced <= min(model.n_reduced, smaller.get("n_modes", model.n_reduced))

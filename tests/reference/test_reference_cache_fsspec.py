@@ -1,6 +1,6 @@
 """The reference cache on an fsspec file system (issue 30, ``--cache URL``): on ``memory://`` and
 ``file://`` an entry is written, read back, and refused when damaged, with the same checks as on a
-local folder (tests/test_reference_cache.py); a URL fsspec cannot open is a clear ValueError."""
+local folder (tests/reference/test_reference_cache.py); a URL fsspec cannot open is a clear ValueError."""
 from __future__ import annotations
 
 import hashlib
@@ -277,7 +277,7 @@ def test_report_and_verify_read_the_cache_the_sweep_was_given(monkeypatch, capsy
     damaged record is refused naming the key."""
     from tissuebench.cli import main
     from tissuebench.reference.location import cache_url
-    from tissuebench.studies.results import SweepManifestError, read_sweep_manifest
+    from tissuebench.studies.sweep_manifest import SweepManifestError, read_sweep_manifest
     from tissuebench.studies.spec import load_spec
     from tissuebench.studies.sweep import run_sweep
 

@@ -85,3 +85,28 @@ def test_deferred_message_is_formatted_once_when_read():
         DeferredStepResult(np.zeros(1), "failed", message)
     with pytest.raises(ValueError, match="expected one of"):
         DeferredStepResult(np.zeros(1), "weird", message)
+
+
+@pytest.mark.parametrize("kind", ["path", "operators"])
+def test_every_training_the_harness_builds_carries_its_scene_in_the_declared_field(kind):
+    """``Training.scene`` is the plug point for methods that build from the scene (PGD, the
+    practitioner baselines): the harness fills it for every kind, and ``scene_of`` reads it before
+    loading a catalogue case by name, so a modified scene is never swapped for the catalogue's."""
+    import dataclasses
+
+    from tissuebench.rom.training_scene import scene_of
+    from tissuebench.studies.case_entry import CaseEntry
+    from tissuebench.studies.training import build_training
+
+    name = "cube_tension_twist" if kind == "path" else "heat1d_source"
+    evaluation = {"kind": "path" if kind == "path" else "map"}
+    entry = CaseEntry.from_dict({"id": name, "name": name, "resolution": "ci", "backend": "skfem",
+                                 "training": {"kind": kind}, "evaluation": evaluation})
+    training = build_training(entry)
+    assert training.scene is not None and training.scene.content_hash() == training.info["scene_hash"]
+    assert "scene" not in training.info
+    assert scene_of(training, "test") is training.scene
+    other = dataclasses.replace(training, scene=None)  # by name: the catalogue's, its hash checked
+    assert scene_of(other, "test").content_hash() == training.scene.content_hash()
+    with pytest.raises(ValueError, match="Training.scene"):
+        scene_of(Training(info={}), "test", required=True)

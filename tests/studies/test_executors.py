@@ -64,7 +64,7 @@ def test_7_a_worker_killed_from_outside_loses_no_unit():
 
 def test_minor_an_unreachable_scheduler_marks_the_sweep_failed(tmp_path):
     from tissuebench.cli import main
-    from tissuebench.studies.results import read_sweep_manifest
+    from tissuebench.studies.sweep_manifest import read_sweep_manifest
 
     spec = tmp_path / "s.toml"
     spec.write_text('[sweep]\nname = "s"\n[protocol]\nlatency_steps = 5\n[[case]]\nname = "cornea_pinch"\n'

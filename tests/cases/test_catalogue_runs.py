@@ -228,7 +228,7 @@ def test_liver_palpation_small_load_limit_is_linear_elasticity():
 
 # --------------------------------------------------------------------------- refinement, backends
 # land_beam's refinement (the scene is mixed u-p since issue 11): monotone from below into the
-# published spread, tests/test_external_anchors.py::test_land_beam_mixed_converges_into_the_published_spread
+# published spread, tests/reports/test_external_anchors.py::test_land_beam_mixed_converges_into_the_published_spread
 
 
 @pytest.mark.slow

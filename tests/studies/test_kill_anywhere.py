@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FILES = {"results.parquet", "fields.npz", "deformed.vtu", "deformed.png", "monitors.png", "manifest.json"}
 FIGURES = Counter()
 

@@ -27,7 +27,7 @@ import pytest
 from tissuebench.cases.io import DATA_ENV, PACKAGE_DATA_DIR, data_dir, liver_mesh_path, read_mesh
 from tissuebench.refsolvers.dynamics import integrate
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _load_example():

@@ -21,7 +21,7 @@ from tissuebench.studies.spec import expand_units, list_presets, load_spec
 from tissuebench.reports.derived_figures import draw_derived
 from tissuebench.studies.sweep import run_sweep
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 # what differs between two runs of the same unit: timings, their ratios, dates, memory
 VOLATILE = {"haptic_median_s", "haptic_p99_s", "reconstruct_median_s", "reconstruct_p99_s", "reference_step_s",
             "speedup", "calibration_s", "haptic_per_calibration", "floor_s", "efficiency", "offline_s",
@@ -140,7 +140,7 @@ def test_case_mesh_overrides_the_builder_parameters_at_its_resolution(tmp_path):
 
 def test_example_sweep_specs_load_and_expand():
     """The sweep specs shipped in examples/sweeps (run by hand, quoted in the notes) stay valid."""
-    specs = sorted((Path(__file__).parents[1] / "examples" / "sweeps").glob("*.toml"))
+    specs = sorted((Path(__file__).parents[2] / "examples" / "sweeps").glob("*.toml"))
     assert specs
     for path in specs:
         units = expand_units(load_spec(str(path)))
@@ -355,17 +355,30 @@ def test_nested_units_are_sliced_from_one_build_and_equal_fresh_builds(serial, t
 
 
 def test_the_units_of_one_nested_group_run_one_after_another(tmp_path):
-    """n_modes (nested) varies fastest in the grid: the units still come group by group (one
-    parent build per group in a process), every option set once, groups in first-seen order."""
+    """n_modes and order (anm_pod's nested options) vary fastest in the list: the units still come
+    group by group (one parent build per group in a process), every option set once, groups in
+    first-seen order; a set alone in its group has no parent."""
+    spec = tmp_path / "g.toml"
+    sets = [(1, 2, 1e-6, 1), (1, 2, 1e-5, 1), (3, 4, 1e-6, 1), (3, 4, 1e-5, 1), (2, 2, 1e-6, 2)]
+    listed = ", ".join(f"{{ n_modes = {n}, order = {o}, eps = {e}, max_segments = {m} }}" for n, o, e, m in sets)
+    spec.write_text('[sweep]\nname = "g"\n[[case]]\nname = "cornea_pinch"\ntraining = { kind = "path" }\n'
+                    f'evaluation = {{ kind = "path" }}\n[[method]]\nname = "anm_pod"\nlist = [{listed}]\n')
+    units = expand_units(load_spec(spec))
+    got = [(u.options["eps"], u.options["n_modes"], u.options["order"],
+            (u.parent_options or {}).get("n_modes"), (u.parent_options or {}).get("order")) for u in units]
+    assert got == [(1e-6, 1, 2, 3, 4), (1e-6, 3, 4, 3, 4), (1e-5, 1, 2, 3, 4), (1e-5, 3, 4, 3, 4),
+                   (1e-6, 2, 2, None, None)]
+
+
+def test_a_method_that_cannot_slice_declares_nothing_nested_and_builds_no_parent(tmp_path):
+    """pgd's modes are not sliced from a larger build (its model has no ``variant``), so its units
+    carry no parent: none is built only to be thrown away (issue 29)."""
     spec = tmp_path / "g.toml"
     spec.write_text('[sweep]\nname = "g"\n[[case]]\nname = "heat1d_source"\ntraining = { kind = "operators" }\n'
                     'evaluation = { kind = "map", mus = [{ position = 0.3 }] }\n[[method]]\nname = "pgd"\n'
-                    'list = [{ n_modes = 1, projection = "srb" }, { n_modes = 1, projection = "prb" }, '
-                    '{ n_modes = 3, projection = "srb" }, { n_modes = 3, projection = "prb" }, { n_modes = 2, '
-                    'projection = "srb", tol = 1e-6 }]\n')
+                    'grid = { n_modes = [1, 3] }\n')
     units = expand_units(load_spec(spec))
-    got = [(u.options["projection"], u.options["n_modes"], (u.parent_options or {}).get("n_modes")) for u in units]
-    assert got == [("srb", 1, 3), ("srb", 3, 3), ("prb", 1, 3), ("prb", 3, 3), ("srb", 2, None)]
+    assert [u.options["n_modes"] for u in units] == [1, 3] and all(u.parent_options is None for u in units)
 
 
 def test_cases_option_keeps_only_the_named_cases():

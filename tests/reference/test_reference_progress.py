@@ -10,7 +10,7 @@ import pytest
 from tissuebench.studies.case_entry import CaseEntry
 from tissuebench.studies import training as training_module
 from tissuebench.reference import cache as cache_module
-from tissuebench.studies.run import progress_bar
+from tissuebench.reference.runner import progress_bar
 from tissuebench.studies.training import POSITION_RETRIES, build_training, case_scene
 
 

@@ -21,9 +21,9 @@ from tissuebench.studies.scene_spec import scene_spec_text
 from tissuebench.studies.spec import load_spec
 from tissuebench.studies.training import build_training, case_scene
 
-from test_mesh_file_scene import scene_file, write_block
+from _mesh_scene import scene_file, write_block
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "bring_your_own_organ"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "bring_your_own_organ"
 
 
 def _case(scene_path, evaluation, training=None):
