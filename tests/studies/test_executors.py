@@ -176,3 +176,42 @@ def test_a_unit_whose_reference_task_died_names_the_reference(monkeypatch):
     client = _Client({"reference": True, units[0].key: ["error"]})
     (_, outcome), = executors._dask_units(client, units, sleepy, None, _Completed)
     assert outcome[0] == "failed" and "running its reference task reference-abc died" in outcome[1]
+
+
+class _RacingPool:
+    """A real pool whose ``submit`` raises BrokenProcessPool at the calls listed in ``broken_at``
+    (counted over every pool of the test), as a real pool does when one of its workers died between
+    the executor's last wait and its next submit."""
+
+    calls = 0
+
+    def __init__(self, pool, broken_at):
+        self.pool, self.broken_at = pool, broken_at
+
+    def submit(self, fn, *args):
+        from concurrent.futures.process import BrokenProcessPool
+
+        type(self).calls += 1
+        if type(self).calls in self.broken_at:
+            raise BrokenProcessPool("a child process terminated abruptly (simulated race)")
+        return self.pool.submit(fn, *args)
+
+    def shutdown(self, **kwargs):
+        self.pool.shutdown(**kwargs)
+
+
+@pytest.mark.parametrize("broken_at", [{1}, {3}])  # a fresh pool broken; one broken under a unit in flight
+def test_a_pool_that_broke_between_wait_and_submit_loses_no_unit_and_raises_nothing(monkeypatch, broken_at):
+    """The race of a worker's death with another unit's end: ``submit`` on the broken pool raises
+    BrokenProcessPool. Before, that propagated out of the sweep (likely what failed
+    test_7_a_unit_that_kills_its_worker once in a default run at load 7, whose traceback was not
+    kept); now the unit waits for the next pool, and every unit runs once, ok."""
+    import tissuebench.studies.executors as executors
+
+    _RacingPool.calls = 0
+    real_pool = executors._pool
+    monkeypatch.setattr(executors, "_pool", lambda workers: _RacingPool(real_pool(workers), broken_at))
+    units = _units(*[{"sleep": 0.05, "n": i} for i in range(4)])
+    done = [(u.key, o.row["unit_status"]) for u, o in execute(units, "processes", 2, run=sleepy)]
+    assert sorted(done) == sorted((u.key, "ok") for u in units)
+    assert _RacingPool.calls >= len(units) + len(broken_at)

@@ -111,12 +111,12 @@ def _processes(units, workers, run):
         try:
             while queue or suspects or in_flight:
                 alone = bool(suspects)
-                while not in_flight and suspects:  # a suspect runs alone: its own death is its own
-                    u = suspects.pop()
-                    in_flight[pool.submit(run, u)] = (u, time.perf_counter())
-                while not alone and queue and len(in_flight) < workers:
-                    u = queue.pop()
-                    in_flight[pool.submit(run, u)] = (u, time.perf_counter())
+                if not in_flight and suspects:  # a suspect runs alone: its own death is its own
+                    _submit(pool, run, suspects, in_flight)
+                while not alone and queue and len(in_flight) < workers and _submit(pool, run, queue, in_flight):
+                    pass
+                if not in_flight:  # the pool broke before anything could run on it: a new pool
+                    break
                 done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
                 for fut in done:
                     u, t0 = in_flight.pop(fut)
@@ -138,6 +138,18 @@ def _processes(units, workers, run):
                     break
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _submit(pool, run, waiting: list, in_flight: dict) -> bool:
+    """Submit the last unit of ``waiting`` to ``pool``; False, with the unit left waiting, when the
+    pool broke before it could take it (a worker died since the last wait returned: a race
+    between one unit's death and another's end, which raised out of the sweep under load)."""
+    try:
+        future = pool.submit(run, waiting[-1])
+    except BrokenProcessPool:
+        return False
+    in_flight[future] = (waiting.pop(), time.perf_counter())
+    return True
 
 
 def _dask(units, workers, scheduler, run, cache):
