@@ -18,16 +18,30 @@ from ..cases.schema import value_text
 from .evaluation import EVALUATION_KINDS
 from .training import TRAINING_KINDS
 
-__all__ = ["CaseEntry", "default_evaluation_kind"]
+__all__ = ["CaseEntry", "fill_training_kind", "fill_evaluation_kind"]
 
 # the keys present in the dict form only when the spec gave them (absent, not None)
 _OPTIONAL = ("mu", "mesh", "paper_points", "scaling_group")
 
 
-def default_evaluation_kind(training_kind: str) -> str:
-    """The evaluation kind of a case that names none: its training's where that is an evaluation
-    kind, else ``"map"``."""
-    return training_kind if training_kind in EVALUATION_KINDS else "map"
+def fill_training_kind(training: dict, where: str = "training") -> str:
+    """``training["kind"]``, set to ``"path"`` (in place) when absent; ValueError naming
+    ``<where>.kind`` and the value when it is not a training kind. The one place the default and
+    the check live: the spec's loader and the entry's constructor both call it."""
+    kind = training.setdefault("kind", "path")
+    if not isinstance(kind, str) or kind not in TRAINING_KINDS:
+        raise ValueError(f"{where}.kind = {value_text(kind)}: valid: {list(TRAINING_KINDS)}")
+    return kind
+
+
+def fill_evaluation_kind(evaluation: dict, training_kind: str, where: str = "evaluation") -> str:
+    """``evaluation["kind"]``, set (in place) when absent to the training's kind where that is an
+    evaluation kind, else ``"map"``; ValueError naming ``<where>.kind`` and the value when it is
+    not an evaluation kind."""
+    kind = evaluation.setdefault("kind", training_kind if training_kind in EVALUATION_KINDS else "map")
+    if not isinstance(kind, str) or kind not in EVALUATION_KINDS:
+        raise ValueError(f"{where}.kind = {value_text(kind)}: valid: {list(EVALUATION_KINDS)}")
+    return kind
 
 
 def _need(name, value, types, what):
@@ -105,15 +119,11 @@ class CaseEntry:
         training = {"kind": "path"} if self.training is None else self.training
         _need("training", training, Mapping, "a table with a kind")
         training = dict(training)
-        kind = training.setdefault("kind", "path")
-        if not isinstance(kind, str) or kind not in TRAINING_KINDS:
-            raise ValueError(f"training.kind = {value_text(kind)}: valid: {list(TRAINING_KINDS)}")
+        kind = fill_training_kind(training)
         evaluation = {} if self.evaluation is None else self.evaluation
         _need("evaluation", evaluation, Mapping, "a table")
         evaluation = dict(evaluation)
-        ekind = evaluation.setdefault("kind", default_evaluation_kind(kind))
-        if not isinstance(ekind, str) or ekind not in EVALUATION_KINDS:
-            raise ValueError(f"evaluation.kind = {value_text(ekind)}: valid: {list(EVALUATION_KINDS)}")
+        fill_evaluation_kind(evaluation, kind)
         object.__setattr__(self, "training", training)
         object.__setattr__(self, "evaluation", evaluation)
 

@@ -56,7 +56,7 @@ from ..choices import BACKEND_NAMES
 from ..cases.schema import c_nonneg, c_pos, c_str, check_table, key_text, value_text
 from ..rom import METHODS, method_class
 from .applicability import evaluation_why_not, why_not
-from .case_entry import CaseEntry, default_evaluation_kind
+from .case_entry import CaseEntry, fill_evaluation_kind, fill_training_kind
 from .evaluation import EVALUATION_KINDS
 from .limits import MAX_UNITS, check_option_values, check_protocol
 from .scaling import check_group_name, check_scaling_groups
@@ -144,15 +144,11 @@ def _check_case(i, c, resolution, default_resolution, folder: Path | None = None
         _fail(f"{path}.resolution", res, f"valid: {list(RESOLUTIONS)}")
     training = dict(_table(f"{path}.training", c.get("training", {"kind": "path"}), {"kind"} | set().union(
         *(k.keys for k in TRAINING_KINDS.values()))))
-    kind = training.setdefault("kind", "path")
-    if not isinstance(kind, str) or kind not in TRAINING_KINDS:
-        _fail(f"{path}.training.kind", kind, f"valid: {list(TRAINING_KINDS)}")
+    kind = fill_training_kind(training, f"{path}.training")
     _table(f"{path}.training", training, {"kind"} | TRAINING_KINDS[kind].keys)
     evaluation = dict(_table(f"{path}.evaluation", c.get("evaluation", {}), {"kind"} | set().union(
         *(k.keys for k in EVALUATION_KINDS.values()))))
-    ekind = evaluation.setdefault("kind", default_evaluation_kind(kind))
-    if not isinstance(ekind, str) or ekind not in EVALUATION_KINDS:
-        _fail(f"{path}.evaluation.kind", ekind, f"valid: {list(EVALUATION_KINDS)}")
+    ekind = fill_evaluation_kind(evaluation, kind, f"{path}.evaluation")
     _table(f"{path}.evaluation", evaluation, {"kind"} | EVALUATION_KINDS[ekind].keys)
     cid = c.get("id", Path(name).stem)
     if not (isinstance(cid, str) and re.fullmatch(r"[A-Za-z0-9_.-]+", cid) and cid not in (".", "..")):
