@@ -2,64 +2,62 @@
 ``processes`` pool gave a BrokenProcessPool traceback), tested with real SIGKILLs."""
 from __future__ import annotations
 
-import dataclasses
-import multiprocessing
+import json
 import os
 import signal
-import threading
-import time
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
+from _kill_scenarios import units as _units
 from _workers import sleepy
-from tissuebench.studies.case_entry import CaseEntry
 from tissuebench.studies.executors import execute
-from tissuebench.studies.units import WorkUnit, unit_references
 
 
-def _units(*options):
-    case = CaseEntry(id="c", name="cornea_pinch", resolution="ci", backend="skfem", training={"kind": "path"},
-                     evaluation={"kind": "path"})
-    return [WorkUnit(case, "nearest", o, {}, {"name": "t", "hash": "0" * 64}, f"{i:064x}")
-            for i, o in enumerate(options)]
+def _scenario(name: str, timeout: float = 240) -> dict:
+    """Run ``_kill_scenarios.NAME`` in a fresh interpreter (see that module) and return what it
+    printed; its process ending otherwise (killed by a signal, a crash) fails the test, naming how,
+    with its stderr (faulthandler's tracebacks included)."""
+    tests = Path(__file__).resolve().parents[1]
+    path = [str(tests), str(tests.parent), os.environ.get("PYTHONPATH", "")]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in path if p)}
+    proc = subprocess.run([sys.executable, "-X", "faulthandler", "-c",
+                           f"import json, _kill_scenarios as s; print(json.dumps(s.{name}()))"],
+                          capture_output=True, text=True, env=env, timeout=timeout)
+    how = f"signal {signal.Signals(-proc.returncode).name}" if proc.returncode < 0 else f"exit {proc.returncode}"
+    assert proc.returncode == 0, f"the sweep's process ended with {how}:\n{proc.stderr[-4000:]}"
+    return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
 def test_7_a_unit_that_kills_its_worker_is_stored_failed_and_the_others_finish():
-    units = _units({"sleep": 0.3}, {"die": True}, {"sleep": 0.3}, {"sleep": 0.1}, {"sleep": 0.1})
-    t0 = time.perf_counter()
-    done = {u.key: o.row for u, o in execute(units, "processes", 2, run=sleepy)}
-    assert sorted(done) == sorted(u.key for u in units)  # every unit once, none lost
-    dead = done[units[1].key]
+    run = _scenario("unit_that_kills_its_worker")
+    keys, done = run["keys"], run["rows"]
+    assert sorted(done) == sorted(keys)  # every unit once, none lost
+    dead = done[keys[1]]
     assert dead["unit_status"] == "failed" and "worker process running this unit died" in dead["message"]
     assert dead["case"] == "c" and dead["method"] == "nearest"  # a full row: the store writes it
-    assert all(done[u.key]["unit_status"] == "ok" for u in units if u is not units[1])
-    assert time.perf_counter() - t0 < 120
+    assert all(done[k]["unit_status"] == "ok" for k in keys if k != keys[1])
+    assert run["seconds"] < 120
 
 
 def test_7_a_worker_killed_from_outside_loses_no_unit():
     """SIGKILL of a busy worker (not the unit's doing): its unit and the pool's other units in
     flight run again, all finish ok."""
-    units = _units(*[{"sleep": 1.5, "n": i} for i in range(4)])
-    killed = []
-
-    def kill_one():
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            children = multiprocessing.active_children()
-            busy = [p for p in children if p.pid and p.is_alive()]
-            if len(busy) >= 2:
-                time.sleep(0.5)  # both workers inside their first unit
-                os.kill(busy[0].pid, signal.SIGKILL)
-                killed.append(busy[0].pid)
-                return
-            time.sleep(0.05)
-
-    threading.Thread(target=kill_one, daemon=True).start()
-    done = {u.key: o.row for u, o in execute(units, "processes", 2, run=sleepy)}
-    assert killed, "no worker was killed: nothing was tested"
-    assert sorted(done) == sorted(u.key for u in units)
+    run = _scenario("worker_killed_from_outside")
+    done = run["rows"]
+    assert run["killed"], "no worker was killed: nothing was tested"
+    assert sorted(done) == sorted(run["keys"])
     assert all(r["unit_status"] == "ok" for r in done.values()), done
-    assert str(killed[0]) not in {r["message"] for r in done.values()}
+    assert str(run["killed"][0]) not in {r["message"] for r in done.values()}
+
+
+def test_a_scenario_process_that_dies_fails_its_test_naming_the_signal():
+    """The harness of the tests above can fail: a scenario process killed by a signal is an
+    assertion naming the signal, not a pass (nor a crash of the test runner's worker)."""
+    with pytest.raises(AssertionError, match="ended with signal SIGKILL"):
+        _scenario("the_process_itself_killed")
 
 
 def test_minor_an_unreachable_scheduler_marks_the_sweep_failed(tmp_path):
@@ -87,18 +85,12 @@ def test_a_unit_that_kills_every_dask_worker_it_runs_on_is_stored_failed_and_the
     (Dask counts a death against every task assigned to that worker: here one task per worker at a
     time, no reference task to wait for, and the one that dies waits 3 s, so that the others are
     done by then.)"""
-    import dask
-
-    operators = {"training": {"kind": "operators"}, "evaluation": {"kind": "cut_lengths"}}  # no reference declared
-    units = [dataclasses.replace(u, case=dataclasses.replace(u.case, **operators))
-             for u in _units({"sleep": 0.1}, {"die": True, "sleep": 3.0}, {"sleep": 0.1})]
-    assert not any(unit_references(u) for u in units)
-    with dask.config.set({"distributed.scheduler.allowed-failures": 0, "distributed.scheduler.worker-saturation": 1.0}):
-        done = {u.key: o.row for u, o in execute(units, "dask", 2, run=sleepy)}
-    assert sorted(done) == sorted(u.key for u in units)
-    dead = done[units[1].key]
+    run = _scenario("unit_that_kills_every_dask_worker")
+    keys, done = run["keys"], run["rows"]
+    assert sorted(done) == sorted(keys)
+    dead = done[keys[1]]
     assert dead["unit_status"] == "failed" and "dask workers running this unit died" in dead["message"], dead
-    assert dead["case"] == "c" and all(done[u.key]["unit_status"] == "ok" for u in (units[0], units[2]))
+    assert dead["case"] == "c" and all(done[k]["unit_status"] == "ok" for k in (keys[0], keys[2]))
 
 
 class _Future:
@@ -203,9 +195,8 @@ class _RacingPool:
 @pytest.mark.parametrize("broken_at", [{1}, {3}])  # a fresh pool broken; one broken under a unit in flight
 def test_a_pool_that_broke_between_wait_and_submit_loses_no_unit_and_raises_nothing(monkeypatch, broken_at):
     """The race of a worker's death with another unit's end: ``submit`` on the broken pool raises
-    BrokenProcessPool. Before, that propagated out of the sweep (likely what failed
-    test_7_a_unit_that_kills_its_worker once in a default run at load 7, whose traceback was not
-    kept); now the unit waits for the next pool, and every unit runs once, ok."""
+    BrokenProcessPool. Before, that propagated out of the sweep; now the unit waits for the next
+    pool, and every unit runs once, ok."""
     import tissuebench.studies.executors as executors
 
     _RacingPool.calls = 0
