@@ -7,20 +7,27 @@ file's (HEAD's), the same for both sides, while the *models* are built by the si
 code: a protocol change can never show up as a latency change (asv's split between its
 runner and the benchmarked commit).
 
-Usage: ``python ab_probe.py JOB.json RESULT.json``. ``JOB.json``::
+Usage: ``python ab_probe.py JOB.json``, spoken to in JSON lines on stdin/stdout.
+``JOB.json``::
 
     {"units": [{"uid": "u0", "case": {...}, "method": "anm_pod", "options": {...},
                 "steps": 300, "warmup": 30, "blas_threads": 1}, ...],
-     "blocks": 4, "seed": 0, "inject": {"u0": 1.3} (optional, power tests only)}
+     "seed": 0, "inject": {"u0": 1.3} (optional, power tests only)}
 
-Per unit it builds the model once through the side's code, then times ``blocks`` blocks
-of ``steps`` haptic steps (``step`` + ``outputs`` back to back, each timed with
-``time.perf_counter``), every block on a fresh deep copy of the model where the model can
-be copied (new allocations: the memory layout of a model's arrays moves a microsecond
-step by up to 1.6x on these machines, so one layout per process is not a sample of the
-code's speed). ``RESULT.json`` holds, per unit, the status, the per-step samples [s] of
-every block and whether the blocks ran on copies. A unit whose build or step raises is
-reported with its message; the other units go on.
+The worker first builds every unit through the side's code and answers
+``{"ready": true, "tissuebench": PATH, "units": {uid: {"status", "message"}}}`` (a unit whose
+build raises is reported with its message; the others go on). Then each command
+``{"time": uid}`` times one block of ``steps`` haptic steps (``step`` + ``outputs`` back to
+back, each timed with ``time.perf_counter``) and answers ``{"uid", "status", "message",
+"block": [s, ...], "copies": bool}``; ``{"cpus": [0]}`` pins every thread of the worker to
+those cores (answers ``{"cpus": n}``, the threads pinned); ``{"quit": true}`` or the end of
+stdin ends it. Every block runs on a fresh deep copy of the model where the model can be
+copied (new allocations: the memory layout of a model's arrays moves a microsecond step by
+up to 1.6x on these machines, so one layout per process is not a sample of the code's speed).
+
+The worker waits, idle, between commands: the orchestrator times the two sides' blocks in
+turn (:mod:`.latency_ab`), so a slow spell of the machine falls on both sides of a pair.
+Whatever the side's code prints goes to stderr; stdout carries the protocol only.
 
 ``inject`` (power tests of the gate only) makes the named units slower by a calibrated
 factor: a busy wait of ``(factor - 1)`` times the unit's own median step, measured first,
@@ -105,58 +112,121 @@ def _median(values):
     return 0.5 * (s[(n - 1) // 2] + s[n // 2]) if n else 0.0
 
 
-def measure(unit, blocks, seed, factor=None):
-    """``{"status", "message", "blocks": [[s, ...], ...], "copies": bool}`` of one unit."""
-    model, seq, start, stop = prepare(unit, seed)
-    if not seq:
-        raise ValueError("the unit's evaluation gives no step to time")
-    steps, warmup = int(unit["steps"]), int(unit["warmup"])
-    extra = 0.0
-    if factor:  # calibrate the injected slowdown on the unit's own median (power tests), warm
-        warm = min(_median(time_block(model, seq, start, stop, steps, warmup)) for _ in range(3))
-        extra = (float(factor) - 1.0) * warm
-    out, copies = [], True
-    for _ in range(blocks):
+class _Unit:
+    """One built unit of this worker: its model and what a block of its steps needs."""
+
+    def __init__(self, unit, seed, factor):
+        self.threads = unit.get("blas_threads") or None
+        self.steps, self.warmup = int(unit["steps"]), int(unit["warmup"])
+        with _blas(self.threads):
+            self.model, self.seq, self.start, self.stop = prepare(unit, seed)
+            if not self.seq:
+                raise ValueError("the unit's evaluation gives no step to time")
+            self.extra = 0.0
+            if factor:  # calibrate the injected slowdown on the unit's own median (power tests), warm
+                warm = min(_median(self._block(self.model, 0.0)) for _ in range(3))
+                self.extra = (float(factor) - 1.0) * warm
+
+    def _block(self, model, extra):
+        return time_block(model, self.seq, self.start, self.stop, self.steps, self.warmup, extra)
+
+    def block(self):
+        """``(per-step times [s], timed on a copy)``: one block on a fresh deep copy of the model."""
         try:
-            m = copy.deepcopy(model)
+            m, copied = copy.deepcopy(self.model), True
         except Exception:  # factorisations and solver handles of some models cannot be copied
-            m, copies = model, False
-        out.append(time_block(m, seq, start, stop, steps, warmup, extra))
-    return {"status": "ok", "message": "", "blocks": out, "copies": copies}
+            m, copied = self.model, False
+        with _blas(self.threads):
+            return self._block(m, self.extra), copied
+
+
+class _blas:
+    """``threadpool_limits`` of the unit's BLAS threads, or nothing (no threadpoolctl, no limit)."""
+
+    def __init__(self, threads):
+        self.threads, self.limits = threads, None
+
+    def __enter__(self):
+        try:
+            from threadpoolctl import threadpool_limits
+        except ImportError:
+            return self
+        self.limits = threadpool_limits(limits=self.threads, user_api="blas")
+        return self
+
+    def __exit__(self, *exc):
+        if self.limits is not None:
+            self.limits.unregister()
+
+
+def _failure(exc):
+    msg = traceback.format_exception_only(type(exc), exc)[-1].strip()
+    return {"status": "failed", "message": msg[:500]}
+
+
+def serve(job, commands, reply):
+    """Build every unit of ``job``, say so (``reply``), then answer ``commands`` (the protocol
+    of the module docstring) until ``quit`` or their end."""
+    ready, built = {"ready": True, "units": {}}, {}
+    try:
+        import tissuebench  # lazy: the child interpreter's tissuebench (see _prepare_legacy)
+        ready["tissuebench"] = str(tissuebench.__file__)
+    except Exception as exc:
+        ready["error"] = f"cannot import tissuebench: {exc}"
+    inject = job.get("inject") or {}
+    for unit in job["units"]:
+        try:
+            built[unit["uid"]] = _Unit(unit, int(job.get("seed", 0)), inject.get(unit["uid"]))
+            ready["units"][unit["uid"]] = {"status": "ok", "message": ""}
+        except Exception as exc:  # one unit failing is data, the others go on
+            ready["units"][unit["uid"]] = _failure(exc)
+    reply(ready)
+    for line in commands:
+        cmd = json.loads(line)
+        if cmd.get("quit"):
+            break
+        if "cpus" in cmd:
+            reply({"cpus": _pin(cmd["cpus"])})
+            continue
+        uid = cmd["time"]
+        try:
+            times, copied = built[uid].block()
+            reply({"uid": uid, "status": "ok", "message": "", "block": times, "copies": copied})
+        except Exception as exc:  # a step that raises on a copy: the unit fails, the worker goes on
+            reply({"uid": uid, **_failure(exc), "block": [], "copies": False})
+
+
+def _pin(cpus):
+    """Every thread of this process (BLAS's included) onto the cores ``cpus`` (Linux); the
+    number of threads pinned (0 where the platform cannot)."""
+    import os
+
+    if not hasattr(os, "sched_setaffinity") or not os.path.isdir("/proc/self/task"):
+        return 0
+    n = 0
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            os.sched_setaffinity(int(tid), set(cpus))
+            n += 1
+        except OSError:  # a thread that ended meanwhile
+            pass
+    return n
 
 
 def main(argv):
-    job = json.loads(open(argv[1]).read())
-    limits = None
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        threadpool_limits = None
-    result = {"units": {}}
-    try:
-        import tissuebench  # lazy: the child interpreter's tissuebench (see _prepare_legacy)
-        result["tissuebench"] = str(tissuebench.__file__)
-    except Exception as exc:
-        result["error"] = f"cannot import tissuebench: {exc}"
-    inject = job.get("inject") or {}
-    for unit in job["units"]:
-        threads = unit.get("blas_threads") or None
-        try:
-            if threadpool_limits is not None:
-                limits = threadpool_limits(limits=threads, user_api="blas")
-            result["units"][unit["uid"]] = measure(unit, int(job.get("blocks", 1)), int(job.get("seed", 0)),
-                                                  inject.get(unit["uid"]))
-        except Exception as exc:  # one unit failing is data, the others go on
-            msg = traceback.format_exception_only(type(exc), exc)[-1].strip()
-            result["units"][unit["uid"]] = {"status": "failed", "message": msg[:500], "blocks": [], "copies": False}
-        finally:
-            if limits is not None:
-                limits.unregister()
-    with open(argv[2] + ".tmp", "w") as fh:
-        json.dump(result, fh)
     import os
 
-    os.replace(argv[2] + ".tmp", argv[2])
+    job = json.loads(open(argv[1]).read())
+    # the protocol owns the original stdout; anything the side's code prints goes to stderr
+    proto = os.fdopen(os.dup(1), "w")
+    os.dup2(2, 1)
+    sys.stdout = sys.stderr
+
+    def reply(obj):
+        proto.write(json.dumps(obj) + "\n")
+        proto.flush()
+
+    serve(job, sys.stdin, reply)
     return 0
 
 

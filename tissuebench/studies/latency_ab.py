@@ -8,11 +8,29 @@ worker processes are the models:
 * REF's package is exported from git (:func:`.ab_ref.export_ref`) into a scratch folder;
   HEAD is the package this process runs (the working tree, uncommitted changes included).
   Both use the same installed dependencies.
-* Rounds alternate the sides, A B then B A (so a linear drift of the machine cancels):
-  each round starts one worker process per side (:mod:`.ab_probe`, always HEAD's timing
-  loop) that builds every still-undecided unit with its side's code and times ``blocks``
-  blocks of haptic steps, each block on a fresh copy of the model (memory layout is part
-  of the noise to sample: see :mod:`.ab_probe`).
+* Each round starts one worker process per side (:mod:`.ab_probe`, always HEAD's timing
+  loop); the two build every still-undecided unit with their side's code at the same time
+  (no timing runs then). Then, unit by unit, their ``blocks`` blocks of haptic steps are
+  timed *in turn*, A B then B A (asv's ``--interleave-rounds`` carried down to blocks): one
+  worker times while the other waits idle, each block on a fresh copy of the model (memory
+  layout is part of the noise to sample: see :mod:`.ab_probe`).
+  Why in turn: the machine has slow spells of seconds to tens of seconds (1.4-2.4x on a
+  microsecond step, then back). Timed one whole process per side after the other, a spell
+  fell on one side only: CI flagged identical code (d8efd16 against its parent, which
+  differ in a test file) as 1.47x slower, [1.214, 2.014], because HEAD's 3 processes of
+  one unit all met a spell. Identical code timed that way here (``check --against HEAD
+  --ab-rounds 8,8``, 16 processes): 39 of 40 units had a process 1.3-2.4x above the unit's
+  median, in 116 of the 400 unit-processes of rounds 1-5 and 13 of the 240 of rounds 6-8.
+  A block lasts milliseconds to a second, so a spell covers both blocks of a pair.
+* For the timing both workers of a round are pinned, every thread, to the *same* core
+  (the next core the next round; as many cores as the protocol's ``blas_threads`` ask). On
+  this 2-core machine the core a process ran on moved a step 1.3-1.8x for the whole
+  process, in either direction: timed in turn, each on the core the scheduler gave it, the
+  two sides of one round still differed by more than 1.2x in
+  73 of 320 unit-rounds of identical code (per-round HEAD/REF spread, sd of the log ratio
+  0.169). Pinned: 8 of 320, sd 0.023, worst 1.34 (was 1.8); all 40 units decided in 8
+  rounds (32 before). Both measured with ``check --against HEAD --ab-rounds 8,8`` on the ci
+  preset.
 * After ``min_rounds`` rounds, every unit whose confidence interval of the HEAD/REF
   median ratio lies clear of the decision threshold is decided (:mod:`.ab_stats`) and
   leaves the later rounds; the rest run until ``max_rounds`` or the time budget.
@@ -23,6 +41,7 @@ Every per-step sample is kept (:func:`run_ab` returns them; the gate writes them
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -112,28 +131,110 @@ def ab_units(results_dir, rows: pd.DataFrame) -> list[ABUnit]:
     return out
 
 
-def _probe(root: Path, units: list[ABUnit], blocks: int, seed: int, scratch: Path, tag: str,
-           inject: dict | None) -> dict:
-    """One worker process with ``root`` first on the path; its result dict (``ab_probe``)."""
-    job, result = scratch / f"{tag}.job.json", scratch / f"{tag}.result.json"
-    job.write_text(json.dumps({"units": [asdict(u) for u in units], "blocks": blocks, "seed": seed,
-                               "inject": inject or {}}, default=str))
-    proc = subprocess.run([sys.executable, str(scratch / "ab_probe.py"), str(job), str(result)], env=code_env(root),
-                          capture_output=True, text=True)
-    if proc.returncode != 0 or not result.is_file():
-        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
-        return {"error": f"worker exited {proc.returncode}: {' | '.join(tail)}", "units": {}}
-    out = json.loads(result.read_text())
-    loaded = out.get("tissuebench")
-    if not loaded or Path(loaded).resolve().parents[1] != root.resolve():
-        return {"error": f"worker imported tissuebench from {out.get('tissuebench')}, not {root}", "units": {}}
-    return out
+class _Worker:
+    """One side's worker process of a round (:mod:`.ab_probe`), ``root`` first on its path."""
+
+    def __init__(self, side: str, root: Path, units: list[ABUnit], seed: int, scratch: Path, rnd: int,
+                 inject: dict | None):
+        self.side, self.root, tag = side, root, f"{side}{rnd}"
+        self.name = f"A/B {side} worker of round {rnd + 1}"
+        job, self.err_path = scratch / f"{tag}.job.json", scratch / f"{tag}.stderr.txt"
+        job.write_text(json.dumps({"units": [asdict(u) for u in units], "seed": seed, "inject": inject or {}},
+                                  default=str))
+        self._err = open(self.err_path, "w")  # a file, not a pipe: a chatty side cannot block on it
+        self.proc = subprocess.Popen([sys.executable, str(scratch / "ab_probe.py"), str(job)], env=code_env(root),
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._err, text=True)
+
+    def _read(self) -> dict:
+        line = self.proc.stdout.readline()
+        if not line:
+            self.proc.wait()
+            tail = self.err_path.read_text(errors="replace").strip().splitlines()[-3:]
+            raise RuntimeError(f"{self.name} exited {self.proc.returncode}: {' | '.join(tail)}")
+        return json.loads(line)
+
+    def ready(self) -> dict:
+        """The worker's build report, once every unit is built; checked to run ``root``'s code."""
+        out = self._read()
+        loaded = out.get("tissuebench")
+        if out.get("error") or not loaded or Path(loaded).resolve().parents[1] != self.root.resolve():
+            raise RuntimeError(f"{self.name}: {out.get('error') or ''} imported tissuebench from {loaded}, "
+                               f"not {self.root}")
+        return out
+
+    def pin(self, cores: list[int]) -> None:
+        """Every thread of the worker onto ``cores``."""
+        self.proc.stdin.write(json.dumps({"cpus": cores}) + "\n")
+        self.proc.stdin.flush()
+        self._read()
+
+    def time(self, uid: str) -> dict:
+        """One block of the unit's steps (the worker's answer)."""
+        self.proc.stdin.write(json.dumps({"time": uid}) + "\n")
+        self.proc.stdin.flush()
+        return self._read()
+
+    def close(self) -> None:
+        try:
+            if self.proc.poll() is None:
+                self.proc.stdin.write(json.dumps({"quit": True}) + "\n")
+                self.proc.stdin.close()
+            self.proc.wait(timeout=60)
+        except (OSError, subprocess.TimeoutExpired):
+            self.proc.kill()
+            self.proc.wait()
+        finally:
+            self._err.close()
+
+
+def _cores(active: list[ABUnit], rnd: int) -> list[int]:
+    """The cores both workers of round ``rnd`` time on: as many as the units' BLAS threads ask
+    (0, no limit: every core), the first of them moving by one core each round; [] where the
+    platform cannot pin."""
+    if not hasattr(os, "sched_getaffinity"):
+        return []
+    cpus = sorted(os.sched_getaffinity(0))
+    want = max((u.blas_threads for u in active), default=1)
+    k = len(cpus) if want <= 0 else min(want, len(cpus))
+    return [cpus[(rnd + i) % len(cpus)] for i in range(k)]
+
+
+def _round(workers: dict, active: list[ABUnit], blocks: int, rnd: int, failures: dict) -> pd.DataFrame:
+    """Both workers built (concurrently) and pinned to the same core(s); then per unit its blocks in
+    turn, A B then B A, each worker idle while the other times (module docstring)."""
+    rows = {c: [] for c in SAMPLE_COLUMNS}
+    for side, w in workers.items():
+        for uid, res in w.ready()["units"].items():
+            if res["status"] != "ok":
+                failures.setdefault(uid, {})[side] = res.get("message", "")
+    cores = _cores(active, rnd)
+    for w in workers.values():
+        if cores:
+            w.pin(cores)
+    for u in active:
+        for b in range(blocks):
+            if u.uid in failures:
+                break
+            for side in (("ref", "head") if (rnd + b) % 2 == 0 else ("head", "ref")):
+                res = workers[side].time(u.uid)
+                if res["status"] != "ok":
+                    failures.setdefault(u.uid, {})[side] = res.get("message", "")
+                    break
+                n = len(res["block"])
+                rows["uid"] += [u.uid] * n
+                rows["side"] += [side] * n
+                rows["round"] += [rnd] * n
+                rows["block"] += [b] * n
+                rows["sample"] += list(range(n))
+                rows["haptic_s"] += [float(x) for x in res["block"]]
+    return pd.DataFrame(rows, columns=SAMPLE_COLUMNS)
 
 
 def run_ab(units: list[ABUnit], ref_root: Path, head_root: Path, decide, min_rounds: int = 3,
            max_rounds: int = 8, blocks: int = 3, budget_s: float = 900.0, seed: int = 0,
            inject: dict | None = None, log=print) -> tuple[pd.DataFrame, dict]:
-    """Alternate REF (side ``"ref"``) and HEAD (``"head"``) worker processes (module docstring).
+    """Rounds of one REF (side ``"ref"``) and one HEAD (``"head"``) worker process, their blocks
+    timed in turn (module docstring).
 
     ``decide(samples) -> set of decided uids`` is called after each round from ``min_rounds``
     on. ``inject`` maps uids to a slowdown factor applied on the HEAD side (power tests).
@@ -149,38 +250,21 @@ def run_ab(units: list[ABUnit], ref_root: Path, head_root: Path, decide, min_rou
         scratch = Path(tmp)
         shutil.copy(Path(__file__).with_name("ab_probe.py"), scratch / "ab_probe.py")
         for r in range(max_rounds):
-            sides = ("ref", "head") if r % 2 == 0 else ("head", "ref")
-            spent = {}
-            for side in sides:
-                ts = time.perf_counter()
-                out = _probe(roots[side], active, blocks, seed + r, scratch, f"{side}{r}",
-                             inject if side == "head" else None)
-                spent[side] = time.perf_counter() - ts
-                if "error" in out and not out["units"]:
-                    raise RuntimeError(f"A/B {side} worker failed in round {r + 1}: {out['error']}")
-                frames.append(_samples(out, side, r, failures))
+            ts = time.perf_counter()
+            workers = {side: _Worker(side, roots[side], active, seed + r, scratch, r,
+                                     inject if side == "head" else None) for side in ("ref", "head")}
+            try:
+                frames.append(_round(workers, active, blocks, r, failures))
+            finally:
+                for w in workers.values():
+                    w.close()
             samples = pd.concat(frames, ignore_index=True)
             decided = decide(samples) if r + 1 >= min_rounds else set()
             active = [u for u in active if u.uid not in decided and u.uid not in failures]
-            log(f"A/B round {r + 1}/{max_rounds}: REF {spent['ref']:.0f} s, HEAD {spent['head']:.0f} s; "
+            log(f"A/B round {r + 1}/{max_rounds}: {time.perf_counter() - ts:.0f} s; "
                 f"{len(units) - len(active)} of {len(units)} units decided")
             if not active or time.perf_counter() - t0 > budget_s:
                 break
     return samples, failures
 
 
-def _samples(out: dict, side: str, rnd: int, failures: dict) -> pd.DataFrame:
-    rows = {c: [] for c in SAMPLE_COLUMNS}
-    for uid, res in out["units"].items():
-        if res.get("status") != "ok":
-            failures.setdefault(uid, {})[side] = res.get("message", "")
-            continue
-        for b, block in enumerate(res["blocks"]):
-            n = len(block)
-            rows["uid"] += [uid] * n
-            rows["side"] += [side] * n
-            rows["round"] += [rnd] * n
-            rows["block"] += [b] * n
-            rows["sample"] += list(range(n))
-            rows["haptic_s"] += [float(x) for x in block]
-    return pd.DataFrame(rows, columns=SAMPLE_COLUMNS)
