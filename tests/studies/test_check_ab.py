@@ -195,10 +195,10 @@ def test_an_injected_2x_slowdown_is_flagged_and_its_neighbour_holds(tmp_path):
     slow = {f.method for f in result.regressions if f.metric == "latency_ab"}
     assert slow == {"anm_pod"}, [f.line() for f in result.regressions]
     by_method = {k[1]: v for k, v in result.ab.items()}
-    # the ratio of a 6 us step over 2 rounds of 3 blocks is the injected 5x within about 2x: the
-    # busy wait (4x the original model's median step) follows steps of deep copies whose layouts
-    # move a step by up to 1.6x (ab_probe). Measured: 3.08, 5.01, 5.05, 5.23 here, 7.22 in CI (the
-    # former window 3.5 .. 7 failed twice). The window catches an injection lost (1x) or doubled.
-    assert 2.5 < by_method["anm_pod"].ratio < 10 and by_method["pod_interp"].verdict == "holds"
+    # the ratio of a 6 us step over 2 rounds of 3 blocks, both sides timed in turn on one pinned core,
+    # the busy wait calibrated on that core: measured 5.02-5.27 in 11 runs (3.08-7.22 when each side's
+    # process ran whole, on its own core, calibrated while building). Fails on an injection lost (1x)
+    # or doubled (25x).
+    assert 4.0 < by_method["anm_pod"].ratio < 6.5 and by_method["pod_interp"].verdict == "holds"
     stored = pd.read_parquet(out / "_gate" / "ab_samples.parquet")
     assert set(stored["side"]) == {"ref", "head"} and (out / "_gate" / "ab_ratios.png").is_file()

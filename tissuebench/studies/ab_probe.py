@@ -30,8 +30,8 @@ turn (:mod:`.latency_ab`), so a slow spell of the machine falls on both sides of
 Whatever the side's code prints goes to stderr; stdout carries the protocol only.
 
 ``inject`` (power tests of the gate only) makes the named units slower by a calibrated
-factor: a busy wait of ``(factor - 1)`` times the unit's own median step, measured first,
-after every step.
+factor: a busy wait of ``(factor - 1)`` times the unit's own median step, measured at its
+first block (on the core the blocks are timed on), after every step.
 """
 from __future__ import annotations
 
@@ -122,10 +122,7 @@ class _Unit:
             self.model, self.seq, self.start, self.stop = prepare(unit, seed)
             if not self.seq:
                 raise ValueError("the unit's evaluation gives no step to time")
-            self.extra = 0.0
-            if factor:  # calibrate the injected slowdown on the unit's own median (power tests), warm
-                warm = min(_median(self._block(self.model, 0.0)) for _ in range(3))
-                self.extra = (float(factor) - 1.0) * warm
+        self.factor, self.extra = float(factor or 1.0), None
 
     def _block(self, model, extra):
         return time_block(model, self.seq, self.start, self.stop, self.steps, self.warmup, extra)
@@ -137,6 +134,11 @@ class _Unit:
         except Exception:  # factorisations and solver handles of some models cannot be copied
             m, copied = self.model, False
         with _blas(self.threads):
+            if self.extra is None:
+                # the injected slowdown (power tests) calibrated on the unit's own warm median, at the
+                # first block: on the core the blocks are timed on, not the one the build ran on
+                warm = min(_median(self._block(self.model, 0.0)) for _ in range(3)) if self.factor != 1.0 else 0.0
+                self.extra = (self.factor - 1.0) * warm
             return self._block(m, self.extra), copied
 
 
