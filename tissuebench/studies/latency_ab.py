@@ -26,11 +26,10 @@ worker processes are the models:
   (the next core the next round; as many cores as the protocol's ``blas_threads`` ask). On
   this 2-core machine the core a process ran on moved a step 1.3-1.8x for the whole
   process, in either direction: timed in turn, each on the core the scheduler gave it, the
-  two sides of one round still differed by more than 1.2x in
-  73 of 320 unit-rounds of identical code (per-round HEAD/REF spread, sd of the log ratio
-  0.169). Pinned: 8 of 320, sd 0.023, worst 1.34 (was 1.8); all 40 units decided in 8
-  rounds (32 before). Both measured with ``check --against HEAD --ab-rounds 8,8`` on the ci
-  preset.
+  two sides of one round still differed by more than 1.2x in 73 of 320 unit-rounds of
+  identical code (per-round HEAD/REF spread, sd of the log ratio 0.169). Pinned: 8 of 320,
+  sd 0.023, worst 1.34 (was 1.8); all 40 units decided in 8 rounds (32 before). Both
+  measured with ``check --against HEAD --ab-rounds 8,8`` on the ci preset.
 * After ``min_rounds`` rounds, every unit whose confidence interval of the HEAD/REF
   median ratio lies clear of the decision threshold is decided (:mod:`.ab_stats`) and
   leaves the later rounds; the rest run until ``max_rounds`` or the time budget.
