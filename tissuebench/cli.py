@@ -315,8 +315,8 @@ def _check_parser(sub):
     chk.add_argument("--baseline", type=Path, default=None, help="baseline TOML: errors gated exactly (e.g. "
                      "baselines/ci.toml); latency too when there is no --against")
     chk.add_argument("--against", default=None, metavar="REF", help="git ref (e.g. HEAD~1): every unit re-timed "
-                     "with REF's code and this code in alternating processes (A/B); falls back to the baseline's "
-                     "latency ratios when REF is not in the clone")
+                     "with REF's code and this code, their processes timed in turn on one core (A/B); falls back "
+                     "to the baseline's latency ratios when REF is not in the clone")
     chk.add_argument("--require", default=None, help='e.g. "rate>=500Hz, error<=2%%": every case needs a unit that '
                      "meets it (p99 rule of the report)")
     chk.add_argument("--update-baseline", action="store_true", help="rewrite the baseline from the results")

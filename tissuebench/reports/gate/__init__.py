@@ -13,9 +13,10 @@ Three checks of a sweep's results folder, at least one asked for:
   A unit missing or failed, or with more flagged steps (failed, extrapolated, beyond
   validity, not reached), regresses too.
 * **Latency, A/B in one run** (``--against REF``): every ok unit re-timed with REF's code and
-  with this code in alternating worker processes (:mod:`tissuebench.studies.latency_ab`); a
-  unit regresses when its HEAD/REF median ratio is judged ``slower`` against
-  ``latency_tolerance`` (default 1.3) and its step grew by at least ``latency_floor_s``
+  with this code, a worker process per side timed in turn on one core
+  (:mod:`tissuebench.studies.latency_ab`); a unit regresses when its HEAD/REF median ratio
+  is judged ``slower`` against ``latency_tolerance`` (default 1.3) and its step grew by at
+  least ``latency_floor_s``
   (default 10 us; rule in :mod:`tissuebench.studies.ab_stats`). Without
   REF the baseline file's ratios are used (**file mode**: the haptic median over the
   calibration kernel may not exceed the baseline's times ``file_latency_tolerance``, the
