@@ -37,9 +37,12 @@ from __future__ import annotations
 
 import copy
 import json
+import os
 import sys
 import time
 import traceback
+
+from threadpoolctl import threadpool_limits
 
 
 def _prepare_legacy(case, method, options, steps, seed):
@@ -118,7 +121,7 @@ class _Unit:
     def __init__(self, unit, seed, factor):
         self.threads = unit.get("blas_threads") or None
         self.steps, self.warmup = int(unit["steps"]), int(unit["warmup"])
-        with _blas(self.threads):
+        with threadpool_limits(limits=self.threads, user_api="blas"):
             self.model, self.seq, self.start, self.stop = prepare(unit, seed)
             if not self.seq:
                 raise ValueError("the unit's evaluation gives no step to time")
@@ -133,32 +136,13 @@ class _Unit:
             m, copied = copy.deepcopy(self.model), True
         except Exception:  # factorisations and solver handles of some models cannot be copied
             m, copied = self.model, False
-        with _blas(self.threads):
+        with threadpool_limits(limits=self.threads, user_api="blas"):
             if self.extra is None:
                 # the injected slowdown (power tests) calibrated on the unit's own warm median, at the
                 # first block: on the core the blocks are timed on, not the one the build ran on
                 warm = min(_median(self._block(self.model, 0.0)) for _ in range(3)) if self.factor != 1.0 else 0.0
                 self.extra = (self.factor - 1.0) * warm
             return self._block(m, self.extra), copied
-
-
-class _blas:
-    """``threadpool_limits`` of the unit's BLAS threads, or nothing (no threadpoolctl, no limit)."""
-
-    def __init__(self, threads):
-        self.threads, self.limits = threads, None
-
-    def __enter__(self):
-        try:
-            from threadpoolctl import threadpool_limits
-        except ImportError:
-            return self
-        self.limits = threadpool_limits(limits=self.threads, user_api="blas")
-        return self
-
-    def __exit__(self, *exc):
-        if self.limits is not None:
-            self.limits.unregister()
 
 
 def _failure(exc):
@@ -201,8 +185,6 @@ def serve(job, commands, reply):
 def _pin(cpus):
     """Every thread of this process (BLAS's included) onto the cores ``cpus`` (Linux); the
     number of threads pinned (0 where the platform cannot)."""
-    import os
-
     if not hasattr(os, "sched_setaffinity") or not os.path.isdir("/proc/self/task"):
         return 0
     n = 0
@@ -216,8 +198,6 @@ def _pin(cpus):
 
 
 def main(argv):
-    import os
-
     job = json.loads(open(argv[1]).read())
     # the protocol owns the original stdout; anything the side's code prints goes to stderr
     proto = os.fdopen(os.dup(1), "w")
