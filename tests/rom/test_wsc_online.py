@@ -76,23 +76,36 @@ class _Scaled:
         return np.linalg.solve(self.H, b + self.E @ b)
 
 
-@pytest.mark.parametrize("cond", [1e1, 1e4])
+@pytest.mark.parametrize("cond", [1e1, 1e4, 1e6])
 def test_the_rounding_radius_is_the_spectral_radius(cond):
     """The acceptance test's estimate against the exact spectral radius of ``P H - I``
-    (``eigvals``), for a perturbation of known spectrum, and for the real float32 operator."""
+    (``eigvals``): exact for a linear perturbation of known spectrum; for the real float32
+    operator, within a factor of the exact radius and below the a-priori rounding bound.
+
+    The float32 operator also rounds its input, so ``P H - I`` is not a linear map and power
+    iteration on it is a noisy estimate: over 40 seeds x 3 condition numbers (OpenBLAS, numpy
+    2.4) the ratio estimate / exact ran 0.49 .. 3.65, another machine's BLAS gave 0.79 where
+    this one gives 1.87. What any IEEE float32 BLAS guarantees is the order of magnitude, and
+    the acceptance rule (rho <= SINGLE_TOL = 0.1) needs only that: the radius is 1e-7 .. 1e-2
+    here, far from 0.1, and the boundary itself is decided on exact spectra (first assert)."""
     H = _spd(50, cond)
     rng = np.random.default_rng(3)
     Q, _ = np.linalg.qr(rng.standard_normal((50, 50)))
     # P H - I = H^-1 E H: similar to E, eigenvalues -0.3 and -0.15 .. 0.05: rho = 0.3 whatever H
     E = (Q * np.r_[-0.3, np.linspace(-0.15, 0.05, 49)]) @ Q.T
     assert _rounding_radius(_Scaled(H, E), H, rng.standard_normal(50)) == pytest.approx(0.3, rel=1e-3)
-    d = 1.0 / np.sqrt(np.diag(H))
-    op = _Dense(sla.cho_factor(d[:, None] * H * d[None, :], lower=False)[0], d, np.float32)
-    P = np.array([op.solve(e) for e in np.eye(50)]).T
-    exact = np.max(np.abs(np.linalg.eigvals(P @ H - np.eye(50))))
-    # the operator also rounds its input to float32 (exact for the unit vectors that gave P):
-    # the estimate may exceed the matrix's radius by that, never fall far below it
-    assert 0.9 * exact <= _rounding_radius(op, H, rng.standard_normal(50)) <= 1.5 * exact
+    for seed in range(4):
+        H = _spd(50, cond, seed)
+        d = 1.0 / np.sqrt(np.diag(H))
+        Hs = d[:, None] * H * d[None, :]
+        op = _Dense(sla.cho_factor(Hs, lower=False)[0], d, np.float32)
+        P = np.array([op.solve(e) for e in np.eye(50)]).T
+        exact = np.max(np.abs(np.linalg.eigvals(P @ H - np.eye(50))))
+        estimate = _rounding_radius(op, H, np.random.default_rng(100 + seed).standard_normal(50))
+        # Cholesky in precision u: backward error <= c n u |Hs|, forward error <= kappa(Hs) times that
+        bound = 50 * 2.0**-24 * np.linalg.cond(Hs)
+        assert exact / 8 <= estimate <= min(8 * exact, bound), (seed, estimate, exact, bound)
+        assert (estimate <= SINGLE_TOL) == (exact <= SINGLE_TOL)
 
 
 @pytest.fixture(scope="module")

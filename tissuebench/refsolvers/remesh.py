@@ -5,8 +5,10 @@ For meshes that come from a file (the liver) there are no builder parameters to 
 them into smooth patches and build a parametrisation of each (``classifySurfaces`` +
 ``createGeometry``, the procedure of gmsh's tutorial t13, "remeshing an STL file without
 an underlying CAD model"), and tetrahedralises the enclosed volume at the target element
-size. gmsh (https://gmsh.info, GPL, pip wheel ``gmsh``) is an optional dependency: the
-extra ``tissuebench[mesh]``; without it :func:`remesh` raises ImportError saying so.
+size. gmsh (https://gmsh.info, GPL, pip wheel ``gmsh``) is a dependency of tissuebench; where
+it cannot be imported (a wheel missing a system library), :func:`gmsh_import_error` says why,
+the methods that remesh do not apply (``coarse_fe`` on a mesh file) and :func:`remesh` raises
+ImportError saying so.
 """
 from __future__ import annotations
 
@@ -16,15 +18,20 @@ import numpy as np
 
 from .mesh import Mesh
 
-__all__ = ["remesh", "mean_edge_length", "gmsh_available"]
+__all__ = ["remesh", "mean_edge_length", "gmsh_available", "gmsh_import_error"]
+
+
+def gmsh_import_error() -> str:
+    """``""`` when gmsh imports, else why it does not (the ImportError's text and the fix)."""
+    try:
+        import gmsh  # noqa: F401
+    except ImportError as exc:  # OSError of a missing shared library surfaces as ImportError too
+        return f"gmsh cannot be imported here ({exc}); install it with: pip install gmsh"
+    return ""
 
 
 def gmsh_available() -> bool:
-    try:
-        import gmsh  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    return not gmsh_import_error()
 
 
 def mean_edge_length(mesh: Mesh) -> float:
@@ -58,7 +65,7 @@ def remesh(mesh: Mesh, size: float, angle_deg: float = 80.0) -> Mesh:
     Raises
     ------
     ImportError
-        gmsh is not installed (``pip install "tissuebench[mesh]"``).
+        gmsh cannot be imported (``pip install gmsh``).
     ValueError
         Not a tetrahedral mesh, ``size`` not > 0, or gmsh produced no tetrahedron.
     """
@@ -66,11 +73,10 @@ def remesh(mesh: Mesh, size: float, angle_deg: float = 80.0) -> Mesh:
         raise ValueError(f"remesh: needs a tetrahedral mesh, got {mesh.cell_type!r}")
     if not (isinstance(size, (int, float)) and math.isfinite(size) and size > 0):
         raise ValueError(f"remesh: size must be a finite number > 0, got {size!r}")
-    try:
-        import gmsh
-    except ImportError:
-        raise ImportError("remesh: gmsh is not installed; it is the optional extra tissuebench[mesh] "
-                          "(pip install 'tissuebench[mesh]' or pip install gmsh)") from None
+    why = gmsh_import_error()
+    if why:
+        raise ImportError(f"remesh: {why}")
+    import gmsh
     try:
         return _remesh(gmsh, mesh, float(size), angle_deg)
     except Exception as first:  # gmsh raises plain Exception with its last error

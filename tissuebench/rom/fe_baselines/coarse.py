@@ -9,7 +9,8 @@ element sizes), with the physics ``model`` = ``"full"`` (the scene's material), 
   divisions / c; the cornea's core, ring and layer counts / c; netgen's ``maxh`` x c; an
   STL liver's ``maxh`` x c), else (a mesh read from a file: the shipped liver) from the
   boundary surface remeshed by gmsh at c x the mean edge length
-  (:func:`~tissuebench.refsolvers.remesh.remesh`; optional extra ``tissuebench[mesh]``),
+  (:func:`~tissuebench.refsolvers.remesh.remesh`; where gmsh cannot be imported the method
+  does not apply to such a scene, and says why),
   corrected up to twice towards the requested ratio. ``model_info`` records the mesh and
   the ratio achieved (mean edge length, coarse over fine). The Dirichlet sets are the scene's
   regions resolved on the coarse mesh.
@@ -38,7 +39,7 @@ from ...cases.builtmesh import BuiltMesh
 from ...cases.probes import hex_shape_functions, make_probe
 from ...refsolvers.backends import make_backend
 from ...refsolvers.mesh import node_layout
-from ...refsolvers.remesh import mean_edge_length, remesh
+from ...refsolvers.remesh import gmsh_import_error, mean_edge_length, remesh
 from ..base import RomMethod, Training, check_choice, register
 from .common import DeadLoads, FieldMap, contact_load, contact_nodes_of, intact_backend, scene_of
 from .corotational import corotational_backend, roundoff_force
@@ -73,6 +74,13 @@ def _by_parameters(scene, c):
         h = float(p.get(key, default)) * c
         return scene.with_mesh({key: h}), f"builder parameter {key} = {h:g}"
     return None
+
+
+def _by_parameters_known(scene) -> bool:
+    """True when :func:`_by_parameters` coarsens ``scene``'s mesh without gmsh."""
+    builder, p = scene.mesh_spec["builder"], scene.mesh_spec.get("params", {})
+    return builder in _COUNTS or builder in _SIZES or (
+        builder == "liver" and str(p.get("path", "")).lower().endswith(".stl"))
 
 
 def _by_remeshing(scene, c):
@@ -232,6 +240,15 @@ class CoarseFe(RomMethod):
         self.coarsening, self.model = float(coarsening), model
         self.rtol, self.max_iterations, self.min_increment = rtol, max_iterations, min_increment
         self.linear_solver, self.integrator = linear_solver, integrator
+
+    @classmethod
+    def why_not(cls, scene, options=None) -> str:
+        """Besides :attr:`applies`: a mesh without builder parameters to coarsen is remeshed by gmsh,
+        so where gmsh cannot be imported the method does not apply to it (named, with the fix)."""
+        why = super().why_not(scene, options)
+        if why or not getattr(scene, "is_fe", False) or _by_parameters_known(scene):
+            return why
+        return gmsh_import_error()
 
     def build(self, training: Training):
         scene = scene_of(training, self.name)
