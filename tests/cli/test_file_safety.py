@@ -152,6 +152,24 @@ def test_a_run_folder_that_is_a_link_is_replaced_through_it(tmp_path):
         check_output_location(loop, overwrite=True)
 
 
+@pytest.mark.parametrize("kind", ["device", "fifo", "loop"])
+def test_run_and_sweep_refuse_an_out_that_cannot_be_a_folder_before_any_work(tmp_path, monkeypatch, capsys, kind):
+    from _gate_spec import SPEC
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("worked before the output location was checked")
+    monkeypatch.setattr("tissuebench.studies.run.solve", refuse)
+    monkeypatch.setattr("tissuebench.studies.sweep._execute", refuse)
+    spec = tmp_path / "gate.toml"
+    spec.write_text(SPEC)
+    path = _target(tmp_path, kind)
+    for command in (["run", SCENE], ["sweep", str(spec)]):
+        assert main([*command, "--out", str(path), "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert f"--out = {path}: " in err and KINDS[kind] in err and len(err.strip().splitlines()) == 1
+        assert _unchanged(path, kind)
+
+
 def test_a_stores_derived_folder_has_the_mode_of_its_other_folders(tmp_path, umask):
     from tissuebench.studies.sweep import write_derived
 

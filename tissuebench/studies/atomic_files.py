@@ -23,7 +23,8 @@ import secrets
 import stat
 from pathlib import Path
 
-__all__ = ["OutputPathError", "output_file", "stat_output", "replacing", "write_text", "write_bytes", "new_folder"]
+__all__ = ["OutputPathError", "output_file", "stat_output", "kind_of", "replacing", "write_text", "write_bytes",
+           "new_folder"]
 
 
 class OutputPathError(ValueError):
@@ -35,9 +36,10 @@ def _where(path, option) -> str:
     return f"{option} {path}" if option else str(path)
 
 
-def _kind(mode: int) -> str:
-    kinds = [(stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-             (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket")]
+def kind_of(mode: int) -> str:
+    """What a file of ``st_mode`` ``mode`` is, in words ("a FIFO (named pipe)")."""
+    kinds = [(stat.S_ISREG, "a file"), (stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"),
+             (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket")]
     return next((name for test, name in kinds if test(mode)), "not a regular file")
 
 
@@ -80,7 +82,7 @@ def output_file(path, option=None) -> Path:
     """
     st = stat_output(path, option)
     if st is not None and not stat.S_ISREG(st.st_mode):
-        raise OutputPathError(f"{_where(path, option)}: is {_kind(st.st_mode)}, not a regular file; "
+        raise OutputPathError(f"{_where(path, option)}: is {kind_of(st.st_mode)}, not a regular file; "
                               "give the path of a file")
     path = Path(path)
     target = Path(os.path.realpath(path)) if st is not None or path.is_symlink() else path
@@ -98,7 +100,7 @@ def _mode_of(target: Path, option) -> int | None:
     except FileNotFoundError:
         return None
     if not stat.S_ISREG(st.st_mode):
-        raise OutputPathError(f"{_where(target, option)}: is {_kind(st.st_mode)}, not a regular file")
+        raise OutputPathError(f"{_where(target, option)}: is {kind_of(st.st_mode)}, not a regular file")
     return stat.S_IMODE(st.st_mode)
 
 

@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 from ..reference.provenance import code_hash, git_commit, package_versions
-from .atomic_files import new_folder, replacing, stat_output
+from .atomic_files import kind_of, new_folder, replacing, stat_output
 
 
 def check_output_location(out: Path, overwrite: bool = False) -> None:
@@ -36,7 +36,7 @@ def check_output_location(out: Path, overwrite: bool = False) -> None:
     st = stat_output(out, "--out =")  # a loop of links, a name too long ...: OutputPathError
     exists, is_dir = st is not None, out.is_dir()
     if exists and not is_dir:
-        raise ValueError(f"--out = {out}: exists and is not a folder")
+        raise ValueError(f"--out = {out}: exists and is not a folder ({kind_of(st.st_mode)})")
     if exists and not overwrite:
         raise FileExistsError(f"output folder {out} exists; pass overwrite (--force) to replace it")
     parent = next((p for p in out.absolute().parents if p.exists()), None)
