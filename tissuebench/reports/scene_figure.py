@@ -81,6 +81,7 @@ def draw_scene(scene, summary: dict, path: Path) -> str:
                "arrows": arrows[loaded < mesh.n_vertices], "monitors": monitor_points(scene),
                "title": np.array(f"{scene.name}: {len(fixed)} constrained nodes (red), {len(loaded)} loaded (arrows), "
                                  f"{len(scene.monitors)} monitors (blue)")}
+    path.parent.mkdir(parents=True, exist_ok=True)
     with replacing(path, "--out", suffix=".png") as png:  # no half-drawn picture, a link written through
         fd, vtu = tempfile.mkstemp(prefix=".scene.", suffix=".vtu", dir=png.parent)
         os.close(fd)

@@ -23,8 +23,7 @@ import secrets
 import stat
 from pathlib import Path
 
-__all__ = ["OutputPathError", "output_file", "stat_output", "kind_of", "replacing", "write_text", "write_bytes",
-           "new_folder"]
+__all__ = ["OutputPathError", "output_file", "stat_output", "kind_of", "replacing", "write_text", "new_folder"]
 
 
 class OutputPathError(ValueError):
@@ -80,16 +79,22 @@ def output_file(path, option=None) -> Path:
         ``path`` (through its links) is a folder, a device, a FIFO or a socket, a loop of links,
         holds a NUL byte; or the nearest existing folder above it is not writable.
     """
+    target = _target(path, option)
+    folder = next((p for p in [target.parent, *target.parent.parents] if p.exists()), Path("."))
+    if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
+        raise OutputPathError(f"{_where(path, option)}: the folder {folder} is not writable")
+    return target
+
+
+def _target(path, option) -> Path:
+    """:func:`output_file` without the check of the folder: a writer that meets an unwritable
+    folder raises the file system's own OSError (a store turned read-only mid-sweep)."""
     st = stat_output(path, option)
     if st is not None and not stat.S_ISREG(st.st_mode):
         raise OutputPathError(f"{_where(path, option)}: is {kind_of(st.st_mode)}, not a regular file; "
                               "give the path of a file")
     path = Path(path)
-    target = Path(os.path.realpath(path)) if st is not None or path.is_symlink() else path
-    folder = next((p for p in [target.parent, *target.parent.parents] if p.exists()), Path("."))
-    if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
-        raise OutputPathError(f"{_where(path, option)}: the folder {folder} is not writable")
-    return target
+    return Path(os.path.realpath(path)) if st is not None or path.is_symlink() else path
 
 
 def _mode_of(target: Path, option) -> int | None:
@@ -125,7 +130,7 @@ def replacing(path, option=None, suffix: str = ".tmp"):
     ``suffix`` ``".tmp"`` is what a results store skips and cleans (:mod:`.results`); a writer
     that chooses its format by the name (a PNG) passes ``".png"``. An OSError of the file system
     (unwritable, full) propagates for the caller to name its output."""
-    target = output_file(path, option)
+    target = _target(path, option)
     tmp = _temporary_file(target, suffix)
     try:
         yield tmp
@@ -142,17 +147,9 @@ def replacing(path, option=None, suffix: str = ".tmp"):
 
 def write_text(path, text: str, option=None, encoding: str = "utf-8") -> Path:
     """Write ``text`` to ``path`` through :func:`replacing`; returns the file written."""
-    target = output_file(path, option)
+    target = _target(path, option)
     with replacing(target, option) as tmp:
         tmp.write_text(text, encoding=encoding)
-    return target
-
-
-def write_bytes(path, data: bytes, option=None) -> Path:
-    """Write ``data`` to ``path`` through :func:`replacing`; returns the file written."""
-    target = output_file(path, option)
-    with replacing(target, option) as tmp:
-        tmp.write_bytes(data)
     return target
 
 
