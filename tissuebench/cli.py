@@ -104,7 +104,8 @@ def _parser():
     scene.add_argument("--variant", default=None)
     scene.add_argument("--resolution", default="ci", choices=RESOLUTIONS)
     scene.add_argument("--out", type=Path, default=None,
-                       help="the picture (default: scene.png beside the scene file; '-' for none)")
+                       help="the picture, a .png file (default: scene.png in the working folder; '-' for none)")
+    scene.add_argument("--force", action="store_true", help="replace an existing picture")
     methods = sub.add_parser("methods", help="every registered method: does it apply to SCENE, and why not")
     methods.add_argument("case", help="a scene file or a catalogue case name")
     methods.add_argument("--variant", default=None)
@@ -345,7 +346,10 @@ def _ab_settings(args):
 
 def _check(args) -> int:
     from .reports.gate import GateOutputError, baseline_rows, check, update_baseline, write_junit
+    from .studies.atomic_files import output_file
 
+    if args.junit:  # before the A/B's minutes: a folder, a device, a FIFO, a loop of links is refused
+        output_file(args.junit, "--junit")
     if args.update_baseline:
         if args.baseline is None:
             raise ValueError("--update-baseline needs --baseline FILE")
@@ -461,15 +465,19 @@ def _scene_check(args) -> int:
     from .studies.scene_check import scene_summary, summary_lines
 
     scene = load(args.case, resolution=args.resolution, variant=args.variant)
+    picture = None
+    if scene.is_fe and str(args.out) != "-":  # never beside a catalogue scene: that is inside the package
+        from .reports.scene_figure import picture_path
+
+        picture = picture_path(args.out, args.force)  # before any work
     summary = scene_summary(scene)
     for line in summary_lines(summary, scene.units):
         print(line)
-    if scene.is_fe and str(args.out) != "-":
+    if picture is not None:
         from .reports.scene_figure import draw_scene
 
-        out = args.out or scene.path.parent / "scene.png"
-        how = draw_scene(scene, summary, out)
-        print(f"picture: {out} ({how})")
+        how = draw_scene(scene, summary, picture)
+        print(f"picture: {picture.absolute()} ({how})")
     print(f"scene {scene.path}: valid")
     return 0
 

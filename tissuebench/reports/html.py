@@ -23,7 +23,6 @@ import math
 import os
 import re
 import shutil
-import tempfile
 from pathlib import Path
 
 import jinja2
@@ -31,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from ..reference.provenance import git_commit, package_versions
+from ..studies.atomic_files import new_folder, output_file, write_text
 from .extremes import extremes_table
 from .format import seconds
 from .ladder import ladder_section, versus_baselines
@@ -137,16 +137,18 @@ _STORE_DATA = ("_points", "_outputs", "_latency", "_derived")
 _REPORT_SUFFIXES = (".html", ".htm")
 
 
-def _check_out(out_html: Path, results_dir, force: bool = False) -> None:
+def _check_out(out_html: Path, results_dir, force: bool = False) -> Path:
     """Refuse, before any work, an output that would damage a store or another file: a name
     that is not ``.html``, a place inside a store's data (its datasets, ``_derived``, a
     ``case=`` partition, directly in a store), an existing file that no report wrote (unless
-    ``force``), a folder, an unwritable place."""
+    ``force``), a folder, a device, a FIFO, a loop of links, an unwritable place. Returns the
+    file to write: ``out_html``, or the end of its links (written through)."""
     text = str(out_html)
     if "\0" in text:
         raise ValueError(f"out_html = {text!r}: contains a NUL byte")
     if out_html.is_dir():
         raise ValueError(f"out_html = {text!r}: is a folder; give a file name like report.html")
+    out_html = output_file(out_html, "out_html =")  # before _is_report opens it (a FIFO would block)
     if out_html.suffix.lower() not in _REPORT_SUFFIXES:
         raise ValueError(f"out_html = {text!r}: a report is an HTML file; give a name ending in .html")
     for root in {Path(results_dir), *_stores_above(out_html)}:
@@ -169,6 +171,7 @@ def _check_out(out_html: Path, results_dir, force: bool = False) -> None:
         raise ValueError(f"out_html = {text!r}: {str(parent)!r} is not a folder")
     if not os.access(parent, os.W_OK):
         raise ValueError(f"out_html = {text!r}: the folder {str(parent)!r} is not writable")
+    return out_html
 
 
 def _stores_above(path: Path) -> list:
@@ -212,23 +215,18 @@ def _write(out_html: Path, page: str, tables: list) -> None:
     """The data folder then the page, each through a temporary name (no half-written report)."""
     folder = _data_folder(out_html)
     out_html.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=out_html.parent))
+    tmp = new_folder(out_html.parent, f".{folder.name}.", like=folder)
     try:
         for t in tables:
             t["data"].to_csv(tmp / t["csv"], index=False)
         (tmp / _MARKER).write_text(f"written by tissuebench report for {out_html.name}\n")
-        os.chmod(tmp, 0o755)
         if folder.exists():
             shutil.rmtree(folder)
         tmp.rename(folder)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    fd, tmp_html = tempfile.mkstemp(prefix=f".{out_html.name}.", dir=out_html.parent)
-    with os.fdopen(fd, "w", encoding="utf-8") as fh:
-        fh.write(page)
-    os.chmod(tmp_html, 0o644)
-    os.replace(tmp_html, out_html)
+    write_text(out_html, page, "out_html =")
 
 
 def write_report(results_dir, out_html, require: str | None = None, case: str | None = None,
@@ -253,8 +251,7 @@ def write_report(results_dir, out_html, require: str | None = None, case: str | 
         Replace an existing file that no report wrote (never one inside a store's data).
     """
     requirement = parse_requirement(require)
-    out_html = Path(out_html)
-    _check_out(out_html, results_dir, force)
+    out_html = _check_out(Path(out_html), results_dir, force)
     _data_folder(out_html)
     data = load_results(results_dir, case)
     figures, tables = {}, []

@@ -1,5 +1,8 @@
 """``scene.png``: a scene as a user would check it by eye (``tissuebench scene check``).
 
+Drawn into the working folder (``./scene.png``) or ``--out FILE.png``, never beside the scene
+file: a catalogue scene lives inside the installed package (:func:`picture_path`).
+
 The mesh (translucent surface), the constrained nodes (red), the loads as arrows at the loaded
 nodes (orange, scaled to a tenth of the body), the monitor points (blue spheres). Rendered by
 pyvista off screen in a child process like every picture of the package
@@ -15,9 +18,33 @@ from pathlib import Path
 
 import numpy as np
 
+from ..studies.atomic_files import output_file, replacing
 from .plots import RENDER_TIMEOUT_S, _windows, write_vtu
 
-__all__ = ["draw_scene", "render_scene_child", "monitor_points"]
+__all__ = ["draw_scene", "render_scene_child", "monitor_points", "picture_path", "DEFAULT_PICTURE"]
+
+DEFAULT_PICTURE = Path("scene.png")  # in the working folder
+
+
+def picture_path(out=None, force: bool = False) -> Path:
+    """The file ``scene check`` draws into, checked before any work: ``out``, or
+    :data:`DEFAULT_PICTURE` in the working folder when None.
+
+    Returns the file to write (a symbolic link is written through). ValueError naming ``--out``
+    and the path for a folder, a name not ending in ``.png``, a device, FIFO, socket or loop of
+    links, an unwritable folder; FileExistsError for an existing picture without ``force``.
+    """
+    option = "--out" if out is not None else "--out (default)"
+    path = DEFAULT_PICTURE if out is None else Path(out)
+    if path.is_dir():
+        raise ValueError(f"{option} {path}: is a folder; give a file name like scene.png")
+    target = output_file(path, option)
+    if path.suffix.lower() != ".png":
+        raise ValueError(f"{option} {path}: the picture is a PNG file; give a name ending in .png")
+    if target.exists() and not force:
+        raise FileExistsError(f"{option} {path}: exists; pass --force to replace it (or --out FILE.png, "
+                              "or --out - for no picture)")
+    return target
 
 
 def monitor_points(scene) -> np.ndarray:
@@ -38,7 +65,8 @@ def monitor_points(scene) -> np.ndarray:
 
 def draw_scene(scene, summary: dict, path: Path) -> str:
     """Draw ``scene`` with the node sets of its ``summary`` (:func:`~tissuebench.studies.scene_check.scene_summary`)
-    to ``path`` (PNG); returns the renderer used (``"pyvista"`` or ``"matplotlib"``)."""
+    to ``path`` (PNG, replaced atomically; check it first with :func:`picture_path`); returns the
+    renderer used (``"pyvista"`` or ``"matplotlib"``)."""
     path = Path(path)
     mesh = scene.mesh
     pts = mesh.points
@@ -53,21 +81,22 @@ def draw_scene(scene, summary: dict, path: Path) -> str:
                "arrows": arrows[loaded < mesh.n_vertices], "monitors": monitor_points(scene),
                "title": np.array(f"{scene.name}: {len(fixed)} constrained nodes (red), {len(loaded)} loaded (arrows), "
                                  f"{len(scene.monitors)} monitors (blue)")}
-    folder = path.parent
-    fd, vtu = tempfile.mkstemp(prefix=".scene.", suffix=".vtu", dir=folder)
-    os.close(fd)
-    npz = Path(vtu).with_suffix(".npz")
-    try:
-        write_vtu(mesh, np.zeros(3 * mesh.n_vertices), vtu)
-        np.savez(npz, **markers)
-        for window in _windows():
-            if _render_in_child(vtu, npz, path, window):
-                return "pyvista"
-    finally:
-        Path(vtu).unlink(missing_ok=True)
-        npz.unlink(missing_ok=True)
-    _plot_matplotlib(mesh, markers, path)
-    return "matplotlib"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with replacing(path, "--out", suffix=".png") as png:  # no half-drawn picture, a link written through
+        fd, vtu = tempfile.mkstemp(prefix=".scene.", suffix=".vtu", dir=png.parent)
+        os.close(fd)
+        npz = Path(vtu).with_suffix(".npz")
+        try:
+            write_vtu(mesh, np.zeros(3 * mesh.n_vertices), vtu)
+            np.savez(npz, **markers)
+            for window in _windows():
+                if _render_in_child(vtu, npz, png, window):
+                    return "pyvista"
+        finally:
+            Path(vtu).unlink(missing_ok=True)
+            npz.unlink(missing_ok=True)
+        _plot_matplotlib(mesh, markers, png)
+        return "matplotlib"
 
 
 def _render_in_child(vtu, npz, png, window) -> bool:

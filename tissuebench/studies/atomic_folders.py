@@ -3,7 +3,9 @@
 A run writes into a temporary sibling folder and renames it into place at the end, so
 an interrupted or failed run never leaves a half-written result folder behind; what a
 SIGKILL leaves (the hidden temporary folder) is removed by the next run into the same
-place. Output locations are checked before any work (:func:`check_output_location`).
+place. Output locations are checked before any work (:func:`check_output_location`). An
+output folder that is a symbolic link is written through (the folder it points to is replaced,
+the link stays), as every file the tool writes is (:mod:`.atomic_files`).
 """
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ import time
 from pathlib import Path
 
 from ..reference.provenance import code_hash, git_commit, package_versions
+from .atomic_files import kind_of, new_folder, replacing, stat_output
 
 
 def check_output_location(out: Path, overwrite: bool = False) -> None:
@@ -30,12 +33,10 @@ def check_output_location(out: Path, overwrite: bool = False) -> None:
     if "\0" in text:
         raise ValueError(f"--out = {text!r}: contains a NUL byte")
     out = Path(out)
-    try:
-        exists, is_dir = out.exists(), out.is_dir()
-    except OSError as exc:  # a name too long, a loop of links ...
-        raise ValueError(f"--out = {out}: not a usable path ({exc})") from None
+    st = stat_output(out, "--out =")  # a loop of links, a name too long ...: OutputPathError
+    exists, is_dir = st is not None, out.is_dir()
     if exists and not is_dir:
-        raise ValueError(f"--out = {out}: exists and is not a folder")
+        raise ValueError(f"--out = {out}: exists and is not a folder ({kind_of(st.st_mode)})")
     if exists and not overwrite:
         raise FileExistsError(f"output folder {out} exists; pass overwrite (--force) to replace it")
     parent = next((p for p in out.absolute().parents if p.exists()), None)
@@ -112,13 +113,14 @@ def atomic_directory(out: Path, overwrite: bool = False):
     included); a SIGKILL cannot be caught, so the next run into ``out`` removes it
     (:func:`clean_leftovers`, by its dead PID)."""
     out = Path(out)
-    if out.exists() and not overwrite:
+    if stat_output(out, "--out =") is not None and not overwrite:
         raise FileExistsError(f"output folder {out} exists; pass overwrite (--force) to replace it")
+    if out.is_symlink():  # written through: the folder it points to is replaced, the link stays
+        out = Path(os.path.realpath(out))
     out.parent.mkdir(parents=True, exist_ok=True)
     clean_leftovers(out)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-{os.getpid()}-", dir=out.parent))
+    tmp = new_folder(out.parent, f".{out.name}.tmp-{os.getpid()}-", like=out)  # the umask's mode, or out's
     try:
-        os.chmod(tmp, 0o755)  # mkdtemp makes it private; a result folder is meant to be shared
         yield tmp
         if out.exists():
             old = out.with_name(f".{out.name}.old-{os.getpid()}")
@@ -135,17 +137,9 @@ def atomic_directory(out: Path, overwrite: bool = False):
 
 def write_json_atomic(path: Path, data) -> None:
     """Write ``data`` as JSON to ``path`` through a temporary file renamed into place
-    (removed when the write fails: a full disk leaves nothing behind)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(data, fh, indent=2, default=str)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    (removed when the write fails: a full disk leaves nothing behind; :func:`.atomic_files.replacing`)."""
+    with replacing(path) as tmp, open(tmp, "w") as fh:
+        json.dump(data, fh, indent=2, default=str)
 
 
 def provenance(**extra) -> dict:

@@ -38,6 +38,7 @@ import pyarrow.parquet as pq
 
 from .schema import LATENCY_COLUMNS, OUTPUT_COLUMNS, POINT_COLUMNS, SAFE_NAME, UNIT_COLUMNS, conform
 from .sweep_manifest import MANIFEST, SweepManifestError, read_sweep_manifest
+from .atomic_files import replacing
 from .atomic_folders import process_alive, write_json_atomic
 
 __all__ = ["ResultsStore", "SweepLocked", "StoreError", "read_units", "read_points", "read_outputs", "read_latency",
@@ -59,11 +60,8 @@ def _safe(name: str, what: str) -> str:
 
 def _write_table(table, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    pq.write_table(table, tmp)
-    with open(tmp, "rb") as fh:
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    with replacing(path) as tmp:  # .NAME.xxxxxxxx.tmp: skipped by readers, cleaned at the next start
+        pq.write_table(table, tmp)
 
 
 def write_table(frame: pd.DataFrame, path) -> None:

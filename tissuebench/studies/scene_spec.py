@@ -30,6 +30,7 @@ from pathlib import Path
 
 from ..cases.scene import load
 from ..rom import METHODS
+from .atomic_files import write_text
 from .applicability import evaluation_why_not, load_scale_why_not, why_not
 from .case_entry import CaseEntry
 from .ladder import RUNG_METHODS
@@ -195,7 +196,5 @@ def write_scene_spec(scene_path, out: Path, variant: str | None = None,
     except ValueError:  # another drive (Windows)
         rel = str(Path(scene_path).resolve())
     text, left_out = scene_spec_text(scene, rel, variant, resolution)
-    tmp = spec_path.with_name(f".{spec_path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(spec_path)
+    write_text(spec_path, text, "the spec of --out")
     return spec_path, left_out

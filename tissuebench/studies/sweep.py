@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +27,7 @@ from .metrics import TOLERANCES, pareto_front
 from .results import ResultsStore, read_points, read_units
 from .sweep_manifest import SweepManifestError, read_sweep_manifest
 from .spec import SweepSpec, expand_units
+from .atomic_files import new_folder
 from .atomic_folders import _writable, check_output_location, provenance
 
 __all__ = ["SweepSummary", "run_sweep", "check_output_folder", "write_derived"]
@@ -247,7 +247,8 @@ def write_derived(out: Path, error_metric: str = "max_rel_l2", figures=None) -> 
     if not scaling.empty:  # a scaling_group of cases at >= 2 sizes (studies/scaling.py)
         tables["scaling"] = scaling
     final = out / "_derived"
-    tmp = Path(tempfile.mkdtemp(prefix="._derived.", dir=out))
+    # the umask's mode, as every other folder of the store (mkdtemp's 0700 of earlier versions is not kept)
+    tmp = new_folder(out, "._derived.")
     try:
         for name, table in tables.items():
             table.to_parquet(tmp / f"{name}.parquet", index=False)

@@ -28,11 +28,11 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import tomlkit
+
+from ...studies.atomic_files import output_file, write_text
 
 __all__ = ["DEFAULTS", "UNIT_KEYS", "BaselineError", "load_baseline", "unit_identity", "update_baseline"]
 
@@ -167,6 +167,7 @@ def update_baseline(rows: dict, baseline) -> int:
     path = Path(baseline)
     if path.exists() and not path.is_file():
         raise BaselineError(f"baseline {path}: not a file")
+    output_file(path, "--baseline")  # a loop of links, an unwritable folder: before reading
     try:
         doc = tomlkit.parse(path.read_text()) if path.is_file() else tomlkit.document()
     except Exception as exc:
@@ -193,20 +194,10 @@ def update_baseline(rows: dict, baseline) -> int:
 
 
 def _atomic_write(path: Path, text: str) -> None:
+    """Through a temporary file (:func:`~tissuebench.studies.atomic_files.write_text`: a link is
+    written through, a device or FIFO refused, the file's mode kept)."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        write_text(path, text, "--baseline")
     except OSError as exc:
         raise BaselineError(f"baseline {path}: cannot be written: {exc.strerror or exc}") from None
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except OSError as exc:
-        Path(tmp).unlink(missing_ok=True)
-        raise BaselineError(f"baseline {path}: cannot be written: {exc.strerror or exc}") from None
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise

@@ -9,13 +9,12 @@ intervals beside the threshold. All written atomically.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pandas as pd
 
+from ...studies.atomic_files import replacing
 from ...studies.results import read_units, write_table
 from ...studies.sweep_manifest import read_sweep_manifest
 
@@ -93,15 +92,15 @@ def _plot(table: pd.DataFrame, path: Path, against: str) -> None:
     ax.set_xscale("log")
     ax.set_xlabel(f"median haptic step, this code / {against} (95 % interval; dashed: decision threshold)")
     fig.tight_layout()
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with replacing(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    os.replace(tmp, path)
 
 
 def write_junit(result, path) -> None:
-    """One test case per unit checked (a failure per finding); atomic. GateOutputError naming
-    the path when it cannot be written."""
+    """One test case per unit checked (a failure per finding); atomic
+    (:func:`~tissuebench.studies.atomic_files.replacing`). GateOutputError naming the path when
+    it cannot be written, OutputPathError (a ValueError) when it is not a regular file."""
     cases = result.per_unit
     suite = ET.Element("testsuite", name="tissuebench.check", tests=str(len(cases) + len(result.new_units)),
                        failures=str(sum(1 for f in cases.values() if f)))
@@ -116,14 +115,9 @@ def write_junit(result, path) -> None:
     path = Path(path)
     if path.is_dir():
         raise GateOutputError(f"--junit {path}: is a folder")
-    tmp = None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        with os.fdopen(fd, "wb") as fh:
-            ET.ElementTree(suite).write(fh, encoding="utf-8", xml_declaration=True)
-        os.replace(tmp, path)
+        with replacing(path, "--junit") as tmp:  # a device, a FIFO refused (OutputPathError); a link written through
+            ET.ElementTree(suite).write(tmp, encoding="utf-8", xml_declaration=True)
     except OSError as exc:
-        if tmp is not None:
-            Path(tmp).unlink(missing_ok=True)
         raise GateOutputError(f"--junit {path}: cannot be written: {exc.strerror or exc}") from None
 
