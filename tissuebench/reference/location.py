@@ -8,8 +8,12 @@ of a cluster uses the location the sweep was given, never its own environment by
 A bare path and a ``file://`` URL are the local file system, handled with :mod:`pathlib` as
 always (a folder renamed into place is atomic there). Any other URL (``s3://bucket/cache``,
 ``gcs://...``, ``memory://...`` in tests) goes through fsspec's file system of that protocol:
-its package must be installed (``s3fs`` for ``s3://``). An unknown protocol, or one whose
-package is missing, is a ValueError naming the value.
+its package must be installed (``s3fs`` for ``s3://``). An unknown protocol, one whose
+package is missing, or one of a file system the cache cannot be written to and listed on (an
+archive such as ``zip://``, ``data://``, ``http(s)://``, ``github://``, ``dask://``: only
+:data:`WRITABLE_PROTOCOLS` are accepted) is a ValueError naming the value. A sweep also writes
+and removes a probe file before any work (:func:`probe_cache`): a read-only cache is refused
+then, not after each unit's reference solve.
 """
 from __future__ import annotations
 
@@ -26,7 +30,8 @@ from pathlib import Path
 import fsspec
 from fsspec.core import split_protocol, url_to_fs
 
-__all__ = ["CACHE_ENV", "cache_url", "check_cache_url", "using_cache", "open_cache", "LocalRoot", "RemoteRoot"]
+__all__ = ["CACHE_ENV", "WRITABLE_PROTOCOLS", "cache_url", "check_cache_url", "probe_cache", "using_cache",
+           "open_cache", "LocalRoot", "RemoteRoot"]
 
 CACHE_ENV = "TISSUEBENCH_CACHE"
 _CURRENT: contextvars.ContextVar = contextvars.ContextVar("tissuebench_cache", default=None)
@@ -49,23 +54,65 @@ def cache_url(cache=None) -> str:
     return str(Path(base) / "tissuebench")
 
 
+#: the fsspec protocols of file systems a cache can be written to and listed on (object stores,
+#: shared and remote file systems; ``memory`` for tests). Any other protocol fsspec knows is read-only,
+#: an archive or a transport (zip, tar, data, http, github, dask, a caching wrapper ...): refused.
+WRITABLE_PROTOCOLS = frozenset({
+    "memory", "s3", "s3a", "gcs", "gs", "abfs", "az", "adl", "oci", "ocilake", "oss", "tos", "tosfs",
+    "hdfs", "arrow_hdfs", "webhdfs", "sftp", "ssh", "ftp", "smb", "webdav", "dbfs", "lakefs", "root",
+})
+_WHAT = ("give a folder, file://, or a writable file system's URL (s3, gcs, abfs, sftp, hdfs, ...: "
+         "tissuebench.reference.location.WRITABLE_PROTOCOLS)")
+
+
 def check_cache_url(url, name: str = "--cache") -> str:
     """``url`` stripped, or ValueError naming ``name`` and the value: not a non-empty string, a NUL
-    byte, a protocol fsspec does not know, or one whose package is not installed."""
+    byte, a chained URL (``a::b``), a protocol fsspec does not know, one that is not a writable file
+    system (:data:`WRITABLE_PROTOCOLS`), or one whose package is not installed."""
     if not isinstance(url, (str, Path)) or not str(url).strip() or "\x00" in str(url):
         raise ValueError(f"{name} = {url!r}: expected a folder path or a URL such as s3://bucket/cache")
     url = str(url).strip()
+    if "::" in url:
+        raise ValueError(f"{name} = {url!r}: a chained URL (::) is not a location the cache can be written to; "
+                         "give a folder or one file system's URL, e.g. s3://bucket/cache")
     protocol, _ = split_protocol(url)
     if protocol in (None, "file", "local"):
         return url
+    if protocol not in WRITABLE_PROTOCOLS:
+        if protocol in fsspec.available_protocols():
+            raise ValueError(f"{name} = {url!r}: protocol {protocol!r} is not a file system the cache can be "
+                             f"written to and listed on (read-only, an archive or a transport); {_WHAT}")
+        raise ValueError(f"{name} = {url!r}: unknown protocol {protocol!r}; {_WHAT}")
     try:
         fsspec.get_filesystem_class(protocol)
-    except ValueError:
-        raise ValueError(f"{name} = {url!r}: unknown protocol {protocol!r} (fsspec knows "
-                         f"{', '.join(sorted(fsspec.available_protocols())[:12])}, ...)") from None
+    except ValueError:  # pragma: no cover - every protocol of the list is one fsspec registers
+        raise ValueError(f"{name} = {url!r}: unknown protocol {protocol!r}") from None
     except ImportError as exc:
         raise ValueError(f"{name} = {url!r}: protocol {protocol!r} needs a package that is not installed "
                          f"({exc})") from None
+    return url
+
+
+def probe_cache(cache=None, name: str = "--cache") -> str:
+    """Check, before any work, that the cache location can be written: a small file written
+    into its root (created if missing) and removed. Returns the location (:func:`cache_url`);
+    ValueError naming ``name``, the value and the error (a read-only folder, no permission,
+    credentials refused), so that no unit fails after its reference solve for a cache it
+    cannot store in."""
+    url = cache_url(cache)
+    root = open_cache(url)
+    probe = f".tissuebench-probe-{os.getpid()}-{secrets.token_hex(4)}"
+    try:
+        if isinstance(root, LocalRoot):
+            root.root.mkdir(parents=True, exist_ok=True)
+        elif root.root:
+            root.fs.makedirs(root.root, exist_ok=True)
+        path = root.child(root.root, probe)
+        root.write_bytes(path, b"tissuebench cache probe\n")
+        root.remove(path)
+    except Exception as exc:  # noqa: BLE001 - an OSError, or a remote file system's own (credentials)
+        why = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+        raise ValueError(f"{name} = {url!r}: the reference cache cannot be written there: {why}") from None
     return url
 
 
