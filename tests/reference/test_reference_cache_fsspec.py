@@ -393,3 +393,19 @@ def test_the_probe_leaves_nothing_in_the_cache(tmp_path):
     assert list((tmp_path / "c").iterdir()) == []
     fs, root = fsspec.core.url_to_fs(url)
     assert fs.ls(root, detail=False) == []
+
+
+def test_a_file_system_that_cannot_be_opened_exits_2_on_one_line(monkeypatch, capsys):
+    """Found by tests/studies/test_fuzz_surfaces.py: ``cache ls --cache arrow_hdfs://`` (pyarrow
+    without libhdfs) was "cache: cannot use ?: OSError", exit 1."""
+    from tissuebench.cli import main
+    from tissuebench.reference import location
+
+    def unopenable(url, **kwargs):
+        raise OSError("HDFS connection failed\nlibhdfs.so: cannot open shared object file")
+
+    monkeypatch.setattr(location, "url_to_fs", unopenable)
+    assert main(["cache", "ls", "--cache", "hdfs://namenode/cache"]) == 2
+    err = capsys.readouterr().err
+    assert err == ("tissuebench: error: --cache = 'hdfs://namenode/cache': the hdfs file system cannot be opened: "
+                   "OSError: HDFS connection failed | libhdfs.so: cannot open shared object file\n")

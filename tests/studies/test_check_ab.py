@@ -154,6 +154,9 @@ def test_ref_is_resolved_exported_and_its_absence_said(two_commits, tmp_path):
         resolve_ref(tmp_path, "HEAD")
     with pytest.raises(ValueError, match=f"--against = 'nope': not a commit of the repository {two_commits}"):
         resolve_ref(two_commits, "nope")
+    # found by tests/studies/test_fuzz_surfaces.py: '^HEAD' verified as '^<sha>', then handed to git archive
+    with pytest.raises(ValueError, match=r"--against = '\^HEAD': not a single commit \(git rev-parse gives '\^"):
+        resolve_ref(two_commits, "^HEAD")
     for bad in ("--upload-pack=x", " -x", "", "a\x00b", "HEAD\n", "x" * 1025, None):
         with pytest.raises(ValueError, match=r"--against = .*: expected a git ref"):
             resolve_ref(two_commits, bad)

@@ -11,7 +11,8 @@ always (a folder renamed into place is atomic there). Any other URL (``s3://buck
 its package must be installed (``s3fs`` for ``s3://``). An unknown protocol, one whose
 package is missing, or one of a file system the cache cannot be written to and listed on (an
 archive such as ``zip://``, ``data://``, ``http(s)://``, ``github://``, ``dask://``: only
-:data:`WRITABLE_PROTOCOLS` are accepted) is a ValueError naming the value. A sweep also writes
+:data:`~.cache_protocols.WRITABLE_PROTOCOLS` are accepted, :mod:`.cache_protocols`) is a
+ValueError naming the value. A sweep also writes
 and removes a probe file before any work (:func:`probe_cache`): a read-only cache is refused
 then, not after each unit's reference solve.
 """
@@ -27,8 +28,9 @@ import tempfile
 import time
 from pathlib import Path
 
-import fsspec
 from fsspec.core import split_protocol, url_to_fs
+
+from .cache_protocols import WRITABLE_PROTOCOLS, check_cache_url, one_line
 
 __all__ = ["CACHE_ENV", "WRITABLE_PROTOCOLS", "cache_url", "check_cache_url", "probe_cache", "using_cache",
            "open_cache", "LocalRoot", "RemoteRoot"]
@@ -54,45 +56,6 @@ def cache_url(cache=None) -> str:
     return str(Path(base) / "tissuebench")
 
 
-#: the fsspec protocols of file systems a cache can be written to and listed on (object stores,
-#: shared and remote file systems; ``memory`` for tests). Any other protocol fsspec knows is read-only,
-#: an archive or a transport (zip, tar, data, http, github, dask, a caching wrapper ...): refused.
-WRITABLE_PROTOCOLS = frozenset({
-    "memory", "s3", "s3a", "gcs", "gs", "abfs", "az", "adl", "oci", "ocilake", "oss", "tos", "tosfs",
-    "hdfs", "arrow_hdfs", "webhdfs", "sftp", "ssh", "ftp", "smb", "webdav", "dbfs", "lakefs", "root",
-})
-_WHAT = ("give a folder, file://, or a writable file system's URL (s3, gcs, abfs, sftp, hdfs, ...: "
-         "tissuebench.reference.location.WRITABLE_PROTOCOLS)")
-
-
-def check_cache_url(url, name: str = "--cache") -> str:
-    """``url`` stripped, or ValueError naming ``name`` and the value: not a non-empty string, a NUL
-    byte, a chained URL (``a::b``), a protocol fsspec does not know, one that is not a writable file
-    system (:data:`WRITABLE_PROTOCOLS`), or one whose package is not installed."""
-    if not isinstance(url, (str, Path)) or not str(url).strip() or "\x00" in str(url):
-        raise ValueError(f"{name} = {url!r}: expected a folder path or a URL such as s3://bucket/cache")
-    url = str(url).strip()
-    if "::" in url:
-        raise ValueError(f"{name} = {url!r}: a chained URL (::) is not a location the cache can be written to; "
-                         "give a folder or one file system's URL, e.g. s3://bucket/cache")
-    protocol, _ = split_protocol(url)
-    if protocol in (None, "file", "local"):
-        return url
-    if protocol not in WRITABLE_PROTOCOLS:
-        if protocol in fsspec.available_protocols():
-            raise ValueError(f"{name} = {url!r}: protocol {protocol!r} is not a file system the cache can be "
-                             f"written to and listed on (read-only, an archive or a transport); {_WHAT}")
-        raise ValueError(f"{name} = {url!r}: unknown protocol {protocol!r}; {_WHAT}")
-    try:
-        fsspec.get_filesystem_class(protocol)
-    except ValueError:  # pragma: no cover - every protocol of the list is one fsspec registers
-        raise ValueError(f"{name} = {url!r}: unknown protocol {protocol!r}") from None
-    except ImportError as exc:
-        raise ValueError(f"{name} = {url!r}: protocol {protocol!r} needs a package that is not installed "
-                         f"({exc})") from None
-    return url
-
-
 def probe_cache(cache=None, name: str = "--cache") -> str:
     """Check, before any work, that the cache location can be written: a small file written
     into its root (created if missing) and removed. Returns the location (:func:`cache_url`);
@@ -111,7 +74,7 @@ def probe_cache(cache=None, name: str = "--cache") -> str:
         root.write_bytes(path, b"tissuebench cache probe\n")
         root.remove(path)
     except Exception as exc:  # noqa: BLE001 - an OSError, or a remote file system's own (credentials)
-        why = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+        why = getattr(exc, "strerror", None) or one_line(exc)
         raise ValueError(f"{name} = {url!r}: the reference cache cannot be written there: {why}") from None
     return url
 
@@ -130,13 +93,20 @@ def using_cache(url):
 
 
 def open_cache(cache=None):
-    """The :class:`LocalRoot` or :class:`RemoteRoot` of the cache location (ValueError for a bad URL)."""
+    """The :class:`LocalRoot` or :class:`RemoteRoot` of the cache location: ValueError naming the
+    URL for a bad one, or a file system that cannot be opened (no connection, no credentials,
+    a native library missing: ``hdfs://`` without libhdfs)."""
     url = cache_url(cache)
-    checked = check_cache_url(url, "cache" if cache is not None else CACHE_ENV)
+    name = "cache" if cache is not None else "--cache" if _CURRENT.get() else CACHE_ENV
+    checked = check_cache_url(url, name)
     protocol, rest = split_protocol(checked)
     if protocol in (None, "file", "local"):
         return LocalRoot(Path(rest if protocol else checked).expanduser())
-    fs, root = url_to_fs(checked)
+    try:
+        fs, root = url_to_fs(checked)
+    except Exception as exc:  # noqa: BLE001 - whatever the file system's package raises on opening
+        raise ValueError(f"{name} = {checked!r}: the {protocol} file system cannot be opened: "
+                         f"{type(exc).__name__}: {one_line(exc)}") from None
     return RemoteRoot(fs, root.rstrip("/"))
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -31,6 +32,7 @@ def _git(repo, *args) -> subprocess.CompletedProcess:
 
 
 MAX_REF_CHARS = 1024  # a git revision longer than this is not one a user typed
+_SHA = re.compile(r"[0-9a-f]{40}|[0-9a-f]{64}")  # a commit's name, SHA-1 or SHA-256
 
 
 def check_ref_text(ref) -> str:
@@ -57,8 +59,11 @@ def resolve_ref(repo, ref: str) -> tuple[str | None, str]:
         raise ValueError(f"--against = {ref!r}: {repo} is not inside a git checkout (no repository to find "
                          f"{ref} in)")
     sha = _git(repo, "rev-parse", "--verify", "--quiet", f"{ref}^{{commit}}")
-    if sha.returncode == 0:
+    if sha.returncode == 0 and _SHA.fullmatch(sha.stdout.strip()):
         return sha.stdout.strip(), ""
+    if sha.returncode == 0:  # '^HEAD' verifies as a negated revision, '^<sha>': not one commit
+        raise ValueError(f"--against = {ref!r}: not a single commit (git rev-parse gives {sha.stdout.strip()[:60]!r} "
+                         f"in {top.stdout.strip()})")
     where = top.stdout.strip()
     if _git(repo, "rev-parse", "--is-shallow-repository").stdout.strip() == "true":
         return None, f"{ref} is not in the history of {where}, a shallow clone"
