@@ -191,17 +191,22 @@ def portable_spec_text(manifest: dict) -> str:
     of the same file, selected by ``--cases`` or not). REF's sweep and the A/B load the spec from a
     scratch folder, where the relative path means nothing."""
     text = manifest["spec_text"]
-    doc = tomlkit.parse(text)
-    raw = doc.get("case")
-    if not isinstance(raw, list):
+    try:
+        doc = tomlkit.parse(text)
+    except Exception:  # noqa: BLE001 - a damaged spec: left as it is, for the spec loader to name
         return text
-    resolved = {c.get("id"): c.get("name") for c in manifest.get("cases") or [] if isinstance(c, dict)}
+    raw = doc.get("case")
+    cases = manifest.get("cases")
+    if not isinstance(raw, list) or not isinstance(cases, list):
+        return text
+    resolved = {c.get("id"): c.get("name") for c in cases if isinstance(c, dict) and isinstance(c.get("id"), str)}
     catalogue, names = set(list_cases()), {}
     for c in raw:
         name = c.get("name") if isinstance(c, dict) else None
         if not isinstance(name, str) or name in catalogue or Path(name).is_absolute():
             continue
-        full = resolved.get(c.get("id", Path(name).stem))
+        cid = c.get("id", Path(name).stem)
+        full = resolved.get(cid) if isinstance(cid, str) else None
         if isinstance(full, str) and Path(full).is_absolute():
             names[name] = full
     if not names:
