@@ -12,9 +12,8 @@ its package must be installed (``s3fs`` for ``s3://``). An unknown protocol, one
 package is missing, or one of a file system the cache cannot be written to and listed on (an
 archive such as ``zip://``, ``data://``, ``http(s)://``, ``github://``, ``dask://``: only
 :data:`~.cache_protocols.WRITABLE_PROTOCOLS` are accepted, :mod:`.cache_protocols`) is a
-ValueError naming the value. A sweep also writes
-and removes a probe file before any work (:func:`probe_cache`): a read-only cache is refused
-then, not after each unit's reference solve.
+ValueError naming the value. A sweep also writes and removes a probe file before any work
+(:func:`probe_cache`): a read-only cache is refused then, not after each unit's reference solve.
 """
 from __future__ import annotations
 
@@ -63,7 +62,7 @@ def probe_cache(cache=None, name: str = "--cache") -> str:
     credentials refused), so that no unit fails after its reference solve for a cache it
     cannot store in."""
     url = cache_url(cache)
-    root = open_cache(url)
+    root = open_cache(url, name)
     probe = f".tissuebench-probe-{os.getpid()}-{secrets.token_hex(4)}"
     try:
         if isinstance(root, LocalRoot):
@@ -92,12 +91,13 @@ def using_cache(url):
         _CURRENT.reset(token)
 
 
-def open_cache(cache=None):
+def open_cache(cache=None, name: str | None = None):
     """The :class:`LocalRoot` or :class:`RemoteRoot` of the cache location: ValueError naming the
-    URL for a bad one, or a file system that cannot be opened (no connection, no credentials,
-    a native library missing: ``hdfs://`` without libhdfs)."""
+    URL (and ``name``, the option or variable it came from) for a bad one, or a file system that
+    cannot be opened (no connection, no credentials, a native library missing: ``hdfs://``
+    without libhdfs)."""
     url = cache_url(cache)
-    name = "cache" if cache is not None else "--cache" if _CURRENT.get() else CACHE_ENV
+    name = name or ("cache" if cache is not None else "--cache" if _CURRENT.get() else CACHE_ENV)
     checked = check_cache_url(url, name)
     protocol, rest = split_protocol(checked)
     if protocol in (None, "file", "local"):
