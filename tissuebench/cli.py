@@ -115,8 +115,9 @@ def _parser():
 
 def _cache_option(p):
     p.add_argument("--cache", default=None,
-                   help="the reference cache: a folder or any fsspec URL (s3://bucket/cache; default "
-                        "$TISSUEBENCH_CACHE, else ~/.cache/tissuebench); on a cluster, one every worker reaches")
+                   help="the reference cache: a folder or the URL of a writable fsspec file system (s3://bucket/"
+                        "cache; not zip, http, data ...; default $TISSUEBENCH_CACHE, else ~/.cache/tissuebench); on a "
+                        "cluster, one every worker reaches")
 
 
 def _sweep_options(p):
@@ -124,8 +125,9 @@ def _sweep_options(p):
                    help="mesh resolution of every case and the grid of the methods (default: the spec's, ci)")
     p.add_argument("--out", type=Path, default=None, help="results folder (default: out/sweep-NAME-RES)")
     p.add_argument("--executor", default="serial", help="serial (default) | processes | dask")
-    p.add_argument("--workers", type=int, default=None, help="worker processes (processes, dask LocalCluster)")
-    p.add_argument("--scheduler", default=None, help="address of a running dask scheduler (tcp://host:port)")
+    p.add_argument("--workers", type=int, default=None, help="worker processes of --executor processes or a dask "
+                   "LocalCluster (default 2; at most 4 per core; refused with serial and with --scheduler)")
+    p.add_argument("--scheduler", default=None, help="address of a running dask scheduler, tcp://HOST:PORT")
     _cache_option(p)
     p.add_argument("--resume", action="store_true", help="continue the sweep stored in --out")
     p.add_argument("--cases", default=None, help="only these case ids of the spec (comma-separated)")
@@ -226,6 +228,12 @@ def _sweep(args, preset=None) -> int:
         for name, desc in list_presets():
             print(f"{name:16s} {desc}")
         return 0
+    from .reference.location import check_cache_url
+    from .studies.executors import check_executor
+
+    check_executor(args.executor, args.workers, args.scheduler)  # the options first: before a spec is read
+    if args.cache is not None:
+        check_cache_url(args.cache)
     spec_arg, preset_arg = getattr(args, "spec", None), getattr(args, "preset", None)
     if getattr(args, "scene", None) is not None:
         if spec_arg or preset_arg:
@@ -316,8 +324,8 @@ def _check_parser(sub):
     chk.add_argument("--baseline", type=Path, default=None, help="baseline TOML: errors gated exactly (e.g. "
                      "baselines/ci.toml); latency too when there is no --against")
     chk.add_argument("--against", default=None, metavar="REF", help="git ref (e.g. HEAD~1): every unit re-timed "
-                     "with REF's code and this code, their processes timed in turn on one core (A/B); falls back "
-                     "to the baseline's latency ratios when REF is not in the clone")
+                     "with REF's code and this code, their processes timed in turn on one core (A/B); in a shallow "
+                     "clone that lacks REF, falls back to --baseline (any other REF git cannot resolve: exit 2)")
     chk.add_argument("--require", default=None, help='e.g. "rate>=500Hz, error<=2%%": every case needs a unit that '
                      "meets it (p99 rule of the report)")
     chk.add_argument("--update-baseline", action="store_true", help="rewrite the baseline from the results")
@@ -325,7 +333,8 @@ def _check_parser(sub):
     chk.add_argument("--ab-rounds", default="3,8", metavar="MIN,MAX",
                      help="A/B rounds: at least MIN, at most MAX (default 3,8)")
     chk.add_argument("--ab-blocks", type=int, default=3, help="timed blocks per unit and worker process (default 3)")
-    chk.add_argument("--ab-budget", type=float, default=900.0, help="A/B time budget [s] (default 900)")
+    chk.add_argument("--ab-budget", type=float, default=900.0, help="A/B time budget [s] (default 900), looked at "
+                     "from round MIN on: MIN rounds always run (the interval resamples rounds)")
 
 
 def _ab_settings(args):

@@ -6,6 +6,8 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import os
+import re
 import uuid
 from pathlib import Path
 
@@ -16,7 +18,7 @@ import pytest
 from tissuebench.cases.scene import load
 from tissuebench.reference.cache import (_meta_checksum, cached_solve, cached_table, clear, list_entries,
                                                  reference_key, stray_items)
-from tissuebench.reference.location import check_cache_url, open_cache, using_cache
+from tissuebench.reference.location import check_cache_url, open_cache, probe_cache, using_cache
 
 
 @pytest.fixture()
@@ -305,3 +307,105 @@ def test_report_and_verify_read_the_cache_the_sweep_was_given(monkeypatch, capsy
     manifest.write_text(json.dumps({**json.loads(manifest.read_text()), "cache": 5}))
     with pytest.raises(SweepManifestError, match=r"cache = 5: expected a folder path or URL"):
         read_sweep_manifest(tmp_path / "with")
+
+
+# ------------------------------------------------------------------------ issue 37: which file systems
+@pytest.mark.parametrize("bad, protocol", [
+    ("zip://x", "zip"), ("data://abc", "data"), ("dask://x", "dask"), ("tar://x", "tar"), ("http://h/x", "http"),
+    ("https://h/x", "https"), ("github://o:r@main/x", "github"), ("reference://x", "reference"),
+    ("simplecache://x", "simplecache"), ("libarchive://x", "libarchive")])
+def test_a_read_only_or_archive_protocol_is_refused_naming_it(bad, protocol):
+    """Accepted once, then every unit failed with a raw fsspec error (``cache ls``: NotImplementedError)."""
+    with pytest.raises(ValueError, match=rf"--cache = '{re.escape(bad)}': protocol '{protocol}' is not a file system "
+                                         "the cache can be written to and listed on"):
+        check_cache_url(bad)
+
+
+def test_the_writable_protocols_are_accepted_or_name_their_missing_package(tmp_path):
+    for good in (str(tmp_path), f"file://{tmp_path}", "memory://x/cache", "relative/cache", "~/cache"):
+        assert check_cache_url(good) == good
+    for url in ("s3://bucket/cache", "gcs://bucket/cache", "sftp://host/cache"):
+        try:
+            assert check_cache_url(url) == url
+        except ValueError as exc:  # its package (s3fs, gcsfs, paramiko) is not installed here
+            assert f"--cache = '{url}': protocol" in str(exc) and "needs a package that is not installed" in str(exc)
+    with pytest.raises(ValueError, match=r"--cache = 'simplecache::s3://b/x': a chained URL \(::\)"):
+        check_cache_url("simplecache::s3://b/x")
+
+
+def test_cache_ls_of_a_data_url_exits_2_naming_it(capsys):
+    from tissuebench.cli import main
+
+    assert main(["cache", "ls", "--cache", "data://abc"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("tissuebench: error: --cache = 'data://abc': protocol 'data'") and err.count("\n") == 1
+
+
+def _spec(tmp_path):
+    spec = tmp_path / "s.toml"
+    spec.write_text('[sweep]\nname = "s"\n[protocol]\nlatency_steps = 5\n[[case]]\nname = "cornea_pinch"\n'
+                    '[[method]]\nname = "nearest"\n')
+    return spec
+
+
+def test_a_cache_that_cannot_be_written_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
+    """A read-only cache was found only when each unit tried to store its reference, after solving it."""
+    import errno
+
+    from tissuebench.cli import main
+    from tissuebench.reference import location
+
+    (tmp_path / "afile").write_text("")
+    out, under_a_file = tmp_path / "out", str(tmp_path / "afile" / "c")
+    assert main(["sweep", str(_spec(tmp_path)), "--out", str(out), "--quiet", "--cache", under_a_file]) == 2
+    assert f"--cache = '{under_a_file}': the reference cache cannot be written there: Not a directory" \
+        in capsys.readouterr().err and not out.exists()
+
+    def read_only(self, path, data):  # a read-only mount (root ignores file modes: simulated)
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(path))
+
+    monkeypatch.setattr(location.LocalRoot, "write_bytes", read_only)
+    assert main(["sweep", str(_spec(tmp_path)), "--out", str(out), "--quiet", "--cache", str(tmp_path / "ro")]) == 2
+    assert "the reference cache cannot be written there: Read-only file system" in capsys.readouterr().err
+    assert not out.exists()
+    monkeypatch.setenv("TISSUEBENCH_CACHE", str(tmp_path / "ro"))  # the environment's, probed likewise
+    assert main(["sweep", str(_spec(tmp_path)), "--out", str(out), "--quiet"]) == 2
+    assert f"TISSUEBENCH_CACHE = '{tmp_path / 'ro'}': the reference cache cannot be written" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root ignores file permissions")
+def test_a_read_only_cache_folder_is_refused_before_any_work(tmp_path, capsys):
+    from tissuebench.cli import main
+
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        assert main(["sweep", str(_spec(tmp_path)), "--out", str(tmp_path / "out"), "--quiet", "--cache", str(ro)]) == 2
+    finally:
+        ro.chmod(0o755)
+    assert "the reference cache cannot be written there: Permission denied" in capsys.readouterr().err
+
+
+def test_the_probe_leaves_nothing_in_the_cache(tmp_path):
+    url = f"memory://tb-{uuid.uuid4().hex[:8]}/probe"
+    assert probe_cache(url) == url and probe_cache(str(tmp_path / "c")) == str(tmp_path / "c")
+    assert list((tmp_path / "c").iterdir()) == []
+    fs, root = fsspec.core.url_to_fs(url)
+    assert fs.ls(root, detail=False) == []
+
+
+def test_a_file_system_that_cannot_be_opened_exits_2_on_one_line(monkeypatch, capsys):
+    """Found by tests/studies/test_fuzz_surfaces.py: ``cache ls --cache arrow_hdfs://`` (pyarrow
+    without libhdfs) was "cache: cannot use ?: OSError", exit 1."""
+    from tissuebench.cli import main
+    from tissuebench.reference import location
+
+    def unopenable(url, **kwargs):
+        raise OSError("HDFS connection failed\nlibhdfs.so: cannot open shared object file")
+
+    monkeypatch.setattr(location, "url_to_fs", unopenable)
+    assert main(["cache", "ls", "--cache", "hdfs://namenode/cache"]) == 2
+    err = capsys.readouterr().err
+    assert err == ("tissuebench: error: --cache = 'hdfs://namenode/cache': the hdfs file system cannot be opened: "
+                   "OSError: HDFS connection failed | libhdfs.so: cannot open shared object file\n")

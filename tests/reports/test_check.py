@@ -5,6 +5,9 @@ from __future__ import annotations
 import json
 import os
 import re
+import subprocess
+import sys
+import time
 import xml.etree.ElementTree as ET
 
 import pandas as pd
@@ -13,6 +16,7 @@ import tomlkit
 
 from tissuebench.cli import main
 from tissuebench.reports.gate import BaselineError, baseline_rows, check, load_baseline, update_baseline
+from tissuebench.studies.ref_scratch import clean_stale_scratch, ref_scratch
 from tissuebench.studies.spec import load_spec
 from tissuebench.studies.sweep import run_sweep
 
@@ -231,10 +235,130 @@ def test_require_fails_when_no_unit_of_a_case_meets_it(gated, capsys):
     assert main(["check", str(out), "--require", "speed>=1"]) == 2
 
 
-def test_the_against_fallback_says_why_and_uses_the_file(gated, tmp_path):
+def _git(cwd, *args):
+    subprocess.run(["git", *args], cwd=cwd, check=True, capture_output=True)
+
+
+def _repo(root, files: dict, commits: int = 1):
+    """A git repository at ``root`` with ``files`` (path -> text) committed ``commits`` times."""
+    root.mkdir(parents=True)
+    _git(root, "init", "-q")
+    _git(root, "config", "user.email", "t@t")
+    _git(root, "config", "user.name", "t")
+    for k in range(commits):
+        for name, text in files.items():
+            (root / name).parent.mkdir(parents=True, exist_ok=True)
+            (root / name).write_text(text)
+        (root / "round.txt").write_text(str(k))
+        _git(root, "add", ".")
+        _git(root, "commit", "-qm", f"c{k}")
+    return root
+
+
+def test_a_ref_git_cannot_resolve_exits_2_even_with_a_baseline(gated, tmp_path, capsys):
+    """A mistyped REF once fell back to the baseline file and passed (exit 0): the fallback is the
+    shallow clone's only."""
     _, out, baseline = gated
-    result = check(out, baseline, against="HEAD~1", repo=tmp_path)  # not a git checkout
+    repo = _repo(tmp_path / "repo", {"tissuebench/__init__.py": ""}, commits=2)
+    with pytest.raises(ValueError, match=rf"--against = 'HEAD~zz': not a commit of the repository {repo}"):
+        check(out, baseline, against="HEAD~zz", repo=repo)
+    (tmp_path / "plain").mkdir()
+    with pytest.raises(ValueError, match=rf"--against = 'HEAD~1': {tmp_path / 'plain'} is not inside a git checkout"):
+        check(out, baseline, against="HEAD~1", repo=tmp_path / "plain")
+    with pytest.raises(ValueError, match="--against = '--output=x': expected a git ref"):
+        check(out, baseline, against="--output=x", repo=repo)
+    assert main(["check", str(out), "--baseline", str(baseline), "--against", "HEAD~zz"]) == 2
+    captured = capsys.readouterr()
+    assert "tissuebench: error: --against = 'HEAD~zz': " in captured.err and captured.err.count("\n") == 1
+    assert "hold" not in captured.out
+
+
+def test_only_a_shallow_clone_that_lacks_ref_falls_back_to_the_file(gated, tmp_path):
+    _, out, baseline = gated
+    repo = _repo(tmp_path / "repo", {"tissuebench/__init__.py": ""}, commits=2)
+    shallow = tmp_path / "shallow"
+    _git(tmp_path, "clone", "-q", "--depth", "1", f"file://{repo}", str(shallow))
+    result = check(out, baseline, against="HEAD~1", repo=shallow)
     assert result.ok and result.latency_mode == "file" and result.errors_against == "baseline"
-    assert any("not inside a git checkout: falling back to the baseline file" in n for n in result.notes)
+    assert any(f"HEAD~1 is not in the history of {shallow}, a shallow clone: falling back to the baseline file" in n
+               for n in result.notes), result.notes
     with pytest.raises(ValueError, match="no --baseline to fall back to"):
-        check(out, None, against="HEAD~1", repo=tmp_path)
+        check(out, None, against="HEAD~1", repo=shallow)
+
+
+def test_a_ref_whose_code_does_not_import_exits_2_saying_so(gated, tmp_path):
+    """Such a REF once ran its sweep (exit 1, no results) and the gate noted that its results could
+    not be read, then passed on the baseline file."""
+    _, out, baseline = gated
+    repo = _repo(tmp_path / "repo", {"tissuebench/__init__.py": "def broken(:\n    pass\n"})
+    with pytest.raises(ValueError, match=r"--against HEAD: REF's code \([0-9a-f]{12}\) failed to import: "
+                                         r"SyntaxError: .*; REF cannot run the sweep"):
+        check(out, baseline, against="HEAD", repo=repo, log=lambda m: None)
+
+
+# REF's code for the kill test: its sweep says where it runs, then waits (the check is killed meanwhile)
+SLEEPING_REF = {
+    "tissuebench/__init__.py": "",
+    "tissuebench/rom/__init__.py": "METHODS = {'anm_pod': None, 'pod_interp': None}\n",
+    "tissuebench/studies/__init__.py": "",
+    "tissuebench/studies/sweep.py": "",
+    "tissuebench/cli.py": (
+        "import os, time\n"
+        "if __name__ == '__main__':\n"
+        "    path = os.environ['TB_REF_SWEEP_PID']\n"
+        "    with open(path + '.tmp', 'w') as fh:\n"
+        "        fh.write(str(os.getpid()))\n"
+        "    os.replace(path + '.tmp', path)\n"
+        "    time.sleep(600)\n"),
+}
+CHECK = "import sys; from tissuebench.reports.gate import check; check(sys.argv[1], None, against='HEAD', " \
+        "repo=sys.argv[2], log=lambda m: None)"
+
+
+def _running(pid: int) -> bool:
+    """Process ``pid`` exists and is not a zombie (an orphan's zombie waits for whoever adopts it)."""
+    try:
+        stat = open(f"/proc/{pid}/stat").read()
+    except OSError:
+        return False
+    return stat[stat.rindex(")") + 2] not in "ZX"
+
+
+def _wait_for(condition, seconds: float, what: str) -> None:
+    """Poll ``condition`` until true; fail after ``seconds`` (a guard against a hang, not a timing)."""
+    deadline = time.monotonic() + seconds
+    while not condition():
+        assert time.monotonic() < deadline, what
+        time.sleep(0.1)
+
+
+@pytest.mark.slow  # a check process started and killed (about 5 s); the rules: test_check_ab.py
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the children die with the check on Linux only")
+def test_a_killed_check_leaves_no_ref_sweep_running_and_the_next_removes_its_folder(gated, tmp_path):
+    """SIGKILL of ``check --against`` while REF's sweep runs: the REF sweep dies with it (it once
+    ran on, orphaned), and its scratch folder (once left for good, 2.6 MB a run) is removed by the
+    next check, which leaves a live run's alone."""
+    _, out, _ = gated
+    repo = _repo(tmp_path / "repo", SLEEPING_REF)
+    scratch, pid_file = tmp_path / "tmp", tmp_path / "ref-sweep.pid"
+    scratch.mkdir()
+    env = {**os.environ, "TMPDIR": str(scratch), "TB_REF_SWEEP_PID": str(pid_file)}
+    with open(tmp_path / "check.err", "w") as err:
+        proc = subprocess.Popen([sys.executable, "-c", CHECK, str(out), str(repo)], env=env, stderr=err)
+    try:
+        _wait_for(lambda: pid_file.exists() or proc.poll() is not None, 300, "REF's sweep never started")
+        assert proc.poll() is None, (tmp_path / "check.err").read_text()
+        ref_pid = int(pid_file.read_text())
+        folders = list(scratch.glob("tissuebench-ref.*"))
+        assert len(folders) == 1 and json.loads((folders[0] / "owner.json").read_text())["pid"] == proc.pid
+        assert _running(ref_pid)
+    finally:
+        proc.kill()
+        proc.wait()
+    _wait_for(lambda: not _running(ref_pid), 120, "REF's sweep outlived the killed check")
+    assert folders[0].is_dir()  # nothing runs at a SIGKILL: the next check cleans up
+    said = []
+    with ref_scratch(log=said.append, base=scratch) as live:  # the next check
+        assert not folders[0].exists() and folders[0].name in said[0] and live.parent == scratch
+        assert clean_stale_scratch(scratch) == [] and live.is_dir()  # a live check's folder is kept
+    assert not live.exists()

@@ -108,3 +108,14 @@ def test_a_worker_that_dies_fails_the_a_b_naming_its_side_code_and_last_words(si
     units = [_unit("a", tmp_path / "blocks.log", die=["head"])]
     with pytest.raises(RuntimeError, match=r"A/B head worker of round 1 exited 3: .*dying on purpose"):
         run_ab(units, *sides, decide=lambda s: set(), min_rounds=2, max_rounds=2, blocks=1, log=lambda m: None)
+
+
+def test_the_budget_never_cuts_the_a_b_below_min_rounds(sides, tmp_path):
+    """``check --ab-budget 5 --ab-blocks 1`` stopped after round 1 (the budget was spent while the
+    first workers built): one block median per side, printed as an interval [x, x], and a plot
+    that crashed the check. The budget is looked at from round ``min_rounds`` on."""
+    log = tmp_path / "blocks.log"
+    samples, failures = run_ab([_unit("a", log)], *sides, decide=lambda s: set(), min_rounds=2, max_rounds=4,
+                               blocks=1, budget_s=1e-9, log=lambda m: None, workdir=tmp_path)
+    assert failures == {} and sorted(samples["round"].unique()) == [0, 1]  # 2 rounds: not 1, not 4
+    assert not list(tmp_path.glob("tissuebench-ab.*"))  # its scratch folder, under workdir, removed

@@ -3,15 +3,24 @@ is found or its absence said, the probe times what it should, and end to end an 
 slowdown of one unit is flagged while its untouched neighbour holds."""
 from __future__ import annotations
 
+import json
+import math
+import os
+import platform
+import re
 import subprocess
+import sys
 import time
+import tomllib
 
 import numpy as np
 import pandas as pd
 import pytest
 
+from tissuebench.reports.gate.io import write_ab_artifacts
 from tissuebench.studies import ab_probe, ab_stats
-from tissuebench.studies.ab_ref import export_ref, file_at_ref, resolve_ref
+from tissuebench.studies.ab_ref import export_ref, file_at_ref, portable_spec_text, ref_import_error, resolve_ref
+from tissuebench.studies.ref_scratch import PREFIX, clean_stale_scratch, process_start
 from tissuebench.studies.ab_stats import ratio_interval, verdicts
 from tissuebench.studies.latency_ab import SAMPLE_COLUMNS
 
@@ -138,11 +147,19 @@ def test_ref_is_resolved_exported_and_its_absence_said(two_commits, tmp_path):
     assert file_at_ref(two_commits, sha, tmp_path / "outside.toml") is None
     shallow = tmp_path / "shallow"
     _git(tmp_path, "clone", "-q", "--depth", "1", f"file://{two_commits}", str(shallow))
-    assert resolve_ref(shallow, "HEAD~1") == (None, "HEAD~1 is not in this clone's history (a shallow clone)")
-    assert resolve_ref(tmp_path, "HEAD")[1].endswith("is not inside a git checkout")
-    assert "not a commit" in resolve_ref(two_commits, "nope")[1]
-    with pytest.raises(ValueError, match="--against = '--upload-pack=x'"):
-        resolve_ref(two_commits, "--upload-pack=x")
+    # the one fallback: a shallow clone whose history lacks REF
+    assert resolve_ref(shallow, "HEAD~1") == (None, f"HEAD~1 is not in the history of {shallow}, a shallow clone")
+    # anything else git cannot resolve is an error naming the ref and where it was looked for
+    with pytest.raises(ValueError, match=f"--against = 'HEAD': {tmp_path} is not inside a git checkout"):
+        resolve_ref(tmp_path, "HEAD")
+    with pytest.raises(ValueError, match=f"--against = 'nope': not a commit of the repository {two_commits}"):
+        resolve_ref(two_commits, "nope")
+    # found by tests/studies/test_fuzz_surfaces.py: '^HEAD' verified as '^<sha>', then handed to git archive
+    with pytest.raises(ValueError, match=r"--against = '\^HEAD': not a single commit \(git rev-parse gives '\^"):
+        resolve_ref(two_commits, "^HEAD")
+    for bad in ("--upload-pack=x", " -x", "", "a\x00b", "HEAD\n", "x" * 1025, None):
+        with pytest.raises(ValueError, match=r"--against = .*: expected a git ref"):
+            resolve_ref(two_commits, bad)
 
 
 class _Model:
@@ -181,7 +198,9 @@ def test_an_injected_2x_slowdown_is_flagged_and_its_neighbour_holds(tmp_path):
     from tissuebench.studies.spec import load_spec
     from tissuebench.studies.sweep import run_sweep
 
-    if resolve_ref(HEAD_ROOT, "HEAD")[0] is None:
+    try:
+        resolve_ref(HEAD_ROOT, "HEAD")
+    except ValueError:
         pytest.skip("not run from a git checkout (the standalone copy): no REF to compare with")
     from _gate_spec import SPEC
 
@@ -202,3 +221,150 @@ def test_an_injected_2x_slowdown_is_flagged_and_its_neighbour_holds(tmp_path):
     assert 4.0 < by_method["anm_pod"].ratio < 6.5 and by_method["pod_interp"].verdict == "holds"
     stored = pd.read_parquet(out / "_gate" / "ab_samples.parquet")
     assert set(stored["side"]) == {"ref", "head"} and (out / "_gate" / "ab_ratios.png").is_file()
+
+
+# ------------------------------------------------------------------------ issue 37: one sample, the plot
+def test_a_side_with_one_sample_has_no_interval_and_says_so():
+    """One block median per side: the interval was printed [x, x] (resampling one number); now it
+    is n/a and the unit is judged by its estimate alone. Two per side give an interval."""
+    one = verdicts(_blocks([1.0], [1.5]), 1.3)["u"]
+    assert math.isnan(one.low) and math.isnan(one.high) and not one.decided and one.regressed
+    assert "interval n/a (one sample)" in one.text() and "[" not in one.text().split("(")[0]
+    assert "judged by the estimate alone" in one.text()
+    assert verdicts(_blocks([1.0], [1.05]), 1.3)["u"].verdict == "holds"
+    two = verdicts(_blocks([1.0, 1.0], [1.5, 1.5]), 1.3)["u"]
+    assert two.has_interval and two.low <= two.ratio <= two.high and "[1.500, 1.500]" in two.text()
+
+
+def _verdict_rows(**fields):
+    base = dict(uid="u", ratio=1.0, low=1.0, high=1.0, ref_median_s=1e-5, head_median_s=1e-5, rounds=2, blocks=1,
+                threshold=1.14, verdict="holds", decided=True)
+    return {("c", "m", "{}"): ab_stats.ABVerdict(**{**base, **fields})}
+
+
+@pytest.mark.parametrize("fields", [
+    # the bootstrap works in logs, the estimate does not: equal samples gave a lower end 1 ulp above the
+    # estimate, and matplotlib refused the negative error bar ("'xerr' must not contain negative values")
+    {"ratio": 1.0, "low": 1.0000000000000002, "high": 1.0000000000000002},
+    {"ratio": 1.2, "low": 1.25, "high": 1.4},  # a percentile interval need not hold the estimate
+    {"ratio": 1.5, "low": math.nan, "high": math.nan, "decided": False, "verdict": "slower"},  # one sample
+])
+def test_the_a_b_plot_draws_any_interval(tmp_path, fields):
+    samples = _blocks([1.0, 1.0], [1.0, 1.0])
+    assert write_ab_artifacts(tmp_path, samples, _verdict_rows(**fields), "HEAD", "0" * 40) == ""
+    assert (tmp_path / "_gate" / "ab_ratios.png").stat().st_size > 0
+
+
+def test_a_plot_that_fails_is_a_note_and_the_tables_are_kept(tmp_path, monkeypatch):
+    from tissuebench.reports.gate import io as gate_io
+
+    def broken(*args):
+        raise ValueError("'xerr' must not contain negative values")
+
+    monkeypatch.setattr(gate_io, "_plot", broken)
+    note = write_ab_artifacts(tmp_path, _blocks([1.0, 1.0], [1.0, 1.0]), _verdict_rows(), "HEAD", "0" * 40)
+    assert "ab_ratios.png could not be drawn: ValueError: 'xerr' must not contain negative values" in note
+    assert all((tmp_path / "_gate" / f"ab_{name}.parquet").is_file() for name in ("samples", "verdicts"))
+
+
+# ------------------------------------------------------------------------ issue 37: REF's processes
+def _package(root, files: dict):
+    for name, text in files.items():
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / name).write_text(text)
+    return root
+
+
+FAKE_REF = {"tissuebench/__init__.py": "", "tissuebench/cli.py": "", "tissuebench/rom/__init__.py": "METHODS = {}\n",
+            "tissuebench/studies/__init__.py": "", "tissuebench/studies/sweep.py": ""}
+
+
+def test_ref_processes_import_refs_code_even_from_a_checkouts_root(tmp_path, monkeypatch):
+    """``python -m`` and ``-c`` put the working folder first on sys.path: run from a checkout's root
+    (CI's case), REF's sweep imported HEAD's package there, and compared HEAD's errors with HEAD's."""
+    ref = _package(tmp_path / "ref", FAKE_REF)
+    decoy = _package(tmp_path / "checkout", {**FAKE_REF, "tissuebench/__init__.py": "DECOY = True\n"})
+    monkeypatch.chdir(decoy)
+    assert ref_import_error(ref) == ""
+    # a module REF lacks is never taken from elsewhere (an editable install's hook supplies HEAD's)
+    lacking = _package(tmp_path / "lacking", {k: v for k, v in FAKE_REF.items() if k != "tissuebench/cli.py"})
+    why = ref_import_error(lacking)
+    assert re.match(rf"is not what REF's processes import: tissuebench\.\w+ comes from .*, not from {lacking}", why) \
+        or why.startswith("failed to import: ModuleNotFoundError: No module named 'tissuebench.cli'"), why
+    broken = _package(tmp_path / "broken", {**FAKE_REF, "tissuebench/rom/__init__.py": "METHODS = {\n"})
+    assert re.fullmatch(r"failed to import: SyntaxError: .*", ref_import_error(broken))
+
+
+def test_stale_scratch_folders_are_removed_and_live_ones_kept(tmp_path):
+    """What a SIGKILLed check left is removed by the next (its owner's pid gone, or reused by a
+    process started at another time); a live check's folder, another host's, and a folder whose
+    owner is unknown are kept."""
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    me = {"pid": os.getpid(), "start": process_start(os.getpid()), "host": platform.node()}
+    owners = {"dead": {**me, "pid": dead.pid}, "reused": {**me, "start": "1"}, "live": me,
+              "other_host": {**me, "pid": dead.pid, "host": me["host"] + "-x"}, "damaged": "{", "none": None}
+    for name, owner in owners.items():
+        folder = tmp_path / f"{PREFIX}{name}"
+        folder.mkdir()
+        if owner is not None:
+            (folder / "owner.json").write_text(owner if isinstance(owner, str) else json.dumps(owner))
+    (tmp_path / f"{PREFIX}a_file").write_text("")
+    removed = clean_stale_scratch(tmp_path)
+    assert sorted(p.name for p in removed) == [f"{PREFIX}dead", f"{PREFIX}reused"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        f"{PREFIX}{n}" for n in ("live", "other_host", "damaged", "none", "a_file"))
+
+
+# ------------------------------------------------------------------------ issue 37: a scene-file store
+def test_a_scene_file_case_reads_from_any_folder():
+    """The spec of ``sweep --scene`` names its scene relative to the spec's folder; REF's sweep and
+    the A/B load it from a scratch folder, where that path meant nothing ("unknown case")."""
+    manifest = {"spec_text": '[[case]]\nname = "../kidney/scene.toml"\nid = "path"\n'
+                             '[[case]]\nname = "../kidney/scene.toml"\nid = "operators"\n'
+                             '[[case]]\nname = "cornea_pinch"\n',
+                "cases": [{"id": "path", "name": "/data/kidney/scene.toml"}, {"id": "cornea_pinch",
+                                                                                "name": "cornea_pinch"}]}
+    doc = tomllib.loads(portable_spec_text(manifest))
+    # the operators case (left out by --cases) is the same file: resolved too
+    assert [c["name"] for c in doc["case"]] == ["/data/kidney/scene.toml"] * 2 + ["cornea_pinch"]
+    plain = {"spec_text": '[[case]]\nname = "cornea_pinch"\n',
+             "cases": [{"id": "cornea_pinch", "name": "cornea_pinch"}]}
+    assert portable_spec_text(plain) == plain["spec_text"]
+    # a damaged spec or manifest (read back from _sweep.json) is left to the spec loader to name
+    for damaged in ({"spec_text": "[[case]\nx", "cases": []},
+                    {"spec_text": '[[case]]\nname = "a.toml"\nid = [1]\n', "cases": [{"id": [1], "name": "/x"}]},
+                    {"spec_text": '[[case]]\nname = "a.toml"\n', "cases": {"a": "/x/a.toml"}}):
+        assert portable_spec_text(damaged) == damaged["spec_text"]
+
+
+@pytest.mark.slow
+def test_check_against_gates_a_scene_file_store(tmp_path, monkeypatch):
+    """End to end: a store whose case is a user's scene file named relative to its spec (as
+    ``sweep --scene`` writes it) is gated against REF (REF's sweep once failed with "unknown case
+    '../scene.toml'", exit 2 even with --baseline)."""
+    from _mesh_scene import scene_file, write_block
+    from tissuebench.reports.gate import HEAD_ROOT, ABSettings, check
+    from tissuebench.studies.spec import load_spec
+    from tissuebench.studies.sweep import run_sweep
+
+    try:
+        resolve_ref(HEAD_ROOT, "HEAD")
+    except ValueError:
+        pytest.skip("not run from a git checkout (the standalone copy): no REF to compare with")
+    organ = tmp_path / "organ"
+    organ.mkdir()
+    write_block(organ)
+    scene_file(organ)
+    spec = tmp_path / "study" / "organ.spec.toml"
+    spec.parent.mkdir()
+    spec.write_text('[sweep]\nname = "organ"\n[protocol]\nlatency_steps = 50\nwarmup = 5\n'
+                    '[[case]]\nname = "../organ/scene.toml"\nid = "path"\ntraining = { kind = "path", every = 2 }\n'
+                    'evaluation = { kind = "path", held_out = true }\n[[method]]\nname = "pod_linear"\n'
+                    'grid = { n_modes = [2] }\n')
+    out = tmp_path / "study" / "organ"
+    run_sweep(load_spec(spec), out, progress=False)
+    monkeypatch.chdir(tmp_path)  # neither the spec's folder nor the scene's
+    result = check(out, None, against="HEAD", ab=ABSettings(2, 2, 1), log=lambda m: None)
+    assert result.errors_against == "ref" and result.latency_mode == "ab", result.notes
+    assert result.compared == 1 and len(result.ab) == 1

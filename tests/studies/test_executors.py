@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -13,7 +14,7 @@ import pytest
 
 from _kill_scenarios import units as _units
 from _workers import sleepy
-from tissuebench.studies.executors import execute
+from tissuebench.studies.executors import WORKERS_PER_CORE, check_executor, execute, max_workers
 
 
 def _scenario(name: str, timeout: float = 240) -> dict:
@@ -76,7 +77,8 @@ def test_minor_an_unreachable_scheduler_marks_the_sweep_failed(tmp_path):
 @pytest.mark.parametrize("name", ["serial", "processes"])
 def test_execute_yields_every_unit_once(name):
     units = _units({"sleep": 0.0}, {"sleep": 0.0}, {"sleep": 0.0})
-    assert sorted(u.key for u, _ in execute(units, name, 2, run=sleepy)) == sorted(u.key for u in units)
+    workers = None if name == "serial" else 2  # serial starts no worker: --workers is refused there
+    assert sorted(u.key for u, _ in execute(units, name, workers, run=sleepy)) == sorted(u.key for u in units)
 
 
 def test_a_unit_that_kills_every_dask_worker_it_runs_on_is_stored_failed_and_the_others_finish():
@@ -206,3 +208,67 @@ def test_a_pool_that_broke_between_wait_and_submit_loses_no_unit_and_raises_noth
     done = [(u.key, o.row["unit_status"]) for u, o in execute(units, "processes", 2, run=sleepy)]
     assert sorted(done) == sorted((u.key, "ok") for u in units)
     assert _RacingPool.calls >= len(units) + len(broken_at)
+
+
+# ------------------------------------------------------------------------ issue 37: workers and schedulers
+_TOO_MANY = max_workers() + 1
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    # a flag that did nothing, silently
+    (dict(name="serial", workers=5), "workers = 5: executor 'serial' runs the units one at a time in this process"),
+    (dict(name="serial", workers=1), "workers = 1: executor 'serial'"),
+    (dict(name="dask", workers=2, scheduler="tcp://127.0.0.1:8786"), "workers = 2: the cluster at scheduler = "),
+    # every unit at once: 2 GB on 2 cores, or a LocalCluster that never started
+    (dict(name="processes", workers=_TOO_MANY), f"workers = {_TOO_MANY}: at most {max_workers()} on this machine"),
+    (dict(name="dask", workers=1_000_000), f"workers = 1000000: at most {max_workers()}"),
+    # "not enough values to unpack" from deep inside distributed
+    (dict(name="dask", scheduler="inproc://x"), "scheduler = 'inproc://x': expected the address of a running dask"),
+    (dict(name="dask", scheduler="tcp://host"), "scheduler = 'tcp://host': expected"),
+    (dict(name="dask", scheduler="tcp://host:0"), "scheduler = 'tcp://host:0': expected"),
+    (dict(name="dask", scheduler="tcp://host:65536"), "scheduler = 'tcp://host:65536': expected"),
+    (dict(name="dask", scheduler="tcp://:8786"), "scheduler = 'tcp://:8786': expected"),
+    (dict(name="dask", scheduler="tcp://h:8786/x"), "scheduler = 'tcp://h:8786/x': expected"),
+    (dict(name="dask", scheduler="tls://h:8786"), "scheduler = 'tls://h:8786': expected"),
+    (dict(name="dask", scheduler="127.0.0.1:8786"), "scheduler = '127.0.0.1:8786': expected"),
+])
+def test_bad_workers_and_schedulers_are_refused_naming_them(kwargs, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        check_executor(**kwargs)
+
+
+def test_the_bound_and_the_scheduler_addresses_that_are_accepted():
+    assert max_workers() == WORKERS_PER_CORE * len(os.sched_getaffinity(0))
+    check_executor("processes", max_workers())
+    check_executor("dask", max_workers())
+    check_executor("serial")
+    for address in ("tcp://127.0.0.1:8786", "tcp://[::1]:8786", "tcp://node-3.cluster.local:1", "tcp://h:65535"):
+        check_executor("dask", None, address)
+
+
+def test_workers_with_the_serial_executor_exits_2_before_any_work(tmp_path, capsys):
+    from tissuebench.cli import main
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('[sweep]\nname = "s"\n[protocol]\nlatency_steps = 5\n[[case]]\nname = "cornea_pinch"\n'
+                    '[[method]]\nname = "nearest"\n')
+    assert main(["sweep", str(spec), "--out", str(tmp_path / "out"), "--quiet", "--workers", "5"]) == 2
+    assert "workers = 5: executor 'serial'" in capsys.readouterr().err and not (tmp_path / "out").exists()
+
+
+def test_a_local_cluster_that_cannot_start_fails_and_marks_the_sweep_failed(tmp_path, capsys, monkeypatch):
+    """A LocalCluster whose workers do not start (a process limit; 10**6 workers) left the sweep
+    waiting, and ``_sweep.json`` "running" once killed: now an error within the start timeout."""
+    from tissuebench.cli import main
+    from tissuebench.studies import executors
+    from tissuebench.studies.sweep_manifest import read_sweep_manifest
+
+    monkeypatch.setattr(executors, "start_timeout_s", lambda workers: 1e-6)  # no process starts in 1 us
+    spec = tmp_path / "s.toml"
+    spec.write_text('[sweep]\nname = "s"\n[protocol]\nlatency_steps = 5\n[[case]]\nname = "cornea_pinch"\n'
+                    '[[method]]\nname = "nearest"\n')
+    out = tmp_path / "out"
+    assert main(["sweep", str(spec), "--out", str(out), "--quiet", "--executor", "dask", "--workers", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "executor 'dask': a LocalCluster of workers = 1 could not start (0 of 1 workers running" in err, err
+    assert read_sweep_manifest(out)["state"] == "failed" and not (out / ".lock").exists()

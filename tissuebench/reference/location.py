@@ -8,8 +8,12 @@ of a cluster uses the location the sweep was given, never its own environment by
 A bare path and a ``file://`` URL are the local file system, handled with :mod:`pathlib` as
 always (a folder renamed into place is atomic there). Any other URL (``s3://bucket/cache``,
 ``gcs://...``, ``memory://...`` in tests) goes through fsspec's file system of that protocol:
-its package must be installed (``s3fs`` for ``s3://``). An unknown protocol, or one whose
-package is missing, is a ValueError naming the value.
+its package must be installed (``s3fs`` for ``s3://``). An unknown protocol, one whose
+package is missing, or one of a file system the cache cannot be written to and listed on (an
+archive such as ``zip://``, ``data://``, ``http(s)://``, ``github://``, ``dask://``: only
+:data:`~.cache_protocols.WRITABLE_PROTOCOLS` are accepted, :mod:`.cache_protocols`) is a
+ValueError naming the value. A sweep also writes and removes a probe file before any work
+(:func:`probe_cache`): a read-only cache is refused then, not after each unit's reference solve.
 """
 from __future__ import annotations
 
@@ -23,10 +27,12 @@ import tempfile
 import time
 from pathlib import Path
 
-import fsspec
 from fsspec.core import split_protocol, url_to_fs
 
-__all__ = ["CACHE_ENV", "cache_url", "check_cache_url", "using_cache", "open_cache", "LocalRoot", "RemoteRoot"]
+from .cache_protocols import WRITABLE_PROTOCOLS, check_cache_url, one_line
+
+__all__ = ["CACHE_ENV", "WRITABLE_PROTOCOLS", "cache_url", "check_cache_url", "probe_cache", "using_cache",
+           "open_cache", "LocalRoot", "RemoteRoot"]
 
 CACHE_ENV = "TISSUEBENCH_CACHE"
 _CURRENT: contextvars.ContextVar = contextvars.ContextVar("tissuebench_cache", default=None)
@@ -49,23 +55,26 @@ def cache_url(cache=None) -> str:
     return str(Path(base) / "tissuebench")
 
 
-def check_cache_url(url, name: str = "--cache") -> str:
-    """``url`` stripped, or ValueError naming ``name`` and the value: not a non-empty string, a NUL
-    byte, a protocol fsspec does not know, or one whose package is not installed."""
-    if not isinstance(url, (str, Path)) or not str(url).strip() or "\x00" in str(url):
-        raise ValueError(f"{name} = {url!r}: expected a folder path or a URL such as s3://bucket/cache")
-    url = str(url).strip()
-    protocol, _ = split_protocol(url)
-    if protocol in (None, "file", "local"):
-        return url
+def probe_cache(cache=None, name: str = "--cache") -> str:
+    """Check, before any work, that the cache location can be written: a small file written
+    into its root (created if missing) and removed. Returns the location (:func:`cache_url`);
+    ValueError naming ``name``, the value and the error (a read-only folder, no permission,
+    credentials refused), so that no unit fails after its reference solve for a cache it
+    cannot store in."""
+    url = cache_url(cache)
+    root = open_cache(url, name)
+    probe = f".tissuebench-probe-{os.getpid()}-{secrets.token_hex(4)}"
     try:
-        fsspec.get_filesystem_class(protocol)
-    except ValueError:
-        raise ValueError(f"{name} = {url!r}: unknown protocol {protocol!r} (fsspec knows "
-                         f"{', '.join(sorted(fsspec.available_protocols())[:12])}, ...)") from None
-    except ImportError as exc:
-        raise ValueError(f"{name} = {url!r}: protocol {protocol!r} needs a package that is not installed "
-                         f"({exc})") from None
+        if isinstance(root, LocalRoot):
+            root.root.mkdir(parents=True, exist_ok=True)
+        elif root.root:
+            root.fs.makedirs(root.root, exist_ok=True)
+        path = root.child(root.root, probe)
+        root.write_bytes(path, b"tissuebench cache probe\n")
+        root.remove(path)
+    except Exception as exc:  # noqa: BLE001 - an OSError, or a remote file system's own (credentials)
+        why = getattr(exc, "strerror", None) or one_line(exc)
+        raise ValueError(f"{name} = {url!r}: the reference cache cannot be written there: {why}") from None
     return url
 
 
@@ -82,14 +91,22 @@ def using_cache(url):
         _CURRENT.reset(token)
 
 
-def open_cache(cache=None):
-    """The :class:`LocalRoot` or :class:`RemoteRoot` of the cache location (ValueError for a bad URL)."""
+def open_cache(cache=None, name: str | None = None):
+    """The :class:`LocalRoot` or :class:`RemoteRoot` of the cache location: ValueError naming the
+    URL (and ``name``, the option or variable it came from) for a bad one, or a file system that
+    cannot be opened (no connection, no credentials, a native library missing: ``hdfs://``
+    without libhdfs)."""
     url = cache_url(cache)
-    checked = check_cache_url(url, "cache" if cache is not None else CACHE_ENV)
+    name = name or ("cache" if cache is not None else "--cache" if _CURRENT.get() else CACHE_ENV)
+    checked = check_cache_url(url, name)
     protocol, rest = split_protocol(checked)
     if protocol in (None, "file", "local"):
         return LocalRoot(Path(rest if protocol else checked).expanduser())
-    fs, root = url_to_fs(checked)
+    try:
+        fs, root = url_to_fs(checked)
+    except Exception as exc:  # noqa: BLE001 - whatever the file system's package raises on opening
+        raise ValueError(f"{name} = {checked!r}: the {protocol} file system cannot be opened: "
+                         f"{type(exc).__name__}: {one_line(exc)}") from None
     return RemoteRoot(fs, root.rstrip("/"))
 
 

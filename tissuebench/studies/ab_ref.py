@@ -11,38 +11,64 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import tomlkit
 
-__all__ = ["resolve_ref", "export_ref", "run_ref_sweep", "file_at_ref", "code_env"]
+from ..cases.scene import list_cases
+from .ref_scratch import child_options
+
+__all__ = ["check_ref_text", "resolve_ref", "export_ref", "ref_import_error", "portable_spec_text", "run_ref_sweep",
+           "file_at_ref", "code_env"]
 
 
 def _git(repo, *args) -> subprocess.CompletedProcess:
     return subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True)
 
 
-def resolve_ref(repo, ref: str) -> tuple[str | None, str]:
-    """``(commit sha, "")`` of ``ref`` in the git repository ``repo``, or ``(None, why not)``:
-    not a git checkout, an unknown ref, or history cut by a shallow clone."""
-    if not isinstance(ref, str) or not ref.strip() or ref.startswith("-"):
+MAX_REF_CHARS = 1024  # a git revision longer than this is not one a user typed
+_SHA = re.compile(r"[0-9a-f]{40}|[0-9a-f]{64}")  # a commit's name, SHA-1 or SHA-256
+
+
+def check_ref_text(ref) -> str:
+    """``ref`` when it can be handed to git as a revision, else ValueError naming ``--against`` and
+    the value: not a string, empty, option-like (``-x``: git would read it as an option), a control
+    character (NUL, a newline: not in any ref name) or longer than :data:`MAX_REF_CHARS`."""
+    if (not isinstance(ref, str) or not ref.strip() or ref.lstrip().startswith("-") or len(ref) > MAX_REF_CHARS
+            or any(ord(c) < 0x20 or ord(c) == 0x7F for c in ref)):
         raise ValueError(f"--against = {ref!r}: expected a git ref (a commit, branch or tag, e.g. HEAD~1)")
+    return ref
+
+
+def resolve_ref(repo, ref: str) -> tuple[str | None, str]:
+    """``(commit sha, "")`` of ``ref`` in the git repository ``repo``; ``(None, why)`` only when
+    ``repo`` is a shallow clone that cannot resolve it (its history is cut: the gate's documented
+    fallback to the baseline file). Every other failure is a ValueError naming the ref and the
+    repository searched: git missing, ``repo`` not in a git checkout, a ref that is not a commit
+    there (a typo must not pass as a shallow clone)."""
+    check_ref_text(ref)
     if shutil.which("git") is None:
-        return None, "git is not installed"
+        raise ValueError(f"--against = {ref!r}: git is not installed (needed to find {ref} in {repo})")
     top = _git(repo, "rev-parse", "--show-toplevel")
     if top.returncode != 0:
-        return None, f"{repo} is not inside a git checkout"
+        raise ValueError(f"--against = {ref!r}: {repo} is not inside a git checkout (no repository to find "
+                         f"{ref} in)")
     sha = _git(repo, "rev-parse", "--verify", "--quiet", f"{ref}^{{commit}}")
-    if sha.returncode == 0:
+    if sha.returncode == 0 and _SHA.fullmatch(sha.stdout.strip()):
         return sha.stdout.strip(), ""
-    shallow = _git(repo, "rev-parse", "--is-shallow-repository").stdout.strip() == "true"
-    return None, (f"{ref} is not in this clone's history (a shallow clone)" if shallow
-                  else f"{ref} is not a commit of {top.stdout.strip()}")
+    if sha.returncode == 0:  # '^HEAD' verifies as a negated revision, '^<sha>': not one commit
+        raise ValueError(f"--against = {ref!r}: not a single commit (git rev-parse gives {sha.stdout.strip()[:60]!r} "
+                         f"in {top.stdout.strip()})")
+    where = top.stdout.strip()
+    if _git(repo, "rev-parse", "--is-shallow-repository").stdout.strip() == "true":
+        return None, f"{ref} is not in the history of {where}, a shallow clone"
+    raise ValueError(f"--against = {ref!r}: not a commit of the repository {where} (a branch, tag or commit "
+                     f"that git rev-parse resolves there, e.g. HEAD~1)")
 
 
 def export_ref(repo, sha: str, dest: Path) -> Path:
@@ -72,8 +98,10 @@ def file_at_ref(repo, sha: str, path) -> str | None:
 
 def code_env(root: Path) -> dict:
     """This process's environment with ``root`` (a folder holding a tissuebench package) first
-    on ``PYTHONPATH``: a child process then runs that code."""
-    return {**os.environ, "PYTHONPATH": os.pathsep.join(
+    on ``PYTHONPATH``: a child process then runs that code. ``PYTHONSAFEPATH=1`` (Python 3.11):
+    ``python -m`` and ``-c`` would put the working folder before ``PYTHONPATH``, and from a
+    checkout's root that is HEAD's package (REF's sweep ran HEAD's code there, CI's case)."""
+    return {**os.environ, "PYTHONSAFEPATH": "1", "PYTHONPATH": os.pathsep.join(
         [str(root)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])}
 
 
@@ -107,20 +135,83 @@ def _spec_for(ref_root: Path, spec_text: str) -> tuple[str, list]:
 
 def run_ref_sweep(ref_root: Path, spec_text: str, resolution: str, case_ids: list, out: Path,
                   log=print) -> tuple[bool, str]:
-    """Run the sweep ``spec_text`` (only ``case_ids``) with REF's code into ``out``;
-    ``(True, note)`` when REF's sweep ran (failed units included), else ``(False, why)``."""
+    """Run the sweep ``spec_text`` (only ``case_ids``) with REF's code into ``out``, its spec
+    written beside it (``out`` + ``.toml``); ``(True, note)`` when REF's sweep ran (failed units
+    included), else ``(False, why)``. REF's process dies with this one (:mod:`.ref_scratch`)."""
     text, dropped = _spec_for(ref_root, spec_text)
     note = f"methods REF does not have, left to the baseline file: {dropped}" if dropped else ""
-    with tempfile.TemporaryDirectory(prefix="tissuebench-refspec.") as tmp:
-        spec = Path(tmp) / "sweep.toml"
-        spec.write_text(text)
-        cmd = [sys.executable, "-m", "tissuebench.cli", "sweep", str(spec), "--out", str(out), "--quiet",
-               "--resolution", resolution, "--cases", ",".join(case_ids)]
-        log(f"REF sweep: {len(case_ids)} cases with REF's code" + (f" ({note})" if note else ""))
-        t0 = time.perf_counter()
-        proc = subprocess.run(cmd, env=code_env(ref_root), capture_output=True, text=True)
-        log(f"REF sweep: {time.perf_counter() - t0:.0f} s")
+    spec = Path(f"{out}.toml")
+    spec.write_text(text)
+    cmd = [sys.executable, "-m", "tissuebench.cli", "sweep", str(spec), "--out", str(out), "--quiet",
+           "--resolution", resolution, "--cases", ",".join(case_ids)]
+    log(f"REF sweep: {len(case_ids)} cases with REF's code" + (f" ({note})" if note else ""))
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, env=code_env(ref_root), capture_output=True, text=True, **child_options())
+    log(f"REF sweep: {time.perf_counter() - t0:.0f} s")
     if proc.returncode not in (0, 1):
         tail = " | ".join((proc.stderr or proc.stdout).strip().splitlines()[-2:])
         return False, f"REF's sweep exited {proc.returncode}: {tail[:400]}"
     return True, note
+
+
+# what REF's sweep imports first (a REF that cannot import them cannot run the sweep at all), and
+# the file of every tissuebench module imported: an editable install's import hook hands out HEAD's
+# module for a name REF's package lacks
+_REF_IMPORTS = ("import json, sys, tissuebench, tissuebench.cli, tissuebench.rom, tissuebench.studies.sweep; "
+                "print(); print(json.dumps({n: getattr(m, '__file__', None) for n, m in sys.modules.items() "
+                "if n == 'tissuebench' or n.startswith('tissuebench.')}))")
+
+
+def ref_import_error(ref_root: Path) -> str:
+    """``""`` when REF's code (``ref_root``) imports in REF's processes, else why not, to follow
+    "REF's code": "failed to import: " and the last line of the error (a SyntaxError, an
+    ImportError: REF cannot run anything, which is not a result to compare), or the module those
+    processes import from elsewhere than REF's package."""
+    proc = subprocess.run([sys.executable, "-c", _REF_IMPORTS], env=code_env(ref_root), capture_output=True,
+                          text=True, **child_options())
+    if proc.returncode != 0:
+        lines = [ln.strip() for ln in (proc.stderr or proc.stdout or "").splitlines() if ln.strip()]
+        return "failed to import: " + (lines[-1][:400] if lines else f"the interpreter exited {proc.returncode}")
+    try:
+        files = json.loads(proc.stdout.strip().splitlines()[-1])
+    except (ValueError, IndexError):
+        return f"did not say where it imports tissuebench from ({proc.stdout[-200:]!r})"
+    package = (Path(ref_root) / "tissuebench").resolve()
+    foreign = sorted(n for n, f in files.items() if f and package not in Path(f).resolve().parents)
+    if foreign:
+        return (f"is not what REF's processes import: {foreign[0]} comes from {files[foreign[0]]}, not from "
+                f"{package}" + (f" ({len(foreign) - 1} more modules likewise)" if len(foreign) > 1 else ""))
+    return ""
+
+
+def portable_spec_text(manifest: dict) -> str:
+    """The sweep's spec (``_sweep.json``: ``spec_text``) as it reads from any folder: a case named
+    by a scene file relative to the spec's own folder (the spec ``sweep --scene`` writes beside
+    its results) is given the absolute path the sweep resolved it to (``cases``, by id; every case
+    of the same file, selected by ``--cases`` or not). REF's sweep and the A/B load the spec from a
+    scratch folder, where the relative path means nothing."""
+    text = manifest["spec_text"]
+    try:
+        doc = tomlkit.parse(text)
+    except Exception:  # noqa: BLE001 - a damaged spec: left as it is, for the spec loader to name
+        return text
+    raw = doc.get("case")
+    cases = manifest.get("cases")
+    if not isinstance(raw, list) or not isinstance(cases, list):
+        return text
+    resolved = {c.get("id"): c.get("name") for c in cases if isinstance(c, dict) and isinstance(c.get("id"), str)}
+    catalogue, names = set(list_cases()), {}
+    for c in raw:
+        name = c.get("name") if isinstance(c, dict) else None
+        if not isinstance(name, str) or name in catalogue or Path(name).is_absolute():
+            continue
+        cid = c.get("id", Path(name).stem)
+        full = resolved.get(cid) if isinstance(cid, str) else None
+        if isinstance(full, str) and Path(full).is_absolute():
+            names[name] = full
+    if not names:
+        return text
+    for c in raw:
+        if isinstance(c, dict) and isinstance(c.get("name"), str) and c["name"] in names:
+            c["name"] = names[c["name"]]
+    return tomlkit.dumps(doc)

@@ -31,6 +31,12 @@ the geometric midpoint between no change and the tolerance, ``sqrt(tolerance)`` 
   the undecided 1.3x slowdowns have lower ends 0.82-0.94 (1 in 100 would be lost) and no
   identical run is flagged.
 
+A side with a single observation (one block median: a unit that failed after its first block)
+has no interval: it is said as such (``interval n/a (one sample)``, never ``[x, x]``), and the
+unit is judged by its estimate alone (``slower`` above the threshold: a slowdown that cannot be
+excluded fails the gate). The A/B itself always runs ``min_rounds`` >= 2 rounds
+(:func:`.latency_ab.run_ab`), so every unit it completes has two observations per side at least.
+
 A slowdown must also be one a user could see: ``floor_s`` (the gate's ``latency_floor_s``,
 default 10 us, 1 % of a 1 kHz haptic step) is the least increase of the level, HEAD minus REF,
 that counts. Microsecond steps move 1.6x between processes with the memory layout (pod_interp
@@ -75,12 +81,19 @@ class ABVerdict:
     def regressed(self) -> bool:
         return self.verdict == "slower"
 
+    @property
+    def has_interval(self) -> bool:
+        """False when a side has a single observation: no interval (:func:`ratio_interval`)."""
+        return math.isfinite(self.low) and math.isfinite(self.high)
+
     def text(self) -> str:
-        how = "" if self.decided else " (undecided: judged by the estimate and the interval)"
+        how = "" if self.decided else (" (undecided: judged by the estimate and the interval)" if self.has_interval
+                                       else " (undecided: one sample on a side, judged by the estimate alone)")
         if self.held_by_floor:
             how += f" (below the floor: +{(self.head_median_s - self.ref_median_s) * 1e6:.3g} us < " \
                    f"{self.floor_s * 1e6:.3g} us)"
-        return (f"HEAD/REF {self.ratio:.3f} [{self.low:.3f}, {self.high:.3f}] ({self.head_median_s * 1e6:.4g} vs "
+        interval = f"[{self.low:.3f}, {self.high:.3f}]" if self.has_interval else "interval n/a (one sample)"
+        return (f"HEAD/REF {self.ratio:.3f} {interval} ({self.head_median_s * 1e6:.4g} vs "
                 f"{self.ref_median_s * 1e6:.4g} us, {self.rounds} rounds x {self.blocks} blocks){how}")
 
 
@@ -106,14 +119,18 @@ def _boot_medians(grid: np.ndarray, rng, n_boot: int) -> np.ndarray:
 
 def ratio_interval(ref: pd.DataFrame, head: pd.DataFrame, confidence: float = CONFIDENCE, n_boot: int | None = None,
                    seed: int = 0) -> tuple[float, float, float]:
-    """``(ratio, low, high)`` of HEAD/REF lower quartiles of block medians (module docstring)."""
+    """``(ratio, low, high)`` of HEAD/REF lower quartiles of block medians (module docstring);
+    ``low`` and ``high`` NaN when a side has a single block median: resampling one number gives
+    it back (an interval [x, x] would claim a certainty that one sample does not have)."""
     a, b = _grid(ref), _grid(head)
+    ratio = float(np.quantile(b, LEVEL_QUANTILE) / np.quantile(a, LEVEL_QUANTILE))
+    if a.size < 2 or b.size < 2:
+        return ratio, math.nan, math.nan
     n_boot = n_boot or N_BOOT
     rng = np.random.default_rng(seed)
     boot = np.log(_boot_medians(b, rng, n_boot)) - np.log(_boot_medians(a, rng, n_boot))
     q = (1 - confidence) / 2
     lo, hi = np.quantile(boot, [q, 1 - q])
-    ratio = float(np.quantile(b, LEVEL_QUANTILE) / np.quantile(a, LEVEL_QUANTILE))
     return ratio, float(math.exp(lo)), float(math.exp(hi))
 
 
@@ -134,12 +151,14 @@ def verdicts(samples: pd.DataFrame, tolerance: float | dict = 1.3, final: bool =
         floor = float(floor_s.get(uid, 0.0) if isinstance(floor_s, dict) else floor_s)
         thr = math.sqrt(float(tol))
         ratio, lo, hi = ratio_interval(ref, head)
-        decided = lo > thr or hi < thr
+        decided = lo > thr or hi < thr  # False without an interval (NaN)
         if not decided and not final:
             continue
         ref_level = float(np.quantile(ref["median_s"], LEVEL_QUANTILE))
         head_level = float(np.quantile(head["median_s"], LEVEL_QUANTILE))
-        by_ratio = lo > thr if decided else (ratio > thr and lo > 1 / thr)
+        # undecided: the estimate, and an interval clear of faster; without one (one sample) the estimate
+        # alone: a slowdown that cannot be excluded fails the gate
+        by_ratio = lo > thr if decided else (ratio > thr and (math.isnan(lo) or lo > 1 / thr))
         slower = by_ratio and head_level - ref_level >= floor
         verdict = "slower" if slower else ("faster" if (hi if decided else ratio) < 1 / thr else "holds")
         rounds = int(head["round"].nunique())

@@ -6,6 +6,9 @@ Every executor runs :func:`~.units.run_unit` on plain-data units, one unit at a 
 worker process (threads_per_worker = 1), and yields ``(unit, outcome)`` as units finish;
 the caller alone writes the store, so its contents do not depend on the executor.
 Dask workers of an existing cluster need tissuebench importable (the same version).
+``workers`` sizes the local pools only, at most :data:`WORKERS_PER_CORE` per core
+(:func:`check_executor`); a LocalCluster whose workers do not all run within
+:func:`start_timeout_s` is an error (:func:`_local_cluster`), never a sweep waiting for ever.
 
 The reference cache a unit uses travels with it (``cache``: a folder or an fsspec URL,
 :mod:`.reference.location`), never read from a worker's environment by accident: on a cluster
@@ -27,9 +30,12 @@ dies while it runs alone is stored as failed, saying so, and the sweep goes on.
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import multiprocessing
+import os
+import re
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -38,22 +44,58 @@ from ..reference.cache import cache_url, cached_solve
 from ..reference.location import CACHE_ENV, check_cache_url, using_cache
 from .units import failed_outcome, run_unit, unit_references
 
-__all__ = ["EXECUTORS", "execute", "check_executor"]
+__all__ = ["EXECUTORS", "WORKERS_PER_CORE", "execute", "check_executor", "check_scheduler", "max_workers"]
 
 EXECUTORS = ("serial", "processes", "dask")
 logger = logging.getLogger(__name__)
 
 
+WORKERS_PER_CORE = 4  # a unit is single-threaded: more workers than this per core only share the cores
+# tcp://HOST:PORT, HOST a name, an IPv4 address or a bracketed IPv6 address (what dask's tcp comm parses)
+_SCHEDULER = re.compile(r"tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9](?:[A-Za-z0-9._-]*[A-Za-z0-9])?):([0-9]{1,5})")
+
+
+def max_workers() -> int:
+    """The most worker processes a local executor (``processes``, dask's LocalCluster) starts:
+    :data:`WORKERS_PER_CORE` per core this process may run on."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return WORKERS_PER_CORE * max(1, cores)
+
+
+def check_scheduler(scheduler) -> str:
+    """``scheduler`` when it is a dask scheduler address this executor connects to,
+    ``tcp://HOST:PORT`` (port 1-65535); else ValueError naming it."""
+    m = _SCHEDULER.fullmatch(scheduler) if isinstance(scheduler, str) else None
+    if m is None or not 1 <= int(m.group(2)) <= 65535:
+        raise ValueError(f"scheduler = {scheduler!r}: expected the address of a running dask scheduler, "
+                         "tcp://HOST:PORT (e.g. tcp://127.0.0.1:8786)")
+    return scheduler
+
+
 def check_executor(name: str, workers: int | None = None, scheduler: str | None = None) -> None:
-    """ValueError naming a bad executor, worker count or scheduler address (before any work)."""
+    """ValueError naming a bad executor, worker count or scheduler address (before any work).
+
+    ``workers`` sizes a local pool (``processes``, a dask LocalCluster): at most
+    :func:`max_workers`; it is refused where it would do nothing (``serial``, which runs units in
+    this process, and a ``scheduler``'s cluster, whose workers ``dask worker`` started)."""
     if name not in EXECUTORS:
         raise ValueError(f"executor = {name!r}: valid: {list(EXECUTORS)}")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise ValueError(f"workers = {workers!r}: expected a positive integer")
+    if workers is not None and name == "serial":
+        raise ValueError(f"workers = {workers}: executor 'serial' runs the units one at a time in this process and "
+                         "starts no worker; give --executor processes or dask, or leave --workers out")
+    if workers is not None and scheduler is not None:
+        raise ValueError(f"workers = {workers}: the cluster at scheduler = {scheduler!r} has the workers `dask worker` "
+                         "started there; --workers sizes a local cluster only (leave it out)")
+    if workers is not None and workers > max_workers():
+        raise ValueError(f"workers = {workers}: at most {max_workers()} on this machine ({WORKERS_PER_CORE} per core "
+                         f"this process may run on): each worker is a process running one single-threaded unit, "
+                         "more only share the cores (a cluster: --executor dask --scheduler)")
     if scheduler is not None and name != "dask":
         raise ValueError(f"scheduler = {scheduler!r} needs executor 'dask' (got {name!r})")
-    if scheduler is not None and not (isinstance(scheduler, str) and "://" in scheduler):
-        raise ValueError(f"scheduler = {scheduler!r}: expected an address such as tcp://127.0.0.1:8786")
+    if scheduler is not None:
+        check_scheduler(scheduler)
 
 
 def execute(units, name: str = "serial", workers: int | None = None, scheduler: str | None = None, run=run_unit,
@@ -159,9 +201,7 @@ def _dask(units, workers, scheduler, run, cache):
         raise ValueError(f"executor 'dask' needs dask[distributed]: {exc}") from None
     cluster = None
     if scheduler is None:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=None)
-        client = Client(cluster)
+        cluster, client = _local_cluster(LocalCluster, Client, workers)
     else:
         try:
             client = Client(scheduler, timeout="10s")
@@ -173,6 +213,37 @@ def _dask(units, workers, scheduler, run, cache):
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def start_timeout_s(workers: int) -> float:
+    """How long a LocalCluster of ``workers`` workers may take to start [s]: a spawned worker
+    imports dask and numpy (seconds on a loaded machine), so a minute plus 15 s per worker."""
+    return 60.0 + 15.0 * workers
+
+
+def _local_cluster(LocalCluster, Client, workers: int):
+    """``(cluster, client)`` of a LocalCluster on loopback whose ``workers`` workers all run; a
+    cluster that cannot start them within :func:`start_timeout_s` (a process limit, a worker that
+    dies on start) is closed and a ValueError says so (the sweep is then marked failed)."""
+    cluster = client = None
+    try:
+        cluster = LocalCluster(n_workers=0, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address=None)
+        client = Client(cluster)
+        cluster.scale(workers)
+        client.wait_for_workers(workers, timeout=start_timeout_s(workers))
+    except Exception as exc:  # noqa: BLE001 - whatever stopped it, the sweep cannot run on it
+        running = 0
+        with contextlib.suppress(Exception):
+            running = len(client.scheduler_info().get("workers", {}))
+        for closing in (client, cluster):
+            with contextlib.suppress(Exception):
+                if closing is not None:
+                    closing.close()
+        raise ValueError(f"executor 'dask': a LocalCluster of workers = {workers} could not start ({running} of "
+                         f"{workers} workers running; {start_timeout_s(workers):.0f} s allowed): "
+                         f"{type(exc).__name__}: {exc}") from None
+    return cluster, client
 
 
 RESUBMITS = 2  # a unit whose result was lost (not its run) is submitted again at most this often

@@ -32,7 +32,8 @@ worker processes are the models:
   measured with ``check --against HEAD --ab-rounds 8,8`` on the ci preset.
 * After ``min_rounds`` rounds, every unit whose confidence interval of the HEAD/REF
   median ratio lies clear of the decision threshold is decided (:mod:`.ab_stats`) and
-  leaves the later rounds; the rest run until ``max_rounds`` or the time budget.
+  leaves the later rounds; the rest run until ``max_rounds`` or the time budget, which
+  is looked at only from ``min_rounds`` on (the interval needs rounds to resample).
 
 Every per-step sample is kept (:func:`run_ab` returns them; the gate writes them to
 ``RESULTS/_gate/ab_samples.parquet``).
@@ -52,10 +53,11 @@ from pathlib import Path
 import pandas as pd
 
 from ..rom import make_method
-from .ab_ref import code_env
+from .ab_ref import code_env, portable_spec_text
 from .case_entry import CaseEntry
 from .evaluation import NEEDS_MODEL, build_evaluation
 from .protocol import _start, _timing_sequence
+from .ref_scratch import child_options
 from .spec import expand_units, load_spec
 from .training import build_training, case_scene
 
@@ -108,14 +110,15 @@ class ABUnit:
     blas_threads: int
 
 
-def ab_units(results_dir, rows: pd.DataFrame) -> list[ABUnit]:
+def ab_units(results_dir, rows: pd.DataFrame, workdir=None) -> list[ABUnit]:
     """The :class:`ABUnit` of every row of ``rows`` (units of the store in ``results_dir``):
     the case entries and protocols come from the sweep's own spec (``_sweep.json``), expanded
-    again; ``uid`` is the stored ``unit_key``."""
+    again (loaded from a scratch folder under ``workdir``, its scene files by absolute path:
+    :func:`.ab_ref.portable_spec_text`); ``uid`` is the stored ``unit_key``."""
     manifest = json.loads((Path(results_dir) / "_sweep.json").read_text())
-    with tempfile.TemporaryDirectory(prefix="tissuebench-spec.") as tmp:
+    with tempfile.TemporaryDirectory(prefix="tissuebench-spec.", dir=workdir) as tmp:
         path = Path(tmp) / f"{manifest.get('spec_name', 'sweep')}.toml"
-        path.write_text(manifest["spec_text"])
+        path.write_text(portable_spec_text(manifest))
         spec = load_spec(path, resolution=manifest.get("resolution"))
     by_identity = {u.identity: u for u in expand_units(spec)}
     out = []
@@ -142,7 +145,8 @@ class _Worker:
                                   default=str))
         self._err = open(self.err_path, "w")  # a file, not a pipe: a chatty side cannot block on it
         self.proc = subprocess.Popen([sys.executable, str(scratch / "ab_probe.py"), str(job)], env=code_env(root),
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._err, text=True)
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._err, text=True,
+                                     **child_options())
 
     def _read(self) -> dict:
         line = self.proc.stdout.readline()
@@ -231,12 +235,16 @@ def _round(workers: dict, active: list[ABUnit], blocks: int, rnd: int, failures:
 
 def run_ab(units: list[ABUnit], ref_root: Path, head_root: Path, decide, min_rounds: int = 3,
            max_rounds: int = 8, blocks: int = 3, budget_s: float = 900.0, seed: int = 0,
-           inject: dict | None = None, log=print) -> tuple[pd.DataFrame, dict]:
+           inject: dict | None = None, log=print, workdir=None) -> tuple[pd.DataFrame, dict]:
     """Rounds of one REF (side ``"ref"``) and one HEAD (``"head"``) worker process, their blocks
     timed in turn (module docstring).
 
     ``decide(samples) -> set of decided uids`` is called after each round from ``min_rounds``
-    on. ``inject`` maps uids to a slowdown factor applied on the HEAD side (power tests).
+    on. ``min_rounds`` rounds always run: the time budget ``budget_s`` [s] ends the A/B only
+    after them (the interval resamples rounds, worker processes: one round has no spread
+    between processes to resample, and with one block it is a single number per side).
+    ``inject`` maps uids to a slowdown factor applied on the HEAD side (power tests).
+    ``workdir``: the folder the worker's scratch files go in (default: the temporary folder).
     Returns ``(samples, failures)``: the per-step samples (:data:`SAMPLE_COLUMNS`) and, per
     uid, ``{side: message}`` for units that failed on a side."""
     if min_rounds < 2 or max_rounds < min_rounds or blocks < 1:
@@ -245,7 +253,7 @@ def run_ab(units: list[ABUnit], ref_root: Path, head_root: Path, decide, min_rou
     roots = {"ref": Path(ref_root), "head": Path(head_root)}
     frames, failures, active = [], {}, list(units)
     t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix="tissuebench-ab.") as tmp:
+    with tempfile.TemporaryDirectory(prefix="tissuebench-ab.", dir=workdir) as tmp:
         scratch = Path(tmp)
         shutil.copy(Path(__file__).with_name("ab_probe.py"), scratch / "ab_probe.py")
         for r in range(max_rounds):
@@ -262,7 +270,7 @@ def run_ab(units: list[ABUnit], ref_root: Path, head_root: Path, decide, min_rou
             active = [u for u in active if u.uid not in decided and u.uid not in failures]
             log(f"A/B round {r + 1}/{max_rounds}: {time.perf_counter() - ts:.0f} s; "
                 f"{len(units) - len(active)} of {len(units)} units decided")
-            if not active or time.perf_counter() - t0 > budget_s:
+            if not active or (r + 1 >= min_rounds and time.perf_counter() - t0 > budget_s):
                 break
     return samples, failures
 

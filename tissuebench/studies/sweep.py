@@ -22,7 +22,7 @@ import pandas as pd
 
 from .executors import check_executor, execute
 from ..reference.cache import PROGRESS_ENV
-from ..reference.location import CACHE_ENV, cache_url, check_cache_url
+from ..reference.location import CACHE_ENV, cache_url, check_cache_url, probe_cache
 from .metrics import TOLERANCES, pareto_front
 from .results import ResultsStore, read_points, read_units
 from .sweep_manifest import SweepManifestError, read_sweep_manifest
@@ -102,8 +102,10 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
     out = Path(out)
     check_executor(executor, workers, scheduler)
     if cache is not None:
-        cache = check_cache_url(cache)
-    else:  # the environment's, refused before any work as --cache would be
+        cache = probe_cache(check_cache_url(cache))
+    elif scheduler is None:  # the environment's, refused before any work as --cache would be
+        probe_cache(check_cache_url(cache_url(), CACHE_ENV), CACHE_ENV)
+    else:  # a cluster's workers use each their own: only its form can be checked here
         check_cache_url(cache_url(), CACHE_ENV)
     if cache is None and scheduler is not None and progress:
         log("note: no --cache: each worker of the cluster computes references into its own cache "

@@ -8,8 +8,12 @@ Three checks of a sweep's results folder, at least one asked for:
   (defaults 1e-3 and 1e-9), in either direction, unless the baseline file's entry for that
   unit changed in this commit (a declared change, noted). Same machine and packages make
   identical code give bit-identical errors, so nothing here depends on where the baseline
-  was written. Without REF (no ``--against``, a shallow clone, no git) the errors are gated
-  against the baseline file (:mod:`.baseline`) by the same rule, and the gate says so.
+  was written. Without REF the errors are gated against the baseline file (:mod:`.baseline`)
+  by the same rule, and the gate says so: no ``--against``, or a shallow clone whose cut history
+  lacks REF (the one fallback). A REF git cannot resolve otherwise (a typo, no git checkout, no
+  git) or whose code does not import is an error (exit 2), ``--baseline`` or not. REF's code, its
+  sweep and the A/B's jobs live in a scratch folder (:mod:`tissuebench.studies.ref_scratch`:
+  its processes die with the check; the next check removes what a killed one left).
   A unit missing or failed, or with more flagged steps (failed, extrapolated, beyond
   validity, not reached), regresses too.
 * **Latency, A/B in one run** (``--against REF``): every ok unit re-timed with REF's code and
@@ -18,7 +22,7 @@ Three checks of a sweep's results folder, at least one asked for:
   is judged ``slower`` against ``latency_tolerance`` (default 1.3) and its step grew by at
   least ``latency_floor_s``
   (default 10 us; rule in :mod:`tissuebench.studies.ab_stats`). Without
-  REF the baseline file's ratios are used (**file mode**: the haptic median over the
+  REF (a shallow clone, as above) the baseline file's ratios are used (**file mode**: the haptic median over the
   calibration kernel may not exceed the baseline's times ``file_latency_tolerance``, the
   baseline first raised to ``latency_floor`` calibrations); they move 2-3x between runs for
   microsecond steps, which is why the A/B exists.
@@ -33,12 +37,13 @@ from __future__ import annotations
 
 import json
 import math
-import tempfile
 from pathlib import Path
 
 import tomlkit
 
-from ...studies.ab_ref import export_ref, file_at_ref, resolve_ref, run_ref_sweep
+from ...studies.ab_ref import (check_ref_text, export_ref, file_at_ref, portable_spec_text, ref_import_error,
+                               resolve_ref, run_ref_sweep)
+from ...studies.ref_scratch import ref_scratch
 from ..recommend import parse_requirement
 from . import checks
 from .baseline import DEFAULTS, BaselineError, load_baseline, unit_identity, update_baseline
@@ -78,6 +83,8 @@ def check(results_dir, baseline=None, against: str | None = None, require: str |
     (exit 2) for bad input and for a gate that would compare nothing."""
     if baseline is None and against is None and require is None:
         raise ValueError("check: give --baseline FILE, --against REF or --require REQUIREMENT (or several)")
+    if against is not None:
+        check_ref_text(against)
     requirement = parse_requirement(require) if require is not None else None
     rows, metric = read_gate_results(results_dir)
     defaults, units = load_baseline(baseline) if baseline is not None else (dict(DEFAULTS), [])
@@ -87,16 +94,21 @@ def check(results_dir, baseline=None, against: str | None = None, require: str |
         out.add(("*", "*", "*"), Finding("*", "*", "*", "unit_status", len(rows), 0,
                                          f"all {len(rows)} units of the sweep failed"))
     repo = HEAD_ROOT if repo is None else Path(repo)
+    # a REF git cannot resolve is an error (a typo must not pass on the file), save in a shallow clone
     sha, why = resolve_ref(repo, against) if against is not None else (None, "")
     if against is not None and sha is None:
         if not units:
             raise ValueError(f"--against {against}: {why}; and no --baseline to fall back to")
-        out.notes.append(f"--against {against}: {why}: falling back to the baseline file {baseline}")
+        out.notes.append(f"--against {against}: {why}: falling back to the baseline file {baseline}, as for "
+                         "any shallow clone (fetch the history, e.g. git fetch --unshallow, to compare with REF)")
     if sha is not None:
-        with tempfile.TemporaryDirectory(prefix="tissuebench-ref.") as tmp:
-            ref_root = export_ref(repo, sha, Path(tmp) / "code")
+        with ref_scratch(log) as tmp:
+            ref_root = export_ref(repo, sha, tmp / "code")
+            broken = ref_import_error(ref_root)
+            if broken:
+                raise ValueError(f"--against {against}: REF's code ({sha[:12]}) {broken}; REF cannot run the sweep")
             _against_ref(out, results_dir, rows, ok_rows, units, defaults, baseline, repo, sha, against, ref_root,
-                         Path(tmp), ab or ABSettings(), log)
+                         tmp, ab or ABSettings(), log)
     elif units:
         checks.errors_against_baseline(out, rows, units, defaults)
         checks.latency_from_file(out, rows, units, defaults, "" if against else "no --against: ")
@@ -109,7 +121,7 @@ def _against_ref(out, results_dir, rows, ok_rows, units, defaults, baseline, rep
                  settings, log) -> None:
     manifest = json.loads((Path(results_dir) / "_sweep.json").read_text())
     name = f"{against} ({sha[:12]})"
-    ran, why = run_ref_sweep(ref_root, manifest["spec_text"], manifest.get("resolution", "ci"),
+    ran, why = run_ref_sweep(ref_root, portable_spec_text(manifest), manifest.get("resolution", "ci"),
                              sorted({k[0] for k in rows}), tmp / "ref-sweep", log)
     ref_rows = {}
     if ran and why:
@@ -128,7 +140,7 @@ def _against_ref(out, results_dir, rows, ok_rows, units, defaults, baseline, rep
         raise ValueError(f"--against {against}: REF's sweep did not run ({why}) and there is no --baseline")
     if ok_rows:
         samples = checks.latency_ab(out, results_dir, ok_rows, units, defaults, ref_root, HEAD_ROOT, name, settings,
-                                    log)
+                                    log, workdir=tmp)
         note = write_ab_artifacts(results_dir, samples, out.ab, against, sha)
         if note:
             out.notes.append(note)

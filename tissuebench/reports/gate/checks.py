@@ -134,10 +134,11 @@ def latency_from_file(out, rows: dict, units: list, defaults: dict, why: str) ->
 
 
 def latency_ab(out, results_dir, ok_rows: dict, units: list, defaults: dict, ref_root, head_root, against: str,
-               settings, log) -> pd.DataFrame:
-    """Every ok unit re-timed A/B (:mod:`tissuebench.studies.latency_ab`); returns the samples."""
+               settings, log, workdir=None) -> pd.DataFrame:
+    """Every ok unit re-timed A/B (:mod:`tissuebench.studies.latency_ab`); returns the samples.
+    ``workdir``: the folder its scratch files go in (default: the temporary folder)."""
     table = pd.DataFrame([{**r, "case": k[0], "method": k[1], "options": k[2]} for k, r in ok_rows.items()])
-    ab = ab_units(results_dir, table)
+    ab = ab_units(results_dir, table, workdir)
     by_uid = {u.uid: k for u, k in zip(ab, ok_rows)}
     base = {u["_identity"]: u for u in units}
     unit_tol = {uid: tolerances(base.get(k), defaults) for uid, k in by_uid.items()}
@@ -148,7 +149,8 @@ def latency_ab(out, results_dir, ok_rows: dict, units: list, defaults: dict, ref
     log(f"A/B latency: {len(ab)} units, {against} against this code, {settings.min_rounds}-{settings.max_rounds} "
         f"rounds of {settings.blocks} blocks")
     samples, failures = run_ab(ab, ref_root, head_root, decided_units(tol), settings.min_rounds,
-                               settings.max_rounds, settings.blocks, settings.budget_s, inject=inject or None, log=log)
+                               settings.max_rounds, settings.blocks, settings.budget_s, inject=inject or None, log=log,
+                               workdir=workdir)
     out.latency_mode = "ab"
     for uid, v in verdicts(samples, tol, floor_s=floor).items():
         key = by_uid[uid]

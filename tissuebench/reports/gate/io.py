@@ -66,9 +66,12 @@ def write_ab_artifacts(results_dir, samples: pd.DataFrame, verdicts: dict, again
         folder.mkdir(exist_ok=True)
         write_table(samples, folder / "ab_samples.parquet")
         write_table(table, folder / "ab_verdicts.parquet")
-        _plot(table, folder / "ab_ratios.png", against)
     except OSError as exc:
         return f"the A/B samples could not be written to {folder}: {exc.strerror or exc}"
+    try:
+        _plot(table, folder / "ab_ratios.png", against)
+    except Exception as exc:  # noqa: BLE001 - a picture must never cost the verdict (it is computed and kept)
+        return f"the A/B plot {folder / 'ab_ratios.png'} could not be drawn: {type(exc).__name__}: {exc}"
     return ""
 
 
@@ -82,7 +85,9 @@ def _plot(table: pd.DataFrame, path: Path, against: str) -> None:
     fig, ax = plt.subplots(figsize=(8, 0.28 * len(t) + 1.5))
     y = range(len(t))
     colors = ["tab:red" if v == "slower" else "tab:green" if v == "faster" else "tab:blue" for v in t["verdict"]]
-    ax.errorbar(t["ratio"], y, xerr=[t["ratio"] - t["low"], t["high"] - t["ratio"]], fmt="none", ecolor="0.6")
+    # each interval drawn from its ends (a bootstrap interval need not hold the point estimate; an
+    # interval of one sample is NaN: no line)
+    ax.hlines(list(y), t["low"], t["high"], color="0.6")
     ax.scatter(t["ratio"], y, c=colors, zorder=3, s=18)
     ax.axvline(1.0, color="0.3", lw=0.8)
     for thr in sorted(set(t["threshold"])):
