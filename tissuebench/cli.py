@@ -105,8 +105,12 @@ def _parser():
     scene.add_argument("--resolution", default="ci", choices=RESOLUTIONS)
     scene.add_argument("--out", type=Path, default=None,
                        help="the picture (default: scene.png beside the scene file; '-' for none)")
-    methods = sub.add_parser("methods", help="every registered method: does it apply to SCENE, and why not")
-    methods.add_argument("case", help="a scene file or a catalogue case name")
+    methods = sub.add_parser("methods", help="every registered method (shipped and plugins, with their version); "
+                             "with SCENE: does it apply, and why not")
+    methods.add_argument("case", nargs="?", default=None, help="a scene file or a catalogue case name")
+    methods.add_argument("--method", action="append", default=None, metavar="NAME",
+                         help="only this method: a registry name or 'module:Class' of a method in another package "
+                              "(repeat for several)")
     methods.add_argument("--variant", default=None)
     methods.add_argument("--resolution", default="ci", choices=RESOLUTIONS)
     return p
@@ -476,18 +480,32 @@ def _scene_check(args) -> int:
 
 def _methods(args) -> int:
     from .cases.scene import load
-    from .studies.applicability import method_rows
+    from .rom.plugins import FAILURES
+    from .studies.applicability import method_rows, registry_rows
 
-    scene = load(args.case, resolution=args.resolution, variant=args.variant)
-    rows = method_rows(scene)
-    width = max(len(r["method"]) for r in rows)
-    print(f"{scene.name}" + (f" [{scene.variant}]" if scene.variant else "") + f": {scene.analysis['type']}, "
-          + (f"material {scene.material['name']}" if scene.material else f"{scene.model} model"))
-    for r in rows:
-        verdict = f"applies ({', '.join(r['learns_from'])} training)" if r["applies"] else "does not apply"
-        print(f"  {r['method']:{width}s}  {verdict}" + (f": {r['why']}" if r["why"] else ""))
-    n = sum(r["applies"] for r in rows)
-    print(f"{n} of {len(rows)} methods apply")
+    if args.case is None:
+        rows = registry_rows(args.method)
+        width = max(len(r["method"]) for r in rows)
+        for r in rows:
+            print(f"  {r['method']:{width}s}  {r['kind']:10s}  learns from {', '.join(r['training_kinds'])}"
+                  + (f"  [{r['origin']}]" if r["origin"] else ""))
+        plugins = sum(bool(r["origin"]) for r in rows)
+        print(f"{len(rows)} methods ({len(rows) - plugins} shipped, {plugins} from other packages); "
+              "`tissuebench methods SCENE` says which apply to a scene")
+    else:
+        scene = load(args.case, resolution=args.resolution, variant=args.variant)
+        rows = method_rows(scene, args.method)
+        width = max(len(r["method"]) for r in rows)
+        print(f"{scene.name}" + (f" [{scene.variant}]" if scene.variant else "") + f": {scene.analysis['type']}, "
+              + (f"material {scene.material['name']}" if scene.material else f"{scene.model} model"))
+        for r in rows:
+            verdict = f"applies ({', '.join(r['learns_from'])} training)" if r["applies"] else "does not apply"
+            print(f"  {r['method']:{width}s}  {verdict}" + (f": {r['why']}" if r["why"] else "")
+                  + (f"  [{r['origin']}]" if r["origin"] else ""))
+        n = sum(r["applies"] for r in rows)
+        print(f"{n} of {len(rows)} methods apply")
+    for name, (what, error) in sorted(FAILURES.items()):
+        print(f"  plugin {name!r} of {what} could not be loaded: {error}")
     return 0
 
 
