@@ -65,7 +65,7 @@ from .scaling import check_group_name, check_scaling_groups
 from .training import TRAINING_KINDS, case_scene
 from .units import DEFAULT_PROTOCOL, WorkUnit, options_text, unit_key
 
-__all__ = ["PRESETS_DIR", "ERROR_METRICS", "SweepSpec", "load_spec", "list_presets", "expand_units"]
+__all__ = ["PRESETS_DIR", "ERROR_METRICS", "SweepSpec", "load_spec", "list_presets", "expand_units", "check_pair"]
 
 PRESETS_DIR = Path(__file__).resolve().parent / "presets"
 ERROR_METRICS = ("max_rel_l2", "mean_rel_l2", "rmse_rel", "max_rel_l2_in_envelope", "max_monitor_rel_error")
@@ -303,6 +303,20 @@ def _applicable(path, cls, chosen, explicit, sets, scenes, skipped):
     if not keep:
         _fail(f"{path}.name", cls.name, "applies to no case of the spec: " + "; ".join(reasons))
     return keep, excluded
+
+
+def check_pair(case: dict, method, options: dict | None = None):
+    """What a spec of this one ``[[case]]`` table and one ``[[method]]`` naming it (a registry or
+    ``"module:Class"`` name, or a class) with ``options`` is checked for when it loads: the
+    validated :class:`~.case_entry.CaseEntry`, or the ValueError :func:`load_spec` would raise
+    (:mod:`tissuebench.testing` asks it whether an evaluation is refused before any work)."""
+    entry, scene = _check_case(0, case, None, case.get("resolution", "ci"))
+    cls = method_class(method)
+    sets = [dict(options or {})]
+    cls.check_options(sets[0])
+    check_option_values("method[0].options", cls, sets[0])
+    _applicable("method[0]", cls, [entry], True, sets, {entry.id: scene}, [])
+    return entry
 
 
 def _read(path: Path) -> tuple[str, dict]:
