@@ -263,6 +263,8 @@ def _sweep(args, preset=None) -> int:
     _print_pareto(out)
     print(f"{summary.planned} units: {len(summary.computed)} computed ({len(summary.failed)} failed), "
           f"{len(summary.skipped)} kept from before, {len(summary.recomputed)} recomputed; results in {out}")
+    for why, n in summary.why_recomputed.items():
+        print(f"recomputed {n} unit{'s' if n != 1 else ''}: {why}")
     return 1 if summary.failed else 0
 
 
