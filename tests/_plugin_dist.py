@@ -66,16 +66,17 @@ def toy_source(name: str) -> str:
     return TOY.replace("NAME", name)
 
 
-def write_dist(root: Path, dist: str, version: str, entry_points: dict, modules: dict) -> Path:
+def write_dist(root: Path, dist: str, version: str, entry_points: dict, modules: dict, top_level=None) -> Path:
     """``root/<dist>-<version>.dist-info`` declaring ``entry_points`` (name -> "module:Class") in
-    group ``tissuebench.methods``, and ``modules`` (name -> source) as ``root/<name>.py``."""
+    group ``tissuebench.methods``, and ``modules`` (name -> source) as ``root/<name>.py``;
+    ``top_level``: the import names the distribution ships (default: ``modules``'s)."""
     root.mkdir(parents=True, exist_ok=True)
     info = root / f"{dist.replace('-', '_')}-{version}.dist-info"
     info.mkdir()
     (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {dist}\nVersion: {version}\n")
     lines = ["[tissuebench.methods]"] + [f"{k} = {v}" for k, v in entry_points.items()]
     (info / "entry_points.txt").write_text("\n".join(lines) + "\n")
-    (info / "top_level.txt").write_text("\n".join(modules) + "\n")
+    (info / "top_level.txt").write_text("\n".join(top_level or modules) + "\n")
     for name, source in modules.items():
         (root / f"{name}.py").write_text(source)
     return root
