@@ -61,3 +61,14 @@ def test_a_plugin_method_runs_on_the_parallel_executors(podreg, tmp_path, execut
     assert row["_pid"] != os.getpid() and row["_how"] == "entry point"  # a worker, by the entry point
     assert (row["method_distribution"], row["method_version"]) == ("tissuebench-podreg", "0.1.0")
     assert row["max_rel_l2"] < 1e-3  # the held-out states of the cornea's path
+
+
+def test_the_ab_probes_entry_builds_a_plugin_by_its_class_path(podreg):
+    """The A/B units carry a plugin method as "module:Class" (plain data): the probe's entry into
+    either side's code (latency_ab.prepare_unit) builds it from there."""
+    from tissuebench.studies.latency_ab import prepare_unit
+
+    case = {"id": "c", "name": "cornea_pinch", "variant": None, "resolution": "ci", "backend": "skfem",
+            "training": {"kind": "path", "every": 2}, "evaluation": {"kind": "path", "held_out": True}}
+    prepared = prepare_unit(case, "podreg.method:PodPolyReg", {"n_modes": 2, "degree": 2}, steps=5)
+    assert type(prepared.model).__module__ == "podreg.method" and len(prepared.sequence) >= 5
