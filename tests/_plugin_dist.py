@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from tissuebench.rom import METHODS
-from tissuebench.rom.plugins import FAILURES, PLUGINS, _files_hash, load_entry_points
+from tissuebench.rom.plugins import FAILURES, PLUGINS, _distribution_of_top, _files_hash, load_entry_points
 
 #: a plugin method: the last snapshot of a path scaled by the load factor (exact for a linear
 #: scene, flagged outside the training's load factors); ``NAME`` is replaced by the method's name
@@ -93,6 +93,7 @@ class Installed:
                                                          if p))
         self.before = set(dict.keys(METHODS))
         importlib.invalidate_caches()
+        _distribution_of_top.cache_clear()
         METHODS.arm(load_entry_points)
 
     def undo(self) -> None:
@@ -101,6 +102,7 @@ class Installed:
             PLUGINS.pop(name, None)
         FAILURES.clear()
         _files_hash.cache_clear()
+        _distribution_of_top.cache_clear()
         for mod in [m for m, v in sys.modules.items() if str(getattr(v, "__file__", "") or "").startswith(
                 str(self.root))]:
             del sys.modules[mod]

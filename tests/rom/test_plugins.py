@@ -169,3 +169,16 @@ def test_a_copy_of_tissuebench_first_on_the_path_still_finds_the_installed_plugi
     assert proc.returncode == 0, proc.stderr
     where, found = json.loads(proc.stdout.strip().splitlines()[-1])
     assert where.startswith(str(copy)) and found
+
+
+def test_a_class_of_an_interactive_main_has_no_code_hash_and_no_error(monkeypatch):
+    """``find_spec("__main__")`` raises where ``__main__`` has no spec (an interactive session): the
+    provenance of a method defined there says no code hash instead of failing the sweep's plan."""
+    import types
+
+    from tissuebench.rom.plugins import _files_hash
+
+    main_module = types.ModuleType("__main__")
+    main_module.__spec__ = None
+    monkeypatch.setitem(sys.modules, "__main__", main_module)
+    assert _files_hash.__wrapped__("__main__") is None

@@ -92,7 +92,13 @@ def _add(cls, plugin: Plugin) -> None:
 
 def _distribution_of(module: str) -> tuple[str | None, str | None]:
     """``(distribution, version)`` installed for the top-level package of ``module``, or (None, None)."""
-    names = importlib.metadata.packages_distributions().get(module.split(".")[0]) or []
+    return _distribution_of_top(module.split(".")[0])
+
+
+@functools.lru_cache(maxsize=None)
+def _distribution_of_top(top: str) -> tuple[str | None, str | None]:
+    # once per process and package: packages_distributions() reads every installed distribution
+    names = importlib.metadata.packages_distributions().get(top) or []
     for name in names:
         try:
             return name, importlib.metadata.version(name)
@@ -165,7 +171,10 @@ def source_of(cls) -> str:
 def _files_hash(top: str) -> str | None:
     """SHA-256 over the ``.py`` files of top-level package (or module) ``top``, None when it has none
     on disk. Once per process: the code a process runs is the code it imported."""
-    spec = importlib.util.find_spec(top)
+    try:
+        spec = importlib.util.find_spec(top)
+    except (ImportError, ValueError):  # __main__ of an interactive session, a module without a spec
+        return None
     if spec is None:
         return None
     roots = [Path(p) for p in (spec.submodule_search_locations or [])]
