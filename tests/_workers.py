@@ -7,7 +7,7 @@ import time
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from tissuebench.studies.units import UnitOutcome
+from tissuebench.studies.units import UnitOutcome, run_unit
 
 
 def sleepy(unit) -> UnitOutcome:
@@ -17,6 +17,18 @@ def sleepy(unit) -> UnitOutcome:
     if unit.options.get("die"):
         os.kill(os.getpid(), signal.SIGKILL)
     return UnitOutcome({"unit_key": unit.key, "unit_status": "ok", "message": f"pid {os.getpid()}"})
+
+
+def run_saying_where(unit) -> UnitOutcome:
+    """:func:`~tissuebench.studies.units.run_unit`, its row told which process ran it (``_pid``) and
+    how that process found the unit's method (``_how``: "entry point", "module:Class" or
+    "shipped")."""
+    from tissuebench.rom.plugins import PLUGINS
+
+    outcome = run_unit(unit)
+    record = PLUGINS.get(unit.method)
+    outcome.row.update(_pid=os.getpid(), _how=record.how if record is not None else "shipped")
+    return outcome
 
 
 class RunLog(WorkerPlugin):

@@ -11,7 +11,7 @@ from pathlib import Path
 import tissuebench
 
 #: the README's table, top to bottom: a package may import itself and those before it
-LAYERS = ("refsolvers", "cases", "reference", "rom", "studies", "reports")
+LAYERS = ("refsolvers", "cases", "reference", "rom", "studies", "reports", "testing")
 ROOT = Path(tissuebench.__file__).parent
 
 

@@ -106,8 +106,12 @@ def _parser():
     scene.add_argument("--out", type=Path, default=None,
                        help="the picture, a .png file (default: scene.png in the working folder; '-' for none)")
     scene.add_argument("--force", action="store_true", help="replace an existing picture")
-    methods = sub.add_parser("methods", help="every registered method: does it apply to SCENE, and why not")
-    methods.add_argument("case", help="a scene file or a catalogue case name")
+    methods = sub.add_parser("methods", help="every registered method (shipped and plugins, with their version); "
+                             "with SCENE: does it apply, and why not")
+    methods.add_argument("case", nargs="?", default=None, help="a scene file or a catalogue case name")
+    methods.add_argument("--method", action="append", default=None, metavar="NAME",
+                         help="only this method: a registry name or 'module:Class' of a method in another package "
+                              "(repeat for several)")
     methods.add_argument("--variant", default=None)
     methods.add_argument("--resolution", default="ci", choices=RESOLUTIONS)
     return p
@@ -268,6 +272,8 @@ def _sweep(args, preset=None) -> int:
     _print_pareto(out)
     print(f"{summary.planned} units: {len(summary.computed)} computed ({len(summary.failed)} failed), "
           f"{len(summary.skipped)} kept from before, {len(summary.recomputed)} recomputed; results in {out}")
+    for why, n in summary.why_recomputed.items():
+        print(f"recomputed {n} unit{'s' if n != 1 else ''}: {why}")
     return 1 if summary.failed else 0
 
 
@@ -493,18 +499,32 @@ def _scene_check(args) -> int:
 
 def _methods(args) -> int:
     from .cases.scene import load
-    from .studies.applicability import method_rows
+    from .rom.plugins import FAILURES
+    from .studies.applicability import method_rows, registry_rows
 
-    scene = load(args.case, resolution=args.resolution, variant=args.variant)
-    rows = method_rows(scene)
-    width = max(len(r["method"]) for r in rows)
-    print(f"{scene.name}" + (f" [{scene.variant}]" if scene.variant else "") + f": {scene.analysis['type']}, "
-          + (f"material {scene.material['name']}" if scene.material else f"{scene.model} model"))
-    for r in rows:
-        verdict = f"applies ({', '.join(r['learns_from'])} training)" if r["applies"] else "does not apply"
-        print(f"  {r['method']:{width}s}  {verdict}" + (f": {r['why']}" if r["why"] else ""))
-    n = sum(r["applies"] for r in rows)
-    print(f"{n} of {len(rows)} methods apply")
+    if args.case is None:
+        rows = registry_rows(args.method)
+        width = max(len(r["method"]) for r in rows)
+        for r in rows:
+            print(f"  {r['method']:{width}s}  {r['kind']:10s}  learns from {', '.join(r['training_kinds'])}"
+                  + (f"  [{r['origin']}]" if r["origin"] else ""))
+        plugins = sum(bool(r["origin"]) for r in rows)
+        print(f"{len(rows)} methods ({len(rows) - plugins} shipped, {plugins} from other packages); "
+              "`tissuebench methods SCENE` says which apply to a scene")
+    else:
+        scene = load(args.case, resolution=args.resolution, variant=args.variant)
+        rows = method_rows(scene, args.method)
+        width = max(len(r["method"]) for r in rows)
+        print(f"{scene.name}" + (f" [{scene.variant}]" if scene.variant else "") + f": {scene.analysis['type']}, "
+              + (f"material {scene.material['name']}" if scene.material else f"{scene.model} model"))
+        for r in rows:
+            verdict = f"applies ({', '.join(r['learns_from'])} training)" if r["applies"] else "does not apply"
+            print(f"  {r['method']:{width}s}  {verdict}" + (f": {r['why']}" if r["why"] else "")
+                  + (f"  [{r['origin']}]" if r["origin"] else ""))
+        n = sum(r["applies"] for r in rows)
+        print(f"{n} of {len(rows)} methods apply")
+    for name, (what, error) in sorted(FAILURES.items()):
+        print(f"  plugin {name!r} of {what} could not be loaded: {error}")
     return 0
 
 

@@ -231,6 +231,8 @@ def test_a_changed_key_is_recomputed_and_said(serial, tmp_path):
     summary = run_sweep(load_spec(changed), copy, resume=True, progress=True, log=said.append)
     assert len(summary.recomputed) == 7 and len(summary.computed) == 7
     assert sum("recomputed" in s for s in said) == 7
+    # the rows record no protocol: the reason is the generic one, and no plugin or code is blamed
+    assert summary.why_recomputed == {"its protocol, case entry or another package's version changed": 7}
     units = read_units(copy)
     assert len(units) == 7 and (units["haptic_n"] >= 31).all()  # the stale rows are gone
 

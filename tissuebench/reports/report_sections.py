@@ -16,7 +16,7 @@ from .recommend import rank_units
 
 __all__ = ["Table", "scene_of", "scene_info", "recommendation", "ranking_table", "extremes_table_view",
            "offline_table", "radius_table", "paper_table", "anchors_table", "backends_table",
-           "provenance_rows", "calibration"]
+           "provenance_rows", "calibration", "plugin_methods"]
 
 
 def Table(name: str, columns: list, rows: list, data: pd.DataFrame) -> dict:
@@ -203,7 +203,23 @@ def provenance_rows(manifest: dict, units: pd.DataFrame) -> list:
             out.append((f"units: {col}", ", ".join(sorted({str(v) for v in units[col]}))))
     if "date" in units and len(units):
         out.append(("units: dates", f"{units['date'].min()} .. {units['date'].max()}"))
+    plugins = plugin_methods(units)
+    if plugins:
+        out.append(("units: methods from other packages", "; ".join(plugins)))
     return out
+
+
+def plugin_methods(units: pd.DataFrame) -> list:
+    """One line per method from another package in ``units`` and version of it: its distribution,
+    version, class path and code hash (the unit rows' ``method_*`` columns)."""
+    cols = ["method", "method_source", "method_distribution", "method_version", "method_code_hash"]
+    if "method_source" not in units:
+        return []
+    rows = units[cols].fillna("")
+    rows = rows[rows["method_source"] != ""].drop_duplicates()
+    return [f"{r.method}: {r.method_distribution or 'no installed distribution'} {r.method_version}".rstrip()
+            + f" ({r.method_source}, code {r.method_code_hash[:12] or 'unknown'})"
+            for r in rows.sort_values(cols).itertuples()]
 
 
 def calibration(units: pd.DataFrame) -> dict:

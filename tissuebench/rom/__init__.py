@@ -1,9 +1,15 @@
-"""Reduced-order models: one module per method family, one offline/online contract (:mod:`.base`)."""
-from .base import (METHODS, MODEL_KINDS, STEP_STATUSES, LinearReconstruction, OnlineModel, RomMethod, StepResult,
-                   Training, check_parameters, make_method, method_class, register)
+"""Reduced-order models: one module per method family, one offline/online contract (:mod:`.base`),
+one registry (:mod:`.registry`) that the methods of other packages join when it is first read
+(:mod:`.plugins`)."""
+from .base import (METHODS, MODEL_KINDS, STEP_STATUSES, Applies, LinearReconstruction, OnlineModel, RomMethod,
+                   StepResult, Training, check_parameters, make_method, method_class, register)
 from . import (anm, anm_interp, anm_pod, baselines, interpolation, pgd, pgd_direct, pod,  # noqa: F401  (registers
                subspace_interp, wsc)
 from . import fe_baselines  # noqa: F401,E402  (registers linear_fe, corotational_fe, coarse_fe)
+from .plugins import load_entry_points  # noqa: E402
 
-__all__ = ["METHODS", "MODEL_KINDS", "STEP_STATUSES", "LinearReconstruction", "OnlineModel", "RomMethod",
+# the installed plugins join at the first read, after every shipped method: a clash names the shipped one
+METHODS.arm(load_entry_points)
+
+__all__ = ["METHODS", "MODEL_KINDS", "STEP_STATUSES", "Applies", "LinearReconstruction", "OnlineModel", "RomMethod",
            "StepResult", "Training", "check_parameters", "make_method", "method_class", "register"]

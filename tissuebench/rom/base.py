@@ -31,8 +31,9 @@ A step never hides a failure: ``StepResult.status`` is ``"ok"``, ``"extrapolatio
 ``"beyond_validity"`` (past a series' radius of validity, e.g. ANM's a_max) or
 ``"failed"`` (no value: ``q`` is None and ``message`` says why).
 
-The registry :data:`METHODS` maps names to classes; :func:`make_method` accepts a name or
-a class and lists the valid names on an unknown one; :meth:`RomMethod.option_names` lists
+The registry :data:`METHODS` (:mod:`.registry`) maps names to classes, the methods of other
+packages included (:mod:`.plugins`); :func:`make_method` accepts a name, a ``"module:Class"``
+name or a class and lists the valid names on an unknown one; :meth:`RomMethod.option_names` lists
 the options a method takes (a grid over another one is refused by name).
 """
 from __future__ import annotations
@@ -43,6 +44,8 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 import numpy as np
+
+from .registry import METHODS, make_method, method_class, register
 
 __all__ = ["Training", "StepResult", "DeferredStepResult", "OnlineModel", "RomMethod", "METHODS", "register",
            "make_method", "STEP_STATUSES", "MODEL_KINDS", "check_parameters", "LinearReconstruction", "method_class",
@@ -564,36 +567,3 @@ class RomMethod(ABC):
     @abstractmethod
     def build(self, training: Training) -> OnlineModel:
         """Offline phase; returns the online model."""
-
-
-METHODS: dict[str, type] = {}
-
-
-def register(cls):
-    """Class decorator: add a :class:`RomMethod` to :data:`METHODS` under ``cls.name``."""
-    if not (isinstance(cls, type) and issubclass(cls, RomMethod) and cls.name):
-        raise TypeError(f"register: {cls!r} is not a named RomMethod subclass")
-    if cls.kind not in MODEL_KINDS:
-        raise TypeError(f"register: {cls.__name__}.kind = {cls.kind!r}; valid: {MODEL_KINDS}")
-    METHODS[cls.name] = cls
-    return cls
-
-
-def method_class(method) -> type:
-    """The :class:`RomMethod` class of a registry name or a class."""
-    if isinstance(method, type) and issubclass(method, RomMethod):
-        return method
-    if not isinstance(method, str) or method not in METHODS:
-        raise ValueError(f"unknown ROM method {method!r}; valid: {sorted(METHODS)}")
-    return METHODS[method]
-
-
-def make_method(method, **options) -> RomMethod:
-    """A :class:`RomMethod` from its registry name or class, with ``options``."""
-    if isinstance(method, RomMethod):
-        if options:
-            raise TypeError("make_method: options given with an instance")
-        return method
-    cls = method_class(method)
-    cls.check_options(options)
-    return cls(**options)

@@ -329,6 +329,7 @@ class PodNewton(_PodStatic):
 
     name = "pod_newton"
     kind = "path"
+    applies = Applies()  # the default, declared: any finite-element scene (the full residual, any load)
 
     def __init__(self, n_modes=None, energy=0.999, inner="euclidean", rtol: float = 1e-10,
                  max_iterations: int = 25):

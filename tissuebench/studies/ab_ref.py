@@ -105,10 +105,25 @@ def code_env(root: Path) -> dict:
         [str(root)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])}
 
 
-def _methods_of(ref_root: Path) -> set | None:
-    """The method names REF's registry knows (None when REF cannot say)."""
-    code = "import json; from tissuebench.rom import METHODS; print(json.dumps(sorted(METHODS)))"
-    proc = subprocess.run([sys.executable, "-c", code], env=code_env(ref_root), capture_output=True, text=True)
+# run by REF's interpreter: which of the spec's method names (registry names, the installed plugins'
+# included, or "module:Class") REF's registry resolves
+_KNOWN = """import json, sys
+from tissuebench.rom import method_class
+known = []
+for name in json.loads(sys.argv[1]):
+    try:
+        method_class(name)
+        known.append(name)
+    except Exception:
+        pass
+print(json.dumps(known))
+"""
+
+
+def _methods_of(ref_root: Path, names) -> set | None:
+    """The method names of ``names`` REF's registry resolves (None when REF cannot say)."""
+    proc = subprocess.run([sys.executable, "-c", _KNOWN, json.dumps(sorted(names))], env=code_env(ref_root),
+                          capture_output=True, text=True, **child_options())
     try:
         return set(json.loads(proc.stdout.strip().splitlines()[-1])) if proc.returncode == 0 else None
     except (ValueError, IndexError):
@@ -118,9 +133,11 @@ def _methods_of(ref_root: Path) -> set | None:
 def _spec_for(ref_root: Path, spec_text: str) -> tuple[str, list]:
     """The spec without the ``[[method]]`` entries REF does not have (a method added since:
     REF cannot run it, and would refuse the whole spec); the names left out."""
-    known = _methods_of(ref_root)
     doc = tomlkit.parse(spec_text)
-    if known is None or "method" not in doc:
+    if "method" not in doc:
+        return spec_text, []
+    known = _methods_of(ref_root, {str(m.get("name")) for m in doc["method"]})
+    if known is None:
         return spec_text, []
     dropped = sorted({m.get("name") for m in doc["method"] if m.get("name") not in known})
     if not dropped:

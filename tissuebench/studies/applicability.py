@@ -27,11 +27,12 @@ the method classes, :meth:`~tissuebench.rom.base.RomMethod.why_not`), never by t
 from __future__ import annotations
 
 from ..rom import METHODS, method_class
+from ..rom.plugins import origin
 from .case_entry import CaseEntry
 from .training import TRAINING_KINDS
 
 __all__ = ["training_why_not", "why_not", "evaluation_keys", "evaluation_why_not",
-           "load_scale_why_not", "method_rows", "LOAD_FACTOR_KEYS"]
+           "load_scale_why_not", "method_rows", "registry_rows", "LOAD_FACTOR_KEYS"]
 
 #: evaluation parameters that reach every model as its load factor
 LOAD_FACTOR_KEYS = ("load_scale", "max_load_factor")
@@ -109,12 +110,14 @@ def evaluation_why_not(method, case: CaseEntry, scene) -> str:
     return ""
 
 
-def method_rows(scene) -> list[dict]:
-    """One row per registered method: ``method``, ``applies`` (bool), ``learns_from`` (the training
-    kinds that apply), ``why`` (why not, or what to know when it applies)."""
+def method_rows(scene, names=None) -> list[dict]:
+    """One row per registered method (or per method of ``names``: registry or ``"module:Class"``
+    names): ``method``, ``applies`` (bool), ``learns_from`` (the training kinds that apply), ``why``
+    (why not, or what to know when it applies), ``origin`` (``""`` shipped, else the plugin's
+    distribution and version: :func:`~tissuebench.rom.plugins.origin`)."""
     rows = []
-    for name in sorted(METHODS):
-        cls = METHODS[name]
+    for cls in _classes(names):
+        name = cls.name
         reasons = {k: why_not(cls, scene, k) for k in cls.training_kinds}
         ok = [k for k, r in reasons.items() if not r]
         if ok:
@@ -122,5 +125,19 @@ def method_rows(scene) -> list[dict]:
         else:
             distinct = list(dict.fromkeys(reasons.values()))
             why = distinct[0] if len(distinct) == 1 else "; ".join(f"{k}: {r}" for k, r in reasons.items())
-        rows.append({"method": name, "applies": bool(ok), "learns_from": ok, "kind": cls.kind, "why": why})
+        rows.append({"method": name, "applies": bool(ok), "learns_from": ok, "kind": cls.kind, "why": why,
+                     "origin": origin(name)})
     return rows
+
+
+def _classes(names=None) -> list:
+    """The method classes of ``names`` (every registered one when None), in name order."""
+    classes = [METHODS[n] for n in sorted(METHODS)] if names is None else [method_class(n) for n in names]
+    return sorted(set(classes), key=lambda c: c.name)
+
+
+def registry_rows(names=None) -> list[dict]:
+    """One row per registered method (or per method of ``names``), no scene: ``method``, ``kind``,
+    ``training_kinds``, ``origin``."""
+    return [{"method": c.name, "kind": c.kind, "training_kinds": list(c.training_kinds), "origin": origin(c.name)}
+            for c in _classes(names)]

@@ -103,7 +103,7 @@ class ABUnit:
 
     uid: str
     case: dict  # the entry's dict form (CaseEntry.as_dict): the probe hands it to either side's code
-    method: str
+    method: str  # a registry name, or "module:Class" of a method from another package
     options: dict
     steps: int
     warmup: int
@@ -128,7 +128,8 @@ def ab_units(results_dir, rows: pd.DataFrame, workdir=None) -> list[ABUnit]:
             raise ValueError(f"{results_dir}: unit {row['case']} {row['label']} is not in the sweep's spec "
                              f"(_sweep.json spec_text): the store and its spec disagree")
         p = u.protocol
-        out.append(ABUnit(row["unit_key"], u.case.as_dict(), u.method, u.options, int(p["latency_steps"]),
+        # a method from another package goes by its "module:Class": either side's worker imports it
+        out.append(ABUnit(row["unit_key"], u.case.as_dict(), u.source or u.method, u.options, int(p["latency_steps"]),
                           int(p["warmup"]), int(p.get("blas_threads") or 0)))
     return out
 

@@ -61,6 +61,9 @@ UNIT_COLUMNS = {
     # provenance
     "git_commit": _S, "code_hash": _S, "tissuebench": _S, "numpy": _S, "scipy": _S, "machine": _S, "python": _S,
     "date": _S,
+    # a method from another package (rom/plugins.py; "" for a shipped one): its "module:Class",
+    # installed distribution and version, and the hash of its package's .py files
+    "method_source": _S, "method_distribution": _S, "method_version": _S, "method_code_hash": _S,
 }
 POINT_COLUMNS = {"unit_key": _S, "point": _I, "x": _F, "group": _F, "mu": _S, "status": _S, "message": _S,
                  "rel_l2": _F, "rel_max_displacement": _F, "has_reference": _B,

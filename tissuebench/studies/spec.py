@@ -1,8 +1,9 @@
 """Sweep specifications (TOML), validated like the scenes, and their expansion into units.
 
 A spec names the cases (catalogue scenes with variant, resolution, backend, what the
-methods learn from and where they are measured), the methods of :data:`rom.METHODS` with
-a grid of options, the protocol and the error metric of the derived tables::
+methods learn from and where they are measured), the methods of :data:`rom.METHODS` (a
+registry name, or ``"module:Class"`` of a method in another package) with a grid of
+options, the protocol and the error metric of the derived tables::
 
     [sweep]
     name = "anm_pod"
@@ -55,6 +56,7 @@ from ..cases.scene import RESOLUTIONS, list_cases, resolve_toml
 from ..choices import BACKEND_NAMES
 from ..cases.schema import c_nonneg, c_pos, c_str, check_table, key_text, value_text
 from ..rom import METHODS, method_class
+from ..rom.plugins import source_of
 from .applicability import evaluation_why_not, why_not
 from .case_entry import CaseEntry, fill_evaluation_kind, fill_training_kind
 from .evaluation import EVALUATION_KINDS
@@ -63,7 +65,7 @@ from .scaling import check_group_name, check_scaling_groups
 from .training import TRAINING_KINDS, case_scene
 from .units import DEFAULT_PROTOCOL, WorkUnit, options_text, unit_key
 
-__all__ = ["PRESETS_DIR", "ERROR_METRICS", "SweepSpec", "load_spec", "list_presets", "expand_units"]
+__all__ = ["PRESETS_DIR", "ERROR_METRICS", "SweepSpec", "load_spec", "list_presets", "expand_units", "check_pair"]
 
 PRESETS_DIR = Path(__file__).resolve().parent / "presets"
 ERROR_METRICS = ("max_rel_l2", "mean_rel_l2", "rmse_rel", "max_rel_l2_in_envelope", "max_monitor_rel_error")
@@ -234,9 +236,13 @@ def _check_method(i, m, cases, resolution, max_sets, scenes, skipped):
     path = f"method[{i}]"
     _table(path, m, _METHOD)
     name = m.get("name")
-    if not isinstance(name, str) or name not in METHODS:
-        _fail(f"{path}.name", name, f"unknown method; valid: {sorted(METHODS)}")
-    cls = method_class(name)
+    if not isinstance(name, str) or (":" not in name and name not in METHODS):
+        _fail(f"{path}.name", name, f"unknown method; valid: {sorted(METHODS)} (or 'module:Class' of a method in "
+              "another package)")
+    try:  # a "module:Class" name: imported and registered under the class's name (rom.plugins)
+        cls = method_class(name)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{path}.name: {exc}") from None
     if resolution == "paper" and "paper" in m:  # the paper grid replaces grid/list; options merge
         paper = _table(f"{path}.paper", m["paper"], {"options", "grid", "list"})
         for where, table in ((f"{path}.options", m), (f"{path}.paper.options", paper)):
@@ -266,8 +272,8 @@ def _check_method(i, m, cases, resolution, max_sets, scenes, skipped):
                       f"{name!r} learns from ({list(cls.training_kinds)})")
     chosen, excluded = _applicable(path, cls, chosen, wanted is not None, sets, scenes, skipped)
     protocol = _table(f"{path}.protocol", m.get("protocol", {}), set(DEFAULT_PROTOCOL))
-    return {"name": name, "cases": [c.id for c in chosen], "option_sets": sets, "protocol": protocol,
-            "excluded": excluded}
+    return {"name": cls.name, "source": source_of(cls), "cases": [c.id for c in chosen], "option_sets": sets,
+            "protocol": protocol, "excluded": excluded}
 
 
 def _applicable(path, cls, chosen, explicit, sets, scenes, skipped):
@@ -297,6 +303,20 @@ def _applicable(path, cls, chosen, explicit, sets, scenes, skipped):
     if not keep:
         _fail(f"{path}.name", cls.name, "applies to no case of the spec: " + "; ".join(reasons))
     return keep, excluded
+
+
+def check_pair(case: dict, method, options: dict | None = None):
+    """What a spec of this one ``[[case]]`` table and one ``[[method]]`` naming it (a registry or
+    ``"module:Class"`` name, or a class) with ``options`` is checked for when it loads: the
+    validated :class:`~.case_entry.CaseEntry`, or the ValueError :func:`load_spec` would raise
+    (:mod:`tissuebench.testing` asks it whether an evaluation is refused before any work)."""
+    entry, scene = _check_case(0, case, None, case.get("resolution", "ci"))
+    cls = method_class(method)
+    sets = [dict(options or {})]
+    cls.check_options(sets[0])
+    check_option_values("method[0].options", cls, sets[0])
+    _applicable("method[0]", cls, [entry], True, sets, {entry.id: scene}, [])
+    return entry
 
 
 def _read(path: Path) -> tuple[str, dict]:
@@ -411,7 +431,8 @@ def expand_units(spec: SweepSpec) -> list[WorkUnit]:
                 key = unit_key(case, scene_hashes[cid], m["name"], opts, m["protocol"])
                 if key not in seen:
                     seen.add(key)
-                    units.append(WorkUnit(case, m["name"], opts, dict(m["protocol"]), meta, key, parent))
+                    units.append(WorkUnit(case, m["name"], opts, dict(m["protocol"]), meta, key, parent,
+                                          m.get("source", "")))
     return units
 
 

@@ -3,12 +3,13 @@
 :func:`run_sweep` expands a :class:`~.spec.SweepSpec` into units, checks the output folder
 before any work, takes the folder's lock, skips the units already stored under the same
 key (``resume``), recomputes those whose key changed (code, scene, mesh file, versions,
-protocol: said unit by unit), runs the rest on an executor, writes each unit as it
-finishes, and finally writes the derived tables (Pareto front, validity radii, fidelity
-ladder) into ``_derived/``, with the figures drawn by the ``figures`` callable the caller
-passes (the reports layer's :func:`~tissuebench.reports.derived_figures.draw_derived`: the
-CLI passes it; this layer never imports ``reports``). A unit that raises is a failed row, and the
-sweep goes on. Ctrl-C stops after releasing the lock, saying how to resume.
+protocol, a plugin method's code: said unit by unit, with what changed, :mod:`.resume_reasons`),
+runs the rest on an executor, writes each unit as it finishes, and finally writes the derived
+tables (Pareto front, validity radii, fidelity ladder) into ``_derived/``, with the figures
+drawn by the ``figures`` callable the caller passes (the reports layer's
+:func:`~tissuebench.reports.derived_figures.draw_derived`: the CLI passes it; this layer never
+imports ``reports``). A unit that raises is a failed row, and the sweep goes on. Ctrl-C stops
+after releasing the lock, saying how to resume.
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ from ..reference.cache import PROGRESS_ENV
 from ..reference.location import CACHE_ENV, cache_url, check_cache_url, probe_cache
 from .metrics import TOLERANCES, pareto_front
 from .results import ResultsStore, read_points, read_units
+from .resume_reasons import stored_provenance, why_stale
 from .sweep_manifest import SweepManifestError, read_sweep_manifest
 from .spec import SweepSpec, expand_units
 from .atomic_files import new_folder
@@ -42,6 +44,8 @@ class SweepSummary:
     recomputed: list = field(default_factory=list)
     failed: list = field(default_factory=list)
     wall_s: float = 0.0
+    # why the recomputed units were (resume_reasons.why_stale) -> how many
+    why_recomputed: dict = field(default_factory=dict)
 
 
 def check_output_folder(out: Path, resume: bool) -> None:
@@ -66,9 +70,9 @@ def _plan(units, store, resume, log):
             continue
         old = by_identity.get(u.identity)
         if old is not None:
-            stale.append((u, old))
-            log(f"{u.case.id} {u.label}: stored result has another key (code, scene, mesh file, versions or "
-                f"protocol changed): recomputed")
+            why = why_stale(stored_provenance(store.root / store._rel(u.case.id, u.method, old)), u)
+            stale.append((u, old, why))
+            log(f"{u.case.id} {u.label}: stored result has another key ({why}): recomputed")
         pending.append(u)
     return pending, skipped, stale
 
@@ -129,7 +133,10 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
         if resume:
             check_same_spec(out, spec, units, store)
         pending, skipped, stale = _plan(units, store, resume, log if progress else (lambda *_: None))
-        summary = SweepSummary(out, len(units), skipped=[u.key for u in skipped], recomputed=[u.key for u, _ in stale])
+        summary = SweepSummary(out, len(units), skipped=[u.key for u in skipped],
+                               recomputed=[u.key for u, _, _ in stale])
+        for _, _, why in stale:
+            summary.why_recomputed[why] = summary.why_recomputed.get(why, 0) + 1
         store.write_manifest(_manifest(spec, units, executor, "running", cache=cache))
         state = "failed"
         _execute(spec, pending, skipped, stale, store, summary, (executor, workers, scheduler, cache), progress)
@@ -155,7 +162,7 @@ def _execute(spec, pending, skipped, stale, store, summary, where, progress):
     executor, workers, scheduler, cache = where
     total = len(pending) + len(skipped)
     bar = _bar(total, len(skipped), progress)
-    stale_old = {u.key: old for u, old in stale}
+    stale_old = {u.key: old for u, old, _ in stale}
     try:
         for unit, outcome in execute(pending, executor, workers, scheduler, cache=cache):
             store.write_unit(outcome)

@@ -3,8 +3,9 @@
 A unit is (case entry, method, options) plus the measurement protocol. Its ``key`` is the
 SHA-256 of everything that changes its result: the case entry, the scene's content hash
 (mesh files included), the method and options, the protocol, the source hash of the code
-and the package versions. :func:`run_unit` runs in whatever process an executor picks and
-returns plain rows; it never raises for a failure of the method (the unit's row says
+and the package versions, and for a method from another package its distribution, version and
+code hash (:func:`~tissuebench.rom.plugins.third_party`). :func:`run_unit` runs in whatever
+process an executor picks and returns plain rows; it never raises for a failure of the method (the unit's row says
 ``unit_status = "failed"`` with the message), so a sweep goes on.
 """
 from __future__ import annotations
@@ -24,6 +25,7 @@ import pandas as pd
 from threadpoolctl import threadpool_limits
 
 from ..rom import make_method, method_class
+from ..rom.plugins import third_party
 from .applicability import evaluation_why_not, why_not
 from .case_entry import CaseEntry
 from .energy import EnergyDrift, model_drift
@@ -35,7 +37,7 @@ from ..reference import cached_dynamics_system, reference_key
 from .training import build_training, case_scene, training_references
 
 __all__ = ["WorkUnit", "UnitOutcome", "unit_key", "options_text", "run_unit", "failed_outcome", "unit_references",
-           "DEFAULT_PROTOCOL"]
+           "unit_method", "DEFAULT_PROTOCOL"]
 
 DEFAULT_PROTOCOL = {"latency_steps": 200, "warmup": 20, "blas_threads": 1, "reference_samples": 3, "seed": 0}
 
@@ -50,6 +52,9 @@ def unit_key(case: CaseEntry, scene_hash: str, method: str, options: dict, proto
     form (:meth:`~.case_entry.CaseEntry.as_dict`)."""
     content = {"case": case.as_dict(), "scene": scene_hash, "method": method, "options": options, "protocol": protocol,
                "code": code_hash(), "versions": package_versions()}
+    plugin = third_party(method)
+    if plugin:  # a method from another package: its own version and code (a shipped method's key is unchanged)
+        content["plugin"] = plugin
     return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -64,6 +69,9 @@ class WorkUnit:
     spec: dict
     key: str
     parent_options: dict | None = None  # nested options at their group maximum: built once, sliced
+    # "module:Class" of a method from another package (rom.plugins.source_of): a worker process
+    # imports it from there; "" for a shipped method
+    source: str = ""
 
     @property
     def label(self) -> str:
@@ -101,12 +109,32 @@ def _nbytes(obj, seen=None, depth=0) -> int:
     return 0
 
 
+def unit_method(unit: WorkUnit) -> type:
+    """The unit's method class: imported from its ``source`` when it has one (a worker process
+    that has not met the class yet), else by its registry name (ValueError when neither works)."""
+    return method_class(unit.source or unit.method)
+
+
 def _base_row(unit: WorkUnit) -> dict:
     c = unit.case
+    try:
+        kind = unit_method(unit).kind
+    except (ValueError, TypeError):  # the unit's run stores why the method cannot be loaded
+        kind = ""
     return {"unit_key": unit.key, "case": c.id, "case_name": c.name, "variant": c.variant or "",
             "resolution": c.resolution, "backend": c.backend, "method": unit.method,
-            "kind": method_class(unit.method).kind, "options": options_text(unit.options), "label": unit.label,
-            "spec_name": unit.spec["name"], "spec_hash": unit.spec["hash"]}
+            "kind": kind, "options": options_text(unit.options), "label": unit.label,
+            "spec_name": unit.spec["name"], "spec_hash": unit.spec["hash"], **_plugin_row(unit)}
+
+
+def _plugin_row(unit: WorkUnit) -> dict:
+    """The store's record of a method from another package (:func:`~tissuebench.rom.plugins.third_party`):
+    its class path, distribution, version and code hash ({} for a shipped method)."""
+    try:
+        p = third_party(unit.source or unit.method)
+    except (ValueError, TypeError):
+        return {}
+    return {f"method_{k}": v for k, v in p.items() if v is not None}
 
 
 def _provenance_row() -> dict:
@@ -163,6 +191,7 @@ def _where(exc) -> str:
 
 def _measure(unit: WorkUnit, row: dict) -> dict:
     p = unit.protocol
+    unit_method(unit)  # a method from another package: imported here, or the unit fails saying why
     scene = case_scene(unit.case)
     # checked at spec load; again here, so that a unit built another way never returns a model's
     # training answer at a parameter it does not read as an ok result

@@ -40,7 +40,7 @@ from ...cases.probes import hex_shape_functions, make_probe
 from ...refsolvers.backends import make_backend
 from ...refsolvers.mesh import node_layout
 from ...refsolvers.remesh import gmsh_import_error, mean_edge_length, remesh
-from ..base import RomMethod, Training, check_choice, register
+from ..base import Applies, RomMethod, Training, check_choice, register
 from .common import DeadLoads, FieldMap, contact_load, contact_nodes_of, intact_backend, scene_of
 from .corotational import corotational_backend, roundoff_force
 from .linear import is_dynamic, linear_static_model
@@ -228,6 +228,7 @@ class CoarseFe(RomMethod):
     name = "coarse_fe"
     kind = "path"  # statics (linear: a map); on a dynamic scene the online model is a "trajectory"
     training_kinds = ("path", "operators", "trajectory")
+    applies = Applies()  # any finite-element scene: it learns nothing, it solves the scene
 
     def __init__(self, coarsening: float = 2.0, model: str = "full", rtol: float = 1e-9, max_iterations: int = 15,
                  min_increment: float = 1.0 / 16, linear_solver: str = "auto", integrator: str | None = None):

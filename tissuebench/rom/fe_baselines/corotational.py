@@ -27,7 +27,7 @@ import numpy as np
 
 from ...refsolvers.backends import make_backend
 from ...refsolvers.corotational import Corotational, small_strain_moduli
-from ..base import RomMethod, Training, register
+from ..base import Applies, RomMethod, Training, register
 from .common import FieldMap, contact_nodes_of, intact_backend, replace_material, scene_of
 from .linear import _contact_of, is_dynamic
 from .stepping import (NewtonPathModel, TrajectoryModel, dynamic_system, integrator_choice, load_history,
@@ -67,6 +67,7 @@ class CorotationalFe(RomMethod):
     name = "corotational_fe"
     kind = "path"  # statics; on a dynamic scene the online model is a "trajectory"
     training_kinds = ("path", "operators", "trajectory")
+    applies = Applies()  # any finite-element scene: it learns nothing, it solves the scene
 
     def __init__(self, rtol: float = 1e-9, max_iterations: int = 15, min_increment: float = 1.0 / 16,
                  linear_solver: str = "auto", integrator: str | None = None):

@@ -28,7 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ...refsolvers.sparse_direct import factorized
-from ..base import RomMethod, StepResult, Training, check_parameters, register
+from ..base import Applies, RomMethod, StepResult, Training, check_parameters, register
 from .common import FeModel, FieldMap, contact_load, contact_nodes_of, intact_backend, scene_of
 from .stepping import TrajectoryModel, dynamic_system, integrator_choice, load_history
 
@@ -197,6 +197,7 @@ class LinearFe(RomMethod):
     name = "linear_fe"
     kind = "map"  # statics; on a dynamic scene the online model is a "trajectory"
     training_kinds = ("path", "operators", "trajectory")
+    applies = Applies()  # any finite-element scene: it learns nothing, it solves the scene
 
     def __init__(self, condensed: bool = False, integrator: str | None = None):
         if not isinstance(condensed, bool):

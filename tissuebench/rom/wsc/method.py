@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from ..base import RomMethod, Training, check_choice, register
+from ..base import Applies, RomMethod, Training, check_choice, register
 from .cubature import bgbc_cubature, cell_centroids, full_cubature, rbf_cubature
 from .handles import furthest_point_sampling, resolve_count
 from .loads import ReducedLoads
@@ -95,6 +95,7 @@ class Wsc(RomMethod):
     kind = "trajectory"
     nested = ()
     training_kinds = ("operators", "trajectory")
+    applies = Applies()  # the default, declared: any finite-element scene
 
     def __init__(self, handles=0.03, support=2.0, cubature="bgbc", cubature_elements=0.0625,
                  cubature_support=2.0, nnls_tol=0.05, integrator="backward_euler", alpha=-0.05,

@@ -1,0 +1,160 @@
+"""The parameter contract (issue 27): for every ``Scene.at`` parameter, an evaluation at a changed
+value either changes the model's result, flags it (a step not ok, or a unit that fails), or is
+refused when the spec loads. A model must never return its training answer at another
+parameter with status ok (a ROM that ignored ``load_scale`` returned 22-36 % error, unflagged).
+
+The method runs on the first base case it applies to (:data:`~.cases.PARAMETER_BASES`, or the
+[[case]] asked for); a method that learns trajectories also at another ``load_scale`` on a
+trajectory (the practitioner baselines returned the training's load history at load_scale
+0.75 with status ok until the ci gate saw it).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..cases.parameters import ANALYSIS_OVERRIDES
+from ..rom import make_method
+from ..studies.applicability import evaluation_why_not, why_not
+from ..studies.case_entry import CaseEntry
+from ..studies.evaluation import NEEDS_MODEL, build_evaluation
+from ..studies.protocol import drive
+from ..studies.spec import check_pair
+from ..studies.training import build_training, case_scene
+from .cases import applies_to, entry_dict, parameter_base
+from .subject import CheckFailure, CheckSkipped, raised
+
+__all__ = ["check_parameters_honoured", "run_entry"]
+
+_TRAJECTORY_BASES = [{"name": "frame_2dof", "training": {"kind": "trajectory"}},
+                     {"name": "wave_block", "variant": "linear", "training": {"kind": "trajectory"}}]
+
+
+def run_entry(cls, entry: dict, options: dict):
+    """``(fields, statuses)`` of ``cls`` built and driven through the case-entry dict ``entry`` as a
+    unit would be (a refusal or an exception: no fields, and a status saying so)."""
+    case = CaseEntry.from_dict(entry)
+    scene = case_scene(case)
+    why = why_not(cls, scene, case.training_kind, options) or evaluation_why_not(cls, case, scene)
+    if why:
+        return None, ["refused: " + why]
+    try:
+        training = build_training(case, scene)
+        model = make_method(cls, **options).build(training)
+        if training.outputs:
+            model.attach_outputs(training.outputs)
+        ev = build_evaluation(case, scene, model if case.evaluation_kind in NEEDS_MODEL else None)
+        history = ev.history or training.history or (scene.history if ev.kind == "trajectory" else None)
+        driven = drive(model, ev, history)
+    except Exception as exc:  # noqa: BLE001 - a unit that raises is stored as failed: flagged
+        return None, [f"failed: {raised(exc)}"]
+    statuses = ["initial" if r is None and k == 0 else "not_reached" if r is None else r.status
+                for k, r in enumerate(driven.results)]
+    return driven.fields, statuses
+
+
+def _scene_parameters(scene) -> list:
+    material = [k for k in (scene.material or {}) if k not in ("name", "fibres")]
+    return sorted(scene.parameters) + sorted(ANALYSIS_OVERRIDES) + ["load_scale"] + sorted(material)
+
+
+def _changed(scene, key):
+    """A value of ``key`` other than the scene's."""
+    if key == "position":
+        lo, hi = scene.parameters["position"]["range"]
+        return lo + 0.3 * (hi - lo)
+    a, m = scene.analysis, scene.material or {}
+    values = {"load_scale": 0.5, "max_load_factor": 0.5 * a.get("max_load_factor", 1.0),
+              "load_steps": a.get("load_steps", 1) + 1, "t_end": 1.5 * a.get("t_end", 1.0),
+              "dt": 0.5 * a.get("dt", 1.0), "integrator": "newmark" if a.get("integrator") != "newmark" else "hht",
+              "nu": 0.3 if m.get("nu") != 0.3 else 0.4}
+    return values.get(key, 1.5 * float(m.get(key, 1.0)))
+
+
+def _differs(a, b) -> bool:
+    if a is None or b is None or len(a) != len(b):
+        return True
+    for u, v in zip(a, b):
+        if (u is None) != (v is None):
+            return True
+        if u is not None and (np.shape(u) != np.shape(v) or
+                              np.linalg.norm(u - v) > 1e-9 * max(np.linalg.norm(v), 1e-300)):
+            return True
+    return False
+
+
+def _refused(entry: dict, cls, options) -> bool:
+    table = {k: v for k, v in entry.items() if v is not None and k not in ("backend", "id")}
+    try:
+        check_pair(table, cls, options)
+    except ValueError:
+        return True
+    return False
+
+
+def _base(ctx):
+    """``(entry dict, base evaluation)`` the contract runs on, or None."""
+    if ctx.training is None or isinstance(ctx.training, str):
+        return parameter_base(ctx.cls, ctx.options)
+    table = {k: v for k, v in ctx.training.items() if k != "evaluation"}
+    scene = case_scene(CaseEntry.from_dict(entry_dict(table)))
+    if scene.analysis["type"] == "dynamic":
+        evaluation = {"kind": "trajectory"}
+    else:
+        mid = {"position": float(np.mean(scene.parameters["position"]["range"]))} if \
+            "position" in scene.parameters and ctx.cls.reads(scene, table.get("training", {}).get("kind", "path")) \
+            else {}
+        evaluation = {"kind": "map", "mus": [mid]}
+    return entry_dict(table), evaluation
+
+
+def check_parameters_honoured(ctx) -> None:
+    """The check :func:`~.checks.parameters_are_honoured` (module docstring)."""
+    cls, options = ctx.cls, ctx.options
+    base = _base(ctx)
+    if base is None:
+        raise CheckSkipped("applies to none of the parameter contract's base cases")
+    entry, evaluation = base
+    scene = case_scene(CaseEntry.from_dict(entry))
+    comparable = evaluation["kind"] in ("map", "trajectory")
+    base_fields, statuses = run_entry(cls, {**entry, "evaluation": evaluation}, options)
+    if not all(s in ("ok", "initial") for s in statuses):
+        raise CheckFailure(f"the base case {entry['name']!r} ({evaluation['kind']} evaluation) does not run: "
+                           f"{statuses[:3]}")
+    problems = []
+    for key in _scene_parameters(scene):
+        value = _changed(scene, key)
+        if evaluation["kind"] == "trajectory" and key in ("load_scale", "t_end"):
+            changed = {"kind": "trajectory", key: value}
+        else:
+            changed = {"kind": "map", "mus": [{**evaluation.get("mus", [{}])[0], key: value}]}
+        trial = {**entry, "evaluation": changed}
+        if _refused(trial, cls, options):
+            continue
+        fields, statuses = run_entry(cls, trial, options)
+        flagged = any(s not in ("ok", "initial") for s in statuses)
+        if not flagged and not (comparable and _differs(fields, base_fields)):
+            problems.append(f"{key} = {value!r}: the same result, every step ok")
+    problems += _trajectory_load_scale(ctx, evaluation["kind"])
+    if problems:
+        raise CheckFailure(f"on case {entry['name']!r}: " + "; ".join(problems) + " (a parameter the model does not "
+                           "represent must change its result, be flagged, or be refused: Applies.parameters)")
+
+
+def _trajectory_load_scale(ctx, base_kind: str) -> list:
+    """A method that learns trajectories, checked on a static base, at load_scale 0.5 on a trajectory."""
+    cls, options = ctx.cls, ctx.options
+    if "trajectory" not in cls.training_kinds or base_kind == "trajectory" or ctx.training is not None:
+        return []
+    for table in _TRAJECTORY_BASES:
+        if applies_to(cls, {**table, "evaluation": {"kind": "trajectory"}}, options):
+            break
+    else:
+        return []
+    base = entry_dict({**table, "evaluation": {"kind": "trajectory"}})
+    base_fields, statuses = run_entry(cls, base, options)
+    if not all(s in ("ok", "initial") for s in statuses):
+        return [f"the trajectory base {table['name']!r} does not run: {statuses[:3]}"]
+    fields, statuses = run_entry(cls, {**base, "evaluation": {"kind": "trajectory", "load_scale": 0.5}}, options)
+    if any(s not in ("ok", "initial") for s in statuses) or _differs(fields, base_fields):
+        return []
+    return [f"on trajectory case {table['name']!r}: load_scale 0.5 returned the training's answer, every step ok"]
