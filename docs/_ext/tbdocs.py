@@ -7,8 +7,9 @@ results store, the methods and the catalogue with its pictures. Nothing generate
 
 It also prepares the tutorials' execution (myst-nb runs each in a temporary folder): the
 kernel inherits this process's environment, so the interpreter's folder goes first on ``PATH``
-(``%%bash`` cells run ``tissuebench`` of the environment building the docs), and pictures are
-rendered off screen.
+(``%%bash`` cells run ``tissuebench`` of the environment building the docs), this folder is on
+``PYTHONPATH`` (a hidden first cell runs :func:`tbdocs_kernel.setup`), and pictures are rendered
+off screen.
 """
 from __future__ import annotations
 
@@ -28,6 +29,9 @@ def _generate(app) -> None:
 
 def setup(app):
     os.environ["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])
+    # the kernel imports tbdocs_kernel (a hidden first cell: the strict %%bash, the example files)
+    here = str(Path(__file__).resolve().parent)
+    os.environ["PYTHONPATH"] = os.pathsep.join([here] + [p for p in [os.environ.get("PYTHONPATH")] if p])
     os.environ.setdefault("MPLBACKEND", "Agg")
     os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
     app.connect("builder-inited", _generate)
