@@ -23,7 +23,10 @@ and for a whole page, anywhere in it:
 
 - ``<!-- snippet-page: my-sweep -->``: its blocks run in a folder holding ``out/my-sweep``, the
   results of ``docs/howto/my-sweep.toml`` (the sweep the how-to guides use), computed once per
-  session; such pages run with the tests marked slow.
+  session.
+
+The README's blocks run in the default test run; the docs pages' with the tests marked slow
+(they solve and sweep: tens of seconds a page).
 
 The README's first block (its first lines: install, run, test) is special: its commands are run
 without the install and without the test run (this test is part of it), i.e. its
@@ -165,7 +168,12 @@ def my_sweep(tmp_path_factory):
     return folder
 
 
-@pytest.mark.parametrize("path", _PLAIN, ids=_page_id)
+def test_the_code_blocks_of_the_readme_run(tmp_path):
+    run_page(ROOT / "README.md", tmp_path)
+
+
+@pytest.mark.slow  # solves and sweeps: tens of seconds per page (the default run stays under 5 minutes)
+@pytest.mark.parametrize("path", [p for p in _PLAIN if p.name != "README.md"], ids=_page_id)
 def test_the_code_blocks_of_a_page_run(path, tmp_path):
     run_page(path, tmp_path)
 

@@ -13,10 +13,15 @@ off screen.
 """
 from __future__ import annotations
 
+import importlib
+import inspect
 import os
 import sys
 import time
 from pathlib import Path
+
+from docutils import nodes
+from docutils.parsers.rst import Directive
 
 
 def _generate(app) -> None:
@@ -27,6 +32,18 @@ def _generate(app) -> None:
     print(f"tbdocs: reference pages generated from the code in {time.perf_counter() - start:.1f} s")
 
 
+class Docstring(Directive):
+    """``{docstring} module.name``: the module's docstring as a preformatted block, for docstrings
+    written as plain text (aligned tables) that reST would misread; the words stay in the code."""
+
+    required_arguments = 1
+
+    def run(self):
+        module = importlib.import_module(self.arguments[0])
+        text = inspect.getdoc(module) or ""
+        return [nodes.literal_block(text, text, language="text")]
+
+
 def setup(app):
     os.environ["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])
     # the kernel imports tbdocs_kernel (a hidden first cell: the strict %%bash, the example files)
@@ -35,4 +52,5 @@ def setup(app):
     os.environ.setdefault("MPLBACKEND", "Agg")
     os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
     app.connect("builder-inited", _generate)
+    app.add_directive("docstring", Docstring)
     return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}
