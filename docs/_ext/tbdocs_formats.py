@@ -287,6 +287,18 @@ def spec_format() -> str:
     return "\n".join(out)
 
 
+# a key whose count is bounded under another name of LIMITS (limits.check_trajectory_evaluation)
+_LIMIT_NAME = {("trajectory", "t_end"): ("trajectory_steps", "t_end / dt: ")}
+
+
+def _limit(kind: str, key: str, doc: str, limits: dict) -> str:
+    """The named maximum of a kind's key: ``LIMITS[key]`` (a flag, documented as `true`, has none)."""
+    name, prefix = _LIMIT_NAME.get((kind, key), (key, ""))
+    if name not in limits or doc.startswith("`true`"):
+        return ""
+    return f"{prefix}{limits[name]:,}"
+
+
 def _kinds(what, registry, docs, limits, learners=None) -> list:
     described(f"{what} kinds", registry, docs)
     out = []
@@ -298,6 +310,6 @@ def _kinds(what, registry, docs, limits, learners=None) -> list:
             line += f" Learnt from by: {names(learners(name)) or 'no registered method'}."
         out.append(line + "\n")
         if kind.keys:
-            out.append(table(("key", "at most", "what"), [(f"`{k}`", f"{limits[k]:,}" if k in limits else "",
-                                                           key_docs[k]) for k in sorted(kind.keys)]))
+            out.append(table(("key", "at most", "what"), [(f"`{k}`", _limit(name, k, key_docs[k], limits), key_docs[k])
+                                                          for k in sorted(kind.keys)]))
     return out

@@ -187,7 +187,8 @@ def catalogue_reference(folder: Path, workers: int = 2) -> str:
            "The scenes shipped with tissuebench (`tissuebench cases`), generated from their files in "
            "`tissuebench/cases/catalogue/`. Each picture is drawn at ci resolution by the code "
            "`tissuebench scene check` uses: constrained nodes red, loads as orange arrows, monitors blue. "
-           "[The scene format](scene-format.md) says what every key means.\n"]
+           "[The scene format](scene-format.md) says what every key means; the papers of the sources are listed "
+           "in [the method families](../explanation/methods.md).\n"]
     for name in names_:
         scene, path = load(name), CATALOGUE_DIR / f"{name}.toml"
         variants = ", ".join(f"`{v}`" for v in scene.variants) or "none"
