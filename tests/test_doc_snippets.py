@@ -1,7 +1,8 @@
 """Every code block of the README and of the documentation runs (issue 40).
 
 A small runner over the fenced blocks of ``README.md`` and ``docs/**/*.md`` (the generated
-reference pages aside). Per page, in a fresh temporary folder and in page order:
+reference pages and the study records of ``docs/studies/`` aside: ``NOT_PAGES``). Per page,
+in a fresh temporary folder and in page order:
 
 - ``python`` blocks run in one namespace (a later block sees the names of an earlier one);
 - ``bash`` / ``sh`` blocks run with ``bash -e -o pipefail`` (the first failing command fails the
@@ -80,10 +81,14 @@ def is_notebook(text: str) -> bool:
     return text.startswith("---") and "file_format: mystnb" in text.split("---", 2)[1]
 
 
+# not pages of the site (conf.py's exclude_patterns): the generated reference, and docs/studies/, the
+# records of studies at paper resolution written with their scripts (their commands run for hours)
+NOT_PAGES = ("_generated", "_build", "studies")
+
+
 def pages() -> list[Path]:
-    found = [ROOT / "README.md"] + sorted(p for p in DOCS.rglob("*.md") if "_generated" not in p.parts
-                                          and "_build" not in p.parts)
-    return found
+    return [ROOT / "README.md"] + sorted(p for p in DOCS.rglob("*.md")
+                                         if not set(p.relative_to(DOCS).parts[:-1]) & set(NOT_PAGES))
 
 
 def _page_id(path: Path) -> str:
