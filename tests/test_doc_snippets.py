@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import os
 import re
+import runpy
 import shutil
 import subprocess
 import sys
@@ -139,8 +140,10 @@ def run_page(path: Path, cwd: Path) -> int:
             if path.name == "README.md" and first and lang == "bash":
                 b = {**b, "code": _readme_first_block(b["code"])}
             first = False
-            if lang == "python":
-                exec(compile(b["code"], where, "exec"), namespace)  # noqa: S102 - the page's own code
+            if lang == "python":  # a file per block (tracebacks name it), run with the page's names so far
+                script = cwd / f"_snippet_{path.stem}_{b['line']}.py"
+                script.write_text(b["code"], encoding="utf-8")
+                namespace = runpy.run_path(str(script), init_globals=namespace, run_name=namespace["__name__"])
             elif lang == "bash":
                 _run_bash(b["code"], cwd, where)
             else:
