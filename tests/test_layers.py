@@ -1,4 +1,4 @@
-"""The layer rule of the README ("each layer imports only the ones above it"), checked on every
+"""The layer rule of docs/explanation/architecture.md ("each layer imports only the ones above it"), checked on every
 import of the package, those inside functions included (issue 29: 41 cross-package imports hid
 inside functions, among them ``studies`` drawing with ``reports``); and imports of another
 package inside a function say why (a ``# lazy:`` comment), except in ``cli.py``, whose
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import tissuebench
 
-#: the README's table, top to bottom: a package may import itself and those before it
+#: the layout table of docs/explanation/architecture.md, top to bottom: a package may import itself and those before it
 LAYERS = ("refsolvers", "cases", "reference", "rom", "studies", "reports", "testing")
 ROOT = Path(tissuebench.__file__).parent
 

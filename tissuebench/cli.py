@@ -54,7 +54,7 @@ def _parser():
     run.add_argument("--force", action="store_true", help="replace an existing result folder")
     run.add_argument("--linear-solver", default="auto", choices=["auto", "direct", "cholesky", "amg-cg"],
                      help="linear solver of the Newton iterations (default auto: NGSolve's sparse LDL^T from "
-                          "1000 dofs, SuperLU below; see README: which to pick)")
+                          "1000 dofs, SuperLU below; which to pick: docs/explanation/benchmarks.md)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     cases = sub.add_parser("cases", help="list the catalogue")
     cases.add_argument("--no-mesh", action="store_true", help="do not build meshes to count nodes")
@@ -287,7 +287,7 @@ def _scene_spec(args):
 
     if not args.all_methods:
         raise ValueError("sweep --scene FILE: add --all-methods (every registered method that applies to the scene; "
-                         "to choose methods, write a spec: see README 'Sweeps')")
+                         "to choose methods, write a spec: docs, the sweep-spec format)")
     resolution = args.resolution or "ci"
     scene = load(args.scene, resolution=resolution, variant=args.variant)
     out = args.out or Path("out") / f"sweep-{safe_name(scene.name)}-{resolution}"

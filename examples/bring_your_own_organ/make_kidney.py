@@ -1,4 +1,5 @@
-"""A kidney-like organ meshed with gmsh: the mesh file of README "Bring your own organ".
+"""A kidney-like organ meshed with gmsh: the mesh file of the tutorial "Bring your own organ"
+(docs/tutorials/own-organ.md).
 
 An ellipsoid of 110 x 60 x 50 mm (semi-axes 55, 30, 25 mm along x, y, z) with a notch on its
 medial side (+y), the hilum, where the renal vessels enter and the organ is held. Linear

@@ -1,7 +1,7 @@
 """The shipped sweep presets run at ci resolution, and what they measure on the shipped meshes.
 
 The figures asserted are those measured on this project's meshes (the liver of
-``tissuebench/data/liver``, the ci cornea dome), not general claims: see README "Findings".
+``tissuebench/data/liver``, the ci cornea dome), not general claims: see docs/explanation/findings.md.
 """
 from __future__ import annotations
 

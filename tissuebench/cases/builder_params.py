@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from .schema import c_bool, c_enum, c_int_range, c_num, c_pos, c_str, fail, key_text, value_text
+from .schema import accepts, c_bool, c_enum, c_int_range, c_num, c_pos, c_str, fail, key_text, value_text
 
 __all__ = ["MAX_CELLS", "BUILDER_PARAMS", "MeshFileNotFound", "check_builder_params"]
 
@@ -26,6 +26,7 @@ class MeshFileNotFound(FileNotFoundError, ValueError):
 
 
 def _vec(n, positive=False):
+    @accepts(f"a list of {n} finite numbers" + (" > 0" if positive else ""))
     def check(path, v):
         ok = isinstance(v, list) and len(v) == n
         nums = [c_num(f"{path}[{i}]", x) for i, x in enumerate(v)] if ok else []
@@ -35,24 +36,28 @@ def _vec(n, positive=False):
     return check
 
 
+@accepts("a list of 3 integers from 1 to 100000 (cells along x, y, z)")
 def _divisions(path, v):
     if not (isinstance(v, list) and len(v) == 3):
         fail(path, v, "expected a list of 3 integers >= 1 (cells along x, y, z)")
     return [c_int_range(1, 100_000)(f"{path}[{i}]", x) for i, x in enumerate(v)]
 
 
+@accepts("a number in (0, 1)")
 def _fraction(path, v):
     if not (c_num(path, v) and 0 < v < 1):
         fail(path, v, "expected a number in (0, 1)")
     return float(v)
 
 
+@accepts("a mesh grading in (0, 1]")
 def _grading(path, v):
     if not (c_num(path, v) and 0 < v <= 1):
         fail(path, v, "expected a mesh grading in (0, 1]")
     return float(v)
 
 
+@accepts("the path of a mesh file")
 def _mesh_file(path, v):
     c_str(path, v)
     try:

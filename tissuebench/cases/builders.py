@@ -43,6 +43,7 @@ def box(lengths, divisions, cell_type="tetra", origin=(0.0, 0.0, 0.0)) -> BuiltM
 
 
 def netgen_box(lengths, maxh, origin=(0.0, 0.0, 0.0)) -> BuiltMesh:
+    """A box of ``lengths`` from ``origin``, tetrahedra of size about ``maxh`` meshed by netgen."""
     from .meshes import netgen_box_mesh
 
     return BuiltMesh(netgen_box_mesh(tuple(lengths), maxh, tuple(origin)), {"builder": "netgen_box", "maxh": maxh})

@@ -265,6 +265,12 @@ def cut_mesh(mesh: Mesh, incisions, depth_fraction: float = 1.0, *, centre=(0.0,
 # ----------------------------------------------------------------------------- scene files
 _CUT_SCHEMA = {"incisions": c_any, "depth_fraction": c_num, "note": c_str}
 _INCISION_SCHEMA = {"angle_deg": c_num, "radii": c_numlist}
+# what each key means (the scene-format reference of the documentation)
+CUT_DOC = {"incisions": "an array of incision tables (below)",
+           "depth_fraction": "the cut depth as a fraction of the thickness (quantised to element layers)",
+           "note": "documentation"}
+INCISION_DOC = {"angle_deg": "the incision's direction, counter-clockwise from +x [degrees]",
+                "radii": "`[r0, r1]`: from horizontal radius r0 to r1 [mm]"}
 
 
 def check_cut(path: str, table) -> dict:

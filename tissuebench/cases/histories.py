@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .schema import c_nonneg, c_num, c_numlist, c_pos, c_str, c_table, check_table, fail
+from .schema import accepts, c_nonneg, c_num, c_numlist, c_pos, c_str, c_table, check_table, fail
 
 __all__ = ["DEFAULT_HISTORY", "History", "check_history"]
 
@@ -25,8 +25,21 @@ _HISTORY_SCHEMAS = {
     "ramp_hold_release": ({"t_ramp": c_pos, "t_hold": c_nonneg, "t_release": c_pos}, ("t_ramp", "t_release")),
     "tabulated": ({"t": c_numlist, "values": c_numlist}, ("t", "values")),
 }
+# what each history is and what its keys mean (the scene-format reference of the documentation)
+HISTORY_DOC = {
+    "constant": ("1 at every time", {}),
+    "ramp": ("0 until `t0`, linear to 1 at `t1`, then 1", {"t0": "start (default 0)", "t1": "end of the ramp"}),
+    "step": ("0 before `t0`, 1 from `t0` on", {"t0": "the time of the step (default 0)"}),
+    "sine": ("`amplitude` sin(2 pi `frequency` t + `phase`)",
+             {"amplitude": "default 1", "frequency": "[1 / time unit]", "phase": "[rad] (default 0)"}),
+    "ramp_hold_release": ("up to 1 over `t_ramp`, held for `t_hold`, back to 0 over `t_release`",
+                          {"t_ramp": "ramp time", "t_hold": "hold time (default 0)", "t_release": "release time"}),
+    "tabulated": ("piecewise linear through the points (`t`, `values`)",
+                  {"t": "strictly increasing times (at least 2)", "values": "the load factor at each time"}),
+}
 
 
+@accepts("a history table (see Load histories)")
 def check_history(path, h):
     """Validate a history table; returns the checked table."""
     c_table(path, h)

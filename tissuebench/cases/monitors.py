@@ -40,6 +40,27 @@ _MONITOR_SCHEMA = {"name": c_name, "quantity": c_enum(*MONITOR_QUANTITIES), "reg
                    "point": c_vec3, "component": c_enum("x", "y", "z", "u", "w", "theta", "norm"),
                    "axis": c_vec3, "center": c_vec3, "area": c_pos, "scale": c_num, "unit": c_str,
                    "boundary": c_bool, "frame": c_frame}
+# what each quantity and key means (the scene-format reference of the documentation)
+MONITOR_QUANTITY_DOC = {
+    "max_displacement": "the largest nodal displacement magnitude",
+    "displacement": "the displacement at `point` (one `component`, or `\"norm\"`)",
+    "deformed_coordinate": "the deformed position at `point` (one `component`)",
+    "reaction_force": "the reaction on `region` (one `component`)",
+    "nominal_stress": "the reaction on `region` divided by the reference `area`",
+    "moment": "the moment of the reactions on `region` about `axis` through `center`",
+    "volume_ratio": "deformed over reference volume",
+    "strain_energy": "the stored energy (evaluated by a backend)",
+}
+MONITOR_DOC = {
+    "name": "the column name in the results", "quantity": "what is measured (see the quantities)",
+    "region": "the nodes of a reaction, stress or moment (a region table)",
+    "point": "where a point monitor reads (interpolated in its cell)",
+    "component": "`\"x\"`, `\"y\"`, `\"z\"` (1D: `\"u\"`, `\"w\"`, `\"theta\"`) or `\"norm\"`",
+    "axis": "`moment`: the axis", "center": "`moment`: a point of the axis", "area": "`nominal_stress`: the area",
+    "scale": "a factor applied to the value (1e-3 for kPa ...)", "unit": "documentation: the unit after `scale`",
+    "boundary": "read at the boundary node nearest to `point` instead of interpolating",
+    "frame": "`\"bbox\"`: `point` as fractions of the bounding box",
+}
 
 
 def check_monitor(path, m, model):

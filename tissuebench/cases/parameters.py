@@ -29,15 +29,29 @@ from __future__ import annotations
 
 import copy
 
-from .schema import AXES, c_enum, c_int_range, c_num, c_pos, c_str, c_vec3, check_table, fail, key_text
+from .schema import AXES, accepts, c_enum, c_int_range, c_num, c_pos, c_str, c_vec3, check_table, fail, key_text
 from .sections import INTEGRATOR_NAMES, MAX_LOAD_STEPS, MAX_TIME_STEPS, check_material
 
 __all__ = ["PARAMETER_KINDS", "ANALYSIS_OVERRIDES", "check_parameters_table", "apply_mu"]
 
-_POSITION = {"load": lambda p, v: _c_index(p, v), "axis": c_enum(*AXES), "point": c_vec3,
-             "frame": c_enum("absolute", "bbox"), "range": lambda p, v: _c_range(p, v), "description": c_str,
+_POSITION = {"load": accepts("an integer >= 0")(lambda p, v: _c_index(p, v)), "axis": c_enum(*AXES), "point": c_vec3,
+             "frame": c_enum("absolute", "bbox"),
+             "range": accepts("`[low, high]`, low < high")(lambda p, v: _c_range(p, v)), "description": c_str,
              "unit": c_str}
 PARAMETER_KINDS = {"position": _POSITION}
+# what each key means (the scene-format reference of the documentation)
+POSITION_DOC = {
+    "load": "the index of the `[[load]]` entry (a point load) whose point moves",
+    "axis": "the coordinate the position sets", "point": "the other coordinates (the `axis` entry is replaced)",
+    "frame": "`\"bbox\"`: `point` and `range` as fractions of the bounding box (default `\"absolute\"`)",
+    "range": "`[low, high]`: the positions a study may sample", "description": "documentation",
+    "unit": "documentation: the unit of the position",
+}
+ANALYSIS_OVERRIDES_DOC = {
+    "max_load_factor": "a static path's last load factor", "load_steps": "a static path's increments",
+    "t_end": "a dynamic run's end time", "dt": "a dynamic run's time step",
+    "integrator": "the reference's time integrator (the scene's `integrator_options` are dropped with another one)",
+}
 _STATIC_KEYS, _DYNAMIC_KEYS = ("max_load_factor", "load_steps"), ("t_end", "dt")  # integrator: below
 ANALYSIS_OVERRIDES = {"max_load_factor": c_pos, "load_steps": c_int_range(1, MAX_LOAD_STEPS), "t_end": c_pos,
                       "dt": c_pos, "integrator": c_enum(*INTEGRATOR_NAMES)}

@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from .schema import (AXES, c_any, c_axis, c_bool, c_enum, c_frame, c_int1, c_num, c_pos, c_vec3,
+from .schema import (AXES, accepts, c_any, c_axis, c_bool, c_enum, c_frame, c_int1, c_num, c_pos, c_vec3,
                      check_table, fail, require)
 
 __all__ = ["MeshGeometry", "check_region", "compile_region"]
@@ -31,8 +31,23 @@ _REGION_SCHEMA = {
     "frame": c_frame,
 }
 _REGION_NEEDS = {"plane": ("value",), "sphere": ("radius",), "fraction": ("side", "amount")}
+# what each key means (the scene-format reference of the documentation is generated from these)
+REGION_DOC = {
+    "plane": "the nodes on the plane where this coordinate equals `value`",
+    "value": "`plane`: the coordinate of the plane", "tol": "`plane`, `ellipsoid`: the distance tolerance",
+    "box": "the nodes in the box `[[x0, y0, z0], [x1, y1, z1]]`",
+    "nearest": "the `count` nodes nearest to this point", "count": "`nearest`: how many nodes (default 1)",
+    "sphere": "the nodes within `radius` of this centre", "radius": "`sphere`: its radius",
+    "fraction": "the nodes within `amount` (a fraction of the bounding box) of one `side` along this axis",
+    "side": "`fraction`: `\"min\"` or `\"max\"`", "amount": "`fraction`: the fraction of the box's extent",
+    "ellipsoid": "the nodes on the ellipsoid of these semi-axes", "center": "`ellipsoid`: its centre (default 0)",
+    "all": "every node", "boundary": "modifier: boundary nodes only",
+    "frame": "modifier: `\"bbox\"` states points and values as fractions of the mesh's bounding box "
+             "(default `\"absolute\"`)",
+}
 
 
+@accepts("a region table (see Regions)")
 def check_region(path, r):
     """Validate a region table (see the module docstring); returns the checked table."""
     r = check_table(path, r, _REGION_SCHEMA)

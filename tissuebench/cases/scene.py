@@ -289,6 +289,55 @@ _MESH_SCHEMA = {"builder": c_str, "element": c_enum("P1", "P2", "Q1"), "params":
                 "paper": c_table, "note": c_str}
 _MESH_FILE_SCHEMA = {"file": c_str, "unit": c_str, "scale": c_pos, "element": c_enum("P1", "P2", "Q1"),
                      "note": c_str}
+# what each key means: the scene-format reference of the documentation is generated from the
+# schema tables above and these words (a key without its words fails the docs' test)
+TOP_DOC = {
+    "case": "what the scene is: its name, description, source paper, model",
+    "units": "the units the numbers of the scene are in (a mesh file's coordinates are converted to the length)",
+    "mesh": "the mesh: a builder with its parameters per resolution, or a mesh file",
+    "material": "finite-element scenes: the constitutive law and its parameters",
+    "model": "1D models (`case.model` other than `\"fe\"`): the discrete model's parameters",
+    "dirichlet": "array of tables `[[dirichlet]]`: supports (at least one)",
+    "load": "array of tables `[[load]]`: the loads, scaled by the load factor",
+    "analysis": "static (a load path in load steps) or dynamic (time stepping)",
+    "monitor": "array of tables `[[monitor]]`: the scalar quantities recorded at every step",
+    "paper": "free table of the numbers the source paper reports; `[paper.compare.<monitor>]` puts our value "
+             "beside the paper's",
+    "variants": "`[variants.<name>]`: tables merged over the base scene (see Variants)",
+    "cut": "incisions cut into the mesh (the layered cornea)",
+    "parameters": "parameters a study may evaluate the scene at (`[parameters.position]`)",
+}
+CASE_DOC = {
+    "name": "the case's name (tables, titles, the default results folder)",
+    "paper": "the publication and section a catalogue case reproduces (optional: an organ of your own has none)",
+    "description": "one sentence: what is modelled",
+    "model": "`\"fe\"` (finite elements, default) or a 1D model",
+    "default_variant": "the variant loaded when none is asked for (without it: the base scene)",
+}
+UNITS_DOC = {
+    "length": "the length unit of every coordinate and length of the scene (`\"m\"`, `\"mm\"` ...)",
+    "force": "documentation", "stress": "documentation", "mass": "documentation", "time": "documentation",
+    "note": "documentation",
+}
+MESH_DOC = {
+    "builder": "a mesh builder of the package (see Mesh builders)",
+    "element": "`\"P1\"`, `\"P2\"` (tetrahedra) or `\"Q1\"` (hexahedra); FE scenes only",
+    "params": "the builder's parameters shared by both resolutions",
+    "ci": "the builder's parameters at ci resolution (merged over `params`; may be empty)",
+    "paper": "the builder's parameters at paper resolution (merged over `params`; may be empty)",
+    "note": "documentation",
+}
+MESH_FILE_DOC = {
+    "file": "any volume mesh meshio reads (tetrahedra or hexahedra), relative to the scene file; its content is part "
+            "of the scene's hash",
+    "unit": "the length unit of the file's coordinates (see `LENGTH_UNITS`), converted to `[units] length`",
+    "scale": "instead of `unit`: the factor from the file's coordinates to `[units] length`",
+    "element": "`\"P1\"` or `\"P2\"` on tetrahedra, `\"Q1\"` on hexahedra",
+    "note": "documentation",
+}
+PAPER_COMPARE_SCHEMA = {"value": c_num, "note": c_str}
+PAPER_COMPARE_DOC = {"value": "the paper's value of the monitor (in the monitor's unit, after its `scale`)",
+                     "note": "why ours differs, printed beside it by `tissuebench run`"}
 #: length units a mesh file's coordinates may be stated in, in metres
 LENGTH_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "µm": 1e-6}
 
@@ -427,7 +476,7 @@ def _check_paper(paper, monitors):
     for name, ref in c_table("paper.compare", paper.get("compare", {})).items():
         if name not in names:
             fail(f"paper.compare.{name}", ref, f"not a monitor of the scene; monitors: {sorted(names)}")
-        check_table(f"paper.compare.{name}", ref, {"value": c_num, "note": c_str}, required=("value",))
+        check_table(f"paper.compare.{name}", ref, PAPER_COMPARE_SCHEMA, required=("value",))
     return paper
 
 

@@ -50,6 +50,64 @@ LOAD_TYPES = ("point", "traction", "pressure", "follower_pressure", "body")
 INTEGRATOR_NAMES = ("hht", "bathe", "newmark", "backward_euler", "central_difference", "forward_euler")
 
 _MOTION_SCHEMA = {"type": c_enum("rotation"), "axis": c_vec3, "center": c_vec3, "angle_deg": c_num}
+DIRICHLET_SCHEMA = {"region": check_region, "components": c_any, "value": c_any, "motion": c_any, "scaled": c_bool,
+                    "name": c_name}
+LOAD_SCHEMA = {"type": c_enum(*LOAD_TYPES), "region": check_region, "value": c_any, "history": check_history,
+               "distribute": c_enum("total", "per_node", "interpolate"), "name": c_name}
+
+# what each key means: the scene-format reference of the documentation is generated from these
+# tables (a key without its words fails the docs' test)
+MATERIAL_DOC = {
+    "name": "the constitutive law (strain energies in `tissuebench.refsolvers.materials`)",
+    "density": "mass per volume, needed by dynamic scenes",
+    "E": "Young's modulus [stress unit]", "nu": "Poisson's ratio",
+    "mu1": "first Mooney-Rivlin coefficient [stress unit]", "mu2": "second Mooney-Rivlin coefficient [stress unit]",
+    "kappa": "bulk modulus of the volumetric penalty [stress unit]", "C": "Guccione's scale [stress unit]",
+    "bf": "Guccione's fibre exponent", "bt": "Guccione's transverse exponent", "bfs": "Guccione's shear exponent",
+    "fibres": "the fibre direction (default x)",
+}
+MODEL_DOC = {
+    "q": "the source term", "conductivity": "the conductivity", "source_range": "where the source acts",
+    "masses": "the storey masses", "storey_stiffness": "the stiffness of each storey",
+    "E": "Young's modulus", "A": "the cross-section area", "I": "the second moment of area", "rho": "the density",
+}
+MOTION_DOC = {"type": "`\"rotation\"`", "axis": "the rotation axis", "center": "a point of the axis",
+              "angle_deg": "the angle at load factor 1 [degrees]"}
+DIRICHLET_DOC = {
+    "region": "the nodes held (a region table)",
+    "components": "the components fixed: `\"xyz\"`, `[\"x\", \"z\"]` or indices (1D models: their dof names); "
+                  "default all",
+    "value": "the prescribed displacement at load factor 1: one number for all components or one per component "
+             "(default 0)",
+    "motion": "instead of `value`: a rigid motion (a rotation table, below) applied as the load factor grows",
+    "scaled": "the value scales with the load factor (default `true`)",
+    "name": "a name shown by `tissuebench scene check`",
+}
+LOAD_DOC = {
+    "type": "`\"point\"`, `\"traction\"` (dead, per area), `\"pressure\"` (dead, normal), "
+            "`\"follower_pressure\"` (follows the deformed surface) or `\"body\"` (per volume)",
+    "region": "where it acts (a region table; not for a body load)",
+    "value": "at load factor 1: a 3-vector (point, traction, body) or a number (pressures; 1D models)",
+    "history": "the load factor against (pseudo-)time (a history table; default a ramp to 1 at t = 1)",
+    "distribute": "point loads: `\"total\"` spread evenly over the region's nodes (default), `\"per_node\"`, or "
+                  "`\"interpolate\"` (one force at the region's `nearest` point, spread by the shape functions)",
+    "name": "a name shown by `tissuebench scene check`",
+}
+STATIC_DOC = {
+    "type": "`\"static\"`", "load_steps": "load increments from 0 to `max_load_factor`",
+    "max_load_factor": "the last load factor (default 1)",
+    "stop_at_divergence": "run until Newton stops converging; the last converged load factor is the measurement",
+    "formulation": "`\"displacement\"` (default) or `\"mixed\"` (incompressible u-p Taylor-Hood P2-P1)",
+    "max_cuts": "halvings of an increment Newton does not converge before the run stalls",
+    "note": "documentation",
+}
+DYNAMIC_DOC = {
+    "type": "`\"dynamic\"`", "dt": "the time step [time unit]", "t_end": "the end time [time unit]",
+    "integrator": "the time integrator (see `INTEGRATOR_NAMES`)",
+    "integrator_options": "options of the integrator (`alpha` of HHT ...), checked by its constructor",
+    "lumped": "a lumped mass matrix", "dt_sweep": "time steps of a study of the step size",
+    "store_every": "keep every n-th step in the results", "note": "documentation",
+}
 _STATIC = {"type": c_str, "load_steps": c_int_range(1, MAX_LOAD_STEPS), "max_load_factor": c_pos,
            "stop_at_divergence": c_bool, "formulation": c_enum("displacement", "mixed"),
            "max_cuts": c_int_range(0, 20),
@@ -79,9 +137,7 @@ def check_model(path, m, model):
 
 def check_dirichlet(path, d, model):
     """Validate a ``[[dirichlet]]`` entry; ``value`` becomes one float per component."""
-    schema = {"region": check_region, "components": c_any, "value": c_any, "motion": c_any,
-              "scaled": c_bool, "name": c_name}
-    d = check_table(path, d, schema, required=("region",))
+    d = check_table(path, d, DIRICHLET_SCHEMA, required=("region",))
     default = "xyz" if model == "fe" else list(COMPONENTS_1D[model])
     d["components"] = check_components(f"{path}.components", d.get("components", default), model)
     if "value" in d and "motion" in d:
@@ -112,9 +168,7 @@ def _check_dirichlet_value(path, v, n):
 
 def check_load(path, ld, model):
     """Validate a ``[[load]]`` entry; fills the default history and distribution."""
-    schema = {"type": c_enum(*LOAD_TYPES), "region": check_region, "value": c_any, "history": check_history,
-              "distribute": c_enum("total", "per_node", "interpolate"), "name": c_name}
-    ld = check_table(path, ld, schema, required=("type", "value"))
+    ld = check_table(path, ld, LOAD_SCHEMA, required=("type", "value"))
     kind = ld["type"]
     if model != "fe" and kind != "point":
         fail(f"{path}.type", kind, f"a {model} model takes point loads only")

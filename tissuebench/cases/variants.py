@@ -15,6 +15,11 @@ __all__ = ["VARIANT_KEYS", "apply_variant"]
 
 VARIANT_KEYS = {"description", "material", "model", "mesh", "analysis", "dirichlet", "load", "monitor", "paper",
                 "case", "parameters"}
+# how each key of a variant merges (the scene-format reference of the documentation)
+VARIANT_DOC = {**{k: "replaces the base table" for k in ("material", "model", "mesh", "analysis")},
+               **{k: "appended to the base array" for k in ("dirichlet", "load", "monitor")},
+               **{k: "merged key by key over the base table" for k in ("paper", "case", "parameters")},
+               "description": "documentation of the variant"}
 
 
 def apply_variant(raw, variant, path):

@@ -9,7 +9,7 @@ our values of the external anchors (:mod:`.anchors`), the backend comparison
 (:mod:`.backend_comparison`), and the one in-process memo of what a process's units share
 (:mod:`.memo`).
 
-It sits between :mod:`tissuebench.cases` and :mod:`tissuebench.rom` (README, layout; checked
+It sits between :mod:`tissuebench.cases` and :mod:`tissuebench.rom` (docs/explanation/architecture.md; checked
 by ``tests/test_layers.py``): the FE kernel knows nothing of scenes, the scenes know nothing of
 solvers, and no reference imports a reduced model or the sweep harness (what it needs of
 them, a cutting model's incision strip, is passed in).

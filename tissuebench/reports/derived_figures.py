@@ -2,7 +2,7 @@
 
 :func:`draw_derived` is the ``figures`` callable :func:`~tissuebench.studies.sweep.run_sweep`
 and :func:`~tissuebench.studies.sweep.write_derived` take: the studies layer computes and
-writes the tables, this layer draws (the layer rule of the README: ``studies`` never imports
+writes the tables, this layer draws (the layer rule of docs/explanation/architecture.md: ``studies`` never imports
 ``reports``). The CLI passes it; a script calling ``run_sweep`` passes it for the same files::
 
     from tissuebench.reports.derived_figures import draw_derived

@@ -339,6 +339,25 @@ EVALUATION_KINDS = {k.name: k for k in (
     Kind("contact_nodes", frozenset({"count"}), _contact_nodes, no_references, check_contact_nodes_evaluation,
          needs_model=True),
 )}
+# what each kind is and what its keys mean (the spec-format reference of the documentation; the
+# module docstring says more)
+EVALUATION_KIND_DOCS = {
+    "path": ("the reference load path's states, in increasing load factor",
+             {"every": "keep every k-th state", "held_out": "`true`: only the states a path training with "
+              "`every = 2` (or more) left out",
+              "beyond": "multiples of the path's top to measure up to, the reference continued past it until it "
+                        "stalls: `[2.0]`"}),
+    "positions": ("held-out load positions, each with its reference path",
+                  {"held_out": "how many (midpoints and quarter points of the training lattice), or a list"}),
+    "trajectory": ("the scene's reference time integration, the model stepped from the start",
+                   {"t_end": "a longer horizon than the scene's", "load_scale": "another load amplitude",
+                    "from_time": "measure only from this time on (a window after the training's)"}),
+    "map": ("the reference at each listed parameter", {"mus": "the parameters: `[{ position = 0.5 }, ...]`"}),
+    "cut_lengths": ("a scalpel advancing along the scene's `[cut]` incision, against the linear FE of each cut mesh",
+                    {"steps_per_length": "timed haptic steps per cut length"}),
+    "contact_nodes": ("contact nodes of a surface vademecum, each against the scene's reference with the point load "
+                      "moved there", {"count": "how many contact nodes"}),
+}
 #: the kinds built after the model (the incision strip, the contact nodes)
 NEEDS_MODEL = tuple(name for name, k in EVALUATION_KINDS.items() if k.needs_model)
 

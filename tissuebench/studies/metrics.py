@@ -1,4 +1,4 @@
-"""Error metrics of a sweep (README "Sweeps"): per evaluation point, per unit, validity radius, Pareto front.
+"""Error metrics of a sweep (docs: errors): per evaluation point, per unit, validity radius, Pareto front.
 
 * relative l2 error of the nodal displacement ``||u_rom - u_ref|| / ||u_ref||`` per point
   (``inf`` for a step that failed where a reference exists: never a silent NaN; NaN only

@@ -81,6 +81,75 @@ OUTPUT_COLUMNS = {"unit_key": _S, "point": _I, "x": _F, "monitor": _S, "referenc
 LATENCY_COLUMNS = {"unit_key": _S, "sample": _I, "x": _F, "haptic_s": _F, "floor_s": _F, "reconstruct_s": _F}
 
 
+# what each column holds: the store's reference in the documentation is generated from the schemas
+# above and these words (a column without its words fails the docs' test)
+UNIT_COLUMNS_DOC = {
+    "unit_key": "the unit's key: a hash of its case, scene, method, options, protocol and code",
+    "case_name": "the scene (catalogue name or file)", "variant": "the scene's variant", "resolution": "ci or paper",
+    "backend": "the reference's backend", "kind": "the model kind: map, path or trajectory",
+    "options": "the method's options (JSON)", "label": "method and options, for plots",
+    "spec_name": "the sweep's name", "spec_hash": "the spec's hash", "scene_hash": "the scene's content hash",
+    "unit_status": "ok or failed", "message": "why a unit failed",
+    "reference_status": "what the full model did at the evaluation", "reference_message": "its message",
+    "reference_energy_growth": "the reference's energy growth ratio (dynamics)",
+    "energy_drift": "the model's long-run energy drift over the final constant-load window (relative; < 0 "
+                    "dissipates)", "energy_spread": "the model's energy spread over that window",
+    "energy_window_start": "where that window starts", "energy_message": "why the drift is undefined, where it is",
+    "reference_energy_drift": "the reference's drift over the window",
+    "reference_energy_spread": "the reference's spread over the window",
+    "n_dof": "dofs of the full model", "n_reduced": "size of the reduced state",
+    "n_training_snapshots": "snapshots learnt from", "n_points": "evaluation points",
+    "n_reference_points": "evaluation points with a reference",
+    "n_ok": "steps ok", "n_extrapolation": "steps flagged outside the training envelope",
+    "n_beyond_validity": "steps flagged past the model's validity radius", "n_failed": "failed steps",
+    "n_not_reached": "points the model did not reach",
+    "max_rel_l2": "largest relative l2 error of the field (inf where a step failed against a reference)",
+    "mean_rel_l2": "mean relative l2 error", "max_rel_l2_in_envelope": "largest relative l2 error inside the "
+    "training envelope", "rmse_rel": "sqrt(sum ||u_rom - u_ref||^2 / sum ||u_ref||^2)",
+    "max_monitor_rel_error": "largest relative error of a monitored output",
+    "x_name": "the evaluation abscissa: load factor, distance to the nearest stored position, time",
+    "validity_1pct": "the largest x up to which every error is within 1 %",
+    "validity_5pct": "the same within 5 %", "x_scale": "what x = 1 is in the scene's units",
+    "x_unit": "that unit", "reference_limit": "where the reference continued past the path stopped converging",
+    "n_beyond_reference": "points past the path's top with a reference",
+    "n_seen": "evaluation points whose reference is a training snapshot",
+    "seen": "every evaluation point was seen in training (never recommended)",
+    "haptic_median_s": "median haptic step (`step` + `outputs`) [s]", "haptic_p99_s": "its 99th percentile [s]",
+    "haptic_n": "timed haptic steps", "reconstruct_median_s": "median full-field reconstruction [s]",
+    "reconstruct_p99_s": "its 99th percentile [s]", "reference_step_s": "the full model's step, same process [s]",
+    "speedup": "reference_step_s / haptic_median_s", "calibration_s": "the 256x256 matmul kernel, same process [s]",
+    "haptic_per_calibration": "haptic_median_s / calibration_s (to compare machines)",
+    "floor_s": "the step's arithmetic floor (`OnlineModel.floor_ops`) [s]",
+    "efficiency": "floor_s / haptic_median_s (1: nothing but the arithmetic)",
+    "blas": "the BLAS library", "blas_threads": "its threads while the unit ran",
+    "offline_s": "the offline build [s]", "build_peak_bytes": "tracemalloc peak of the build",
+    "model_bytes": "the online model's size", "model_info": "what the model reports of itself (JSON)",
+    "unit_wall_s": "the whole unit [s]",
+    "git_commit": "the commit of the code", "code_hash": "a hash of the package's code",
+    "method_source": "a plugin method's module:Class ('' for a shipped one)",
+    "method_distribution": "the plugin's installed distribution", "method_version": "its version",
+    "method_code_hash": "a hash of the plugin package's .py files",
+    "tissuebench": "version", "numpy": "version", "scipy": "version", "machine": "the machine",
+    "python": "version", "date": "when the unit ran",
+}
+POINT_COLUMNS_DOC = {
+    "unit_key": "the unit", "point": "its index", "x": "the evaluation abscissa",
+    "group": "the group (a stored position, a run)", "mu": "the model's parameters (JSON)",
+    "status": "the step's status: ok, extrapolation, beyond_validity, failed", "message": "why",
+    "rel_l2": "relative l2 error of the field", "rel_max_displacement": "relative error of the largest displacement",
+    "has_reference": "a reference exists at this point", "seen": "the reference equals a training snapshot",
+    "beyond": "past the training path's top", "energy_rel": "the model's energy / scale in the constant-load window",
+    "reference_energy_rel": "the reference's",
+}
+OUTPUT_COLUMNS_DOC = {"unit_key": "the unit", "point": "the evaluation point", "x": "its abscissa",
+                      "monitor": "the monitored output", "reference": "the reference's value", "rom": "the model's",
+                      "rel_error": "relative error"}
+LATENCY_COLUMNS_DOC = {"unit_key": "the unit", "sample": "the timed step's index",
+                       "x": "the evaluation abscissa of the timed parameter (NaN without one)",
+                       "haptic_s": "the haptic step [s]", "floor_s": "the floor timed right after it [s]",
+                       "reconstruct_s": "the reconstruction, at the display's frames only (NaN elsewhere) [s]"}
+
+
 def arrow_schema(columns: dict) -> pa.Schema:
     return pa.schema([(k, t) for k, t in columns.items()])
 

@@ -77,6 +77,43 @@ _CASE = {"name", "id", "variant", "backend", "resolution", "training", "evaluati
 # a published configuration drawn beside ours on the case's Pareto plot (paper resolution)
 _PAPER_POINT = {"label": c_str, "step_ms": c_pos, "error": c_nonneg}
 _METHOD = {"name", "cases", "options", "grid", "list", "paper", "protocol"}
+# what each key means: the spec-format reference of the documentation is generated from the key
+# sets above, these words and the limits (a key without its words fails the docs' test)
+TOP_DOC = {"sweep": "the sweep's name, description, resolution and error metric",
+           "protocol": "how each unit is timed (optional; the defaults below)",
+           "case": "array of tables `[[case]]`: the scenes, what the methods learn from and where they are measured",
+           "method": "array of tables `[[method]]`: the methods and their option sets"}
+SWEEP_DOC = {"name": "names the results folder `out/sweep-NAME-RES` (default: the file's name)",
+             "description": "one line (`tissuebench sweep --list` shows it)",
+             "resolution": "the cases' default resolution (`--resolution` overrides; default `\"ci\"`)",
+             "error_metric": "the error of the Pareto front, the report and the gate (default `\"max_rel_l2\"`)"}
+CASE_DOC = {"name": "a catalogue case or the path of a scene file (relative to the spec's folder)",
+            "id": "the case's id in the results (default: the name); a case listed twice needs ids",
+            "variant": "the scene's variant", "backend": "the reference's backend (default `\"skfem\"`)",
+            "resolution": "this case's resolution (default: the sweep's)",
+            "training": "what the methods learn from: `{ kind = ..., <its keys> }` (default `{ kind = \"path\" }`)",
+            "evaluation": "where the methods are measured: `{ kind = ..., <its keys> }` (default: the training's kind)",
+            "mu": "the scene at these parameters (`Scene.at`: `position`, `load_scale`, `nu`, `E`, ..., "
+                  "`max_load_factor`, `load_steps`, `t_end`, `dt`, `integrator`); training and evaluation both run "
+                  "at it",
+            "mesh": "another mesh of the scene's builder per resolution: `{ paper = { divisions = [40, 7, 7] } }`",
+            "paper_points": "published points drawn on this case's Pareto plot at paper resolution: "
+                            "`[{ label, step_ms, error }]`",
+            "scaling_group": "this scene on several meshes (the cost-versus-size fits); the cases of a group "
+                             "differ only in `mesh`"}
+METHOD_DOC = {"name": "a registered method (`tissuebench methods`)",
+              "cases": "the case ids it runs on (default: every case whose training kind it learns from and to "
+                       "which it applies)",
+              "options": "options fixed for every set", "grid": "`{ option = [values] }`: the cartesian product",
+              "list": "explicit option sets `[{ ... }, ...]` (with and/or instead of `grid`)",
+              "paper": "`{ options, grid, list }` replacing them at `--resolution paper`",
+              "protocol": "this method's protocol overrides (e.g. fewer timed steps for a full-assembly ROM)"}
+ERROR_METRICS_DOC = {"max_rel_l2": "the largest relative l2 error of the full field over the evaluation points",
+                     "mean_rel_l2": "the mean relative l2 error over the points",
+                     "rmse_rel": "sqrt(sum ||u_rom - u_ref||^2 / sum ||u_ref||^2) over the points",
+                     "max_rel_l2_in_envelope": "the largest relative l2 error over the points inside the training "
+                                               "envelope",
+                     "max_monitor_rel_error": "the largest relative error of the monitored outputs"}
 BACKENDS = BACKEND_NAMES
 
 

@@ -195,6 +195,19 @@ TRAINING_KINDS = {k.name: k for k in (
          analysis="dynamic"),
     Kind("operators", frozenset(), _operators, no_references, check_nothing),
 )}
+# what each kind is and what its keys mean (the spec-format reference of the documentation; the
+# module docstring says more)
+TRAINING_KIND_DOCS = {
+    "path": ("the scene's reference load path (statics): every converged state, the load factor as the parameter",
+             {"every": "keep every k-th state, counted back from the last (default 1)",
+              "repeat": "duplicate the set k times (a rank-deficient training set, for the extremes)"}),
+    "positions": ("one reference path per stored load position of the scene's `[parameters.position]`",
+                  {"positions": "how many positions over the range (default 5), or a list of them",
+                   "max_load_factor": "each path's last load factor", "load_steps": "each path's increments"}),
+    "trajectory": ("the scene's reference time integration (dynamics): states, velocities, times",
+                   {"runs": "more runs of the scene at other parameters: `[{ load_scale = 0.5 }]`"}),
+    "operators": ("no snapshots: the full model's operators (PGD vademecums, the practitioner baselines)", {}),
+}
 
 
 def training_references(case: CaseEntry, scene=None) -> list:

@@ -40,6 +40,12 @@ __all__ = ["WorkUnit", "UnitOutcome", "unit_key", "options_text", "run_unit", "f
            "unit_method", "DEFAULT_PROTOCOL"]
 
 DEFAULT_PROTOCOL = {"latency_steps": 200, "warmup": 20, "blas_threads": 1, "reference_samples": 3, "seed": 0}
+# what each protocol key means (the spec-format reference of the documentation)
+PROTOCOL_DOC = {"latency_steps": "timed haptic steps per unit (>= 200 for a meaningful p99)",
+                "warmup": "untimed steps before them",
+                "blas_threads": "BLAS threads while a unit runs (threadpoolctl; 0: leave as is)",
+                "reference_samples": "reference steps timed in the same process",
+                "seed": "the seed of the random parameters a map model is timed at"}
 
 
 def options_text(options: dict) -> str:
