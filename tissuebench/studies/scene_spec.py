@@ -184,6 +184,8 @@ def write_scene_spec(scene_path, out: Path, variant: str | None = None,
     returns its path and the methods left out with why."""
 
     scene = load(scene_path, resolution=resolution, variant=variant)
+    if scene.is_fe:  # what run and scene check refuse (a load on the clamp, a free body) is refused before any unit
+        scene.to_problem()
     spec_path = Path(f"{Path(out)}.spec.toml")
     if spec_path.exists() and (not spec_path.is_file() or not spec_path.read_text(
             encoding="utf-8", errors="replace").startswith(_MARKER)):

@@ -1,0 +1,150 @@
+"""Scene defects of the second hostile probe (issue 37): a load entirely on clamped dofs (1), two
+bodies in one mesh with one of them free (3). Each is refused by the scene's problem, so that
+``scene check``, ``run`` and ``sweep --scene`` refuse it alike, naming the load or the body."""
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from tissuebench.cases.meshes import box_mesh
+from tissuebench.cases.scene import load
+from tissuebench.cli import main
+from tissuebench.refsolvers import BodyForce, Dirichlet, LinearElastic, PointLoad, Problem, SurfaceTraction
+from tissuebench.refsolvers.well_posed import IdleLoadError, check_loads_do_work
+
+BAR = """
+[case]
+name = "bar"
+description = "a bar clamped at x = 0"
+[units]
+length = "m"
+force = "N"
+[mesh]
+{mesh}
+[material]
+name = "linear"
+E = 1000.0
+nu = 0.3
+{dirichlet}
+{load}
+[[monitor]]
+name = "tip"
+quantity = "displacement"
+point = [1.0, 0.05, 0.05]
+component = "y"
+[analysis]
+type = "static"
+load_steps = 2
+"""
+BOX = """builder = "box"
+element = "{element}"
+[mesh.params]
+lengths = [1.0, 0.1, 0.1]
+cell_type = "{cell}"
+[mesh.ci]
+divisions = [8, 2, 2]
+[mesh.paper]
+divisions = [8, 2, 2]"""
+CLAMP = '[[dirichlet]]\nregion = {{ plane = "x", value = 0.0, tol = 1e-9 }}\ncomponents = "{c}"\n'
+X0 = '{ plane = "x", value = 0.0, tol = 1e-9 }'
+
+
+def bar(tmp_path, load_text, clamp="xyz", element="P1", mesh=None, extra_dirichlet=""):
+    cell = "hexahedron" if element == "Q1" else "tetra"
+    text = BAR.format(mesh=mesh or BOX.format(element=element, cell=cell),
+                      dirichlet=CLAMP.format(c=clamp) + extra_dirichlet, load=load_text)
+    path = tmp_path / "bar.toml"
+    path.write_text(text)
+    return path
+
+
+def _load(kind, value, region=X0, extra=""):
+    return f'[[load]]\ntype = "{kind}"\nregion = {region}\nvalue = {value}\n{extra}'
+
+
+IDLE = r"bar: load\[0\] \(type = '{kind}', region = \{{'plane': 'x', 'value': 0.0.*\}}\) acts only on fixed dofs: " \
+       r"its \d+ loaded nodes are held .* by dirichlet\[0\] \(region = .*components = {c}\).*does no work"
+
+
+# the other end held too, where the clamp at x = 0 holds only some components
+FAR = CLAMP.replace("0.0", "1.0").format(c="xyz")
+
+
+@pytest.mark.parametrize("kind, value, clamp, element", [
+    ("point", "[0.0, -1.0, 0.0]", "xyz", "P1"),
+    ("point", "[0.0, -1.0, 0.0]", "y", "P1"),        # the force's component held, the others free
+    ("traction", "[0.0, -1.0, 0.0]", "xyz", "P2"),   # edge nodes of the facets included
+    ("pressure", "1.0", "x", "Q1"),                  # the x = 0 face pushed along x, held along x
+    ("follower_pressure", "1.0", "x", "P1"),
+])
+def test_1_a_load_entirely_on_clamped_dofs_is_refused_naming_the_load_and_the_clamp(tmp_path, kind, value, clamp,
+                                                                                     element):
+    path = bar(tmp_path, _load(kind, value), clamp, element, extra_dirichlet=FAR if clamp != "xyz" else "")
+    with pytest.raises(ValueError, match=IDLE.format(kind=kind, c=clamp)):
+        load(path).to_problem()
+
+
+@pytest.mark.parametrize("kind, value, clamp, region", [
+    ("point", "[0.0, -1.0, 0.0]", "xz", X0),         # held in x and z: the y force moves the face
+    ("point", "[0.0, -1.0, 0.0]", "xyz", '{ box = [[0.0, 0.0, 0.0], [0.13, 0.1, 0.1]] }'),  # partly on the clamp
+    ("traction", "[0.0, -1.0, 0.0]", "xz", X0),
+    ("pressure", "1.0", "yz", X0),                   # pushed along x, free along x
+])
+def test_1_a_load_with_a_free_dof_in_its_direction_is_accepted(tmp_path, kind, value, clamp, region):
+    path = bar(tmp_path, _load(kind, value, region), clamp, extra_dirichlet=FAR if clamp != "xyz" else "")
+    assert load(path).to_problem().loads
+
+
+def test_1_scene_check_run_and_sweep_refuse_a_load_on_the_clamp(tmp_path, capsys):
+    path = bar(tmp_path, _load("point", "[0.0, -1.0, 0.0]"))
+    for argv in (["scene", "check", str(path), "--out", "-"], ["run", str(path), "--out", str(tmp_path / "run")],
+                 ["sweep", "--scene", str(path), "--all-methods", "--out", str(tmp_path / "sweep")]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert re.search(IDLE.format(kind="point", c="xyz"), err) and "Traceback" not in err, (argv, err)
+    assert not (tmp_path / "run").exists() and not (tmp_path / "sweep").exists()
+
+
+def test_1_gravity_on_a_body_clamped_everywhere_is_refused_and_on_a_clamped_end_accepted():
+    mesh = box_mesh((1.0, 0.1, 0.1), (4, 1, 1), "tetra")
+    gravity = BodyForce(np.array([0.0, 0.0, -9.81]))
+    end = Dirichlet(lambda x: x[:, 0] < 1e-9)
+    check_loads_do_work(Problem(mesh, LinearElastic(1e3, 0.3), "P1", dirichlet=[end], loads=[gravity]))
+    everywhere = Dirichlet(lambda x: np.ones(len(x), bool), (2,))
+    with pytest.raises(IdleLoadError, match=r"loads\[0\] \(BodyForce\): every dof it acts on \(20 dofs on 20 nodes\) "
+                                            r"is fixed by dirichlet\[0\], dirichlet\[1\]") as info:
+        check_loads_do_work(Problem(mesh, LinearElastic(1e3, 0.3), "P1", dirichlet=[end, everywhere], loads=[gravity]))
+    assert info.value.load == 0 and info.value.clamps == [0, 1] and info.value.n_nodes == 20
+
+
+def test_1_a_zero_component_on_a_free_dof_does_not_count_as_work():
+    """The y force of a load whose x component (0) lies on free dofs: what counts is where the
+    nonzero force acts, on both sides (the y component held: refused; free: accepted)."""
+    mesh = box_mesh((1.0, 0.1, 0.1), (4, 1, 1), "tetra")
+    end = Dirichlet(lambda x: x[:, 0] < 1e-9)
+    tip = Dirichlet(lambda x: x[:, 0] > 1 - 1e-9, (1,))
+    on_tip = PointLoad(lambda x: x[:, 0] > 1 - 1e-9, np.array([0.0, 2.0, 0.0]))
+    with pytest.raises(IdleLoadError, match=r"dirichlet\[1\]"):
+        check_loads_do_work(Problem(mesh, LinearElastic(1e3, 0.3), "P1", dirichlet=[end, tip], loads=[on_tip]))
+    along = PointLoad(lambda x: x[:, 0] > 1 - 1e-9, np.array([2.0, 0.0, 0.0]))
+    check_loads_do_work(Problem(mesh, LinearElastic(1e3, 0.3), "P1", dirichlet=[end, tip], loads=[along]))
+    # a traction on the tip face held in y, pulling in y and x: the x part does work
+    tip_face = SurfaceTraction(lambda x: x[:, 0] > 1 - 1e-9, np.array([1.0, 2.0, 0.0]))
+    check_loads_do_work(Problem(mesh, LinearElastic(1e3, 0.3), "P1", dirichlet=[end, tip], loads=[tip_face]))
+
+
+def test_1_a_1d_load_on_its_support_is_refused(tmp_path, capsys):
+    source = 'region = { nearest = [0.5, 0.0, 0.0], count = 1 }'
+    text = load("heat1d_source").path.read_text().split("[parameters.position]")[0]
+    assert source in text
+    path, moved = tmp_path / "heat.toml", tmp_path / "moved.toml"
+    path.write_text(text.replace(source, 'region = { plane = "x", value = 1.0 }'))
+    moved.write_text(text.replace(source, 'region = { plane = "x", value = 0.5 }'))
+    with pytest.raises(ValueError, match=r"load\[0\] \(type = 'point', region = .*\) acts only on fixed dofs: its 1 "
+                                         r"loaded nodes are held by dirichlet\[1\]"):
+        load(path).line_model()
+    assert main(["scene", "check", str(path), "--out", "-"]) == 2
+    assert "acts only on fixed dofs" in capsys.readouterr().err
+    assert load(moved).line_model().loads
