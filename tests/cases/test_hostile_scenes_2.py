@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 
+import meshio
 import numpy as np
 import pytest
 
@@ -148,3 +149,61 @@ def test_1_a_1d_load_on_its_support_is_refused(tmp_path, capsys):
     assert main(["scene", "check", str(path), "--out", "-"]) == 2
     assert "acts only on fixed dofs" in capsys.readouterr().err
     assert load(moved).line_model().loads
+
+
+# ---------------------------------------------------------------------------------------------- item 3
+TWO_BODIES = 'file = "two.vtu"\nunit = "m"\nelement = "P1"'
+
+
+def two_bodies(tmp_path, gap=1.0, cell="tetra"):
+    """Two 1 x 0.1 x 0.1 bars in one mesh file, the second ``gap`` past the first along x."""
+    a = box_mesh((1.0, 0.1, 0.1), (4, 1, 1), cell)
+    b = a.points + [1.0 + gap, 0.0, 0.0]
+    path = tmp_path / ("two.vtu" if cell == "tetra" else "two_hex.vtu")
+    meshio.Mesh(np.vstack([a.points, b]), [(cell, np.vstack([a.cells, a.cells + len(a.points)]))]).write(path)
+    return path
+
+
+def test_3_a_free_second_body_is_refused_naming_it(tmp_path, capsys):
+    two_bodies(tmp_path)
+    path = bar(tmp_path, _load("point", "[0.0, -1.0, 0.0]", '{ plane = "x", value = 1.0, tol = 1e-9 }'),
+               mesh=TWO_BODIES)
+    body = (r"dirichlet: body 1 of 2 \(a connected part of the mesh: 20 nodes, e.g. node 20, bounding box "
+            r"\[2.0, 0.0, 0.0\] to \[3.0, 0.1, 0.1\]\) has no fixed dof")
+    with pytest.raises(ValueError, match=body):
+        load(path).to_problem()
+    for argv in (["scene", "check", str(path), "--out", "-"], ["run", str(path), "--out", str(tmp_path / "run")],
+                 ["sweep", "--scene", str(path), "--all-methods", "--out", str(tmp_path / "sweep")]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert re.search(body, err) and "Traceback" not in err, (argv, err)
+    assert not (tmp_path / "sweep").exists()
+
+
+def test_3_two_bodies_each_held_are_accepted_and_said(tmp_path, capsys):
+    two_bodies(tmp_path)
+    second = CLAMP.replace("0.0", "2.0").format(c="xyz")
+    path = bar(tmp_path, _load("point", "[0.0, -1.0, 0.0]", '{ plane = "x", value = 1.0, tol = 1e-9 }'),
+               mesh=TWO_BODIES, extra_dirichlet=second)
+    assert len(load(path).to_problem().fixed_dofs) == 2 * 4 * 3
+    assert main(["scene", "check", str(path), "--out", "-"]) == 0
+    assert "remove all 6 rigid-body modes of each of the 2 bodies" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("cell", ["tetra", "hexahedron"])
+def test_3_a_second_body_held_on_a_line_only_is_refused_with_its_rank(cell, tmp_path):
+    """Each body's own modes: the second held on its axis-parallel edge keeps the rotation about it."""
+    pts = np.vstack([box_mesh((1.0, 0.1, 0.1), (4, 1, 1), cell).points] * 2)
+    pts[len(pts) // 2:, 0] += 2.0
+    cells = box_mesh((1.0, 0.1, 0.1), (4, 1, 1), cell).cells
+    from tissuebench.refsolvers import Mesh
+
+    mesh = Mesh(pts, np.vstack([cells, cells + len(pts) // 2]), cell)
+    first = Dirichlet(lambda x: x[:, 0] < 1e-9)
+    edge = Dirichlet(lambda x: (x[:, 0] > 2 - 1e-9) & (x[:, 1] < 1e-9) & (x[:, 2] < 1e-9))
+    element = "Q1" if cell == "hexahedron" else "P1"
+    with pytest.raises(ValueError, match=r"remove only 5 of 6 rigid-body modes of body 1 of 2"):
+        Problem(mesh, LinearElastic(1e3, 0.3), element, dirichlet=[first, edge])
+    end = Dirichlet(lambda x: np.abs(x[:, 0] - 3.0) < 1e-9)
+    assert Problem(mesh, LinearElastic(1e3, 0.3), element, dirichlet=[first, edge, end]).fixed_dofs.size
+    assert mesh.components.tolist() == [0] * (len(pts) // 2) + [1] * (len(pts) // 2)
