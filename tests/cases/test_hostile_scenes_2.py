@@ -13,7 +13,10 @@ from tissuebench.cases.meshes import box_mesh
 from tissuebench.cases.scene import load
 from tissuebench.cli import main
 from tissuebench.refsolvers import BodyForce, Dirichlet, LinearElastic, PointLoad, Problem, SurfaceTraction
+from tissuebench.reference import solve
 from tissuebench.refsolvers.well_posed import IdleLoadError, check_loads_do_work
+
+from _mesh_scene import scene_file as mesh_scene_file, write_block
 
 BAR = """
 [case]
@@ -207,3 +210,15 @@ def test_3_a_second_body_held_on_a_line_only_is_refused_with_its_rank(cell, tmp_
     end = Dirichlet(lambda x: np.abs(x[:, 0] - 3.0) < 1e-9)
     assert Problem(mesh, LinearElastic(1e3, 0.3), element, dirichlet=[first, edge, end]).fixed_dofs.size
     assert mesh.components.tolist() == [0] * (len(pts) // 2) + [1] * (len(pts) // 2)
+
+
+# ---------------------------------------------------------------------------------------------- item 4
+def test_4_a_mm_mesh_declared_in_metres_converges_and_says_its_load_is_small(tmp_path):
+    """The block of 40 mm read as 40 m: its 0.1 N load strains it 1e-9; Newton stalled at load
+    factor 1/4096 (residual 2e-9 above rtol * 0.05), then every sweep unit failed 'cannot reshape'."""
+    write_block(tmp_path)
+    scene = load(mesh_scene_file(tmp_path, mesh='file = "block.msh"\nunit = "m"\nelement = "P1"'))
+    ref = solve(scene, "skfem")
+    assert ref.status == "success" and ref.steps.tolist() == [0.0, 0.5, 1.0], ref.message
+    assert "only to the round-off floor of the residual" in ref.message
+    assert "the load is small against the body's stiffness" in ref.message
