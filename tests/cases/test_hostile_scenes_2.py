@@ -222,3 +222,118 @@ def test_4_a_mm_mesh_declared_in_metres_converges_and_says_its_load_is_small(tmp
     assert ref.status == "success" and ref.steps.tolist() == [0.0, 0.5, 1.0], ref.message
     assert "only to the round-off floor of the residual" in ref.message
     assert "the load is small against the body's stiffness" in ref.message
+
+
+# ---------------------------------------------------------------------------------------------- item 5
+DYNAMIC = '[analysis]\ntype = "dynamic"\ndt = 0.01\nt_end = 0.05\nintegrator = "newmark"'
+TIP = '{ plane = "x", value = 1.0, tol = 1e-9 }'
+
+
+def _dynamic_bar(tmp_path, history):
+    path = bar(tmp_path, _load("point", "[0.0, -1.0, 0.0]", TIP, f"history = {history}\n"))
+    text = path.read_text().replace('nu = 0.3\n', 'nu = 0.3\ndensity = 1000.0\n', 1)
+    path.write_text(text.replace('[analysis]\ntype = "static"\nload_steps = 2', DYNAMIC))
+    return path
+
+
+def test_5_a_history_that_is_nan_at_t0_is_refused_by_scene_check_and_run_naming_it(tmp_path, capsys):
+    """2 pi x 1e308 overflows: sin(inf x 0) is NaN at t = 0; run said 'load(t) at t=0.0 contains a
+    non-finite value nan at index 0', scene check said valid."""
+    path = _dynamic_bar(tmp_path, '{ type = "sine", frequency = 1e308 }')
+    message = r"load\[0\].history = \{'type': 'sine', 'frequency': 1e\+308\}: the load factor it gives is nan at t = 0"
+    with pytest.raises(ValueError, match=message):
+        load(path)
+    for argv in (["scene", "check", str(path), "--out", "-"], ["run", str(path), "--out", str(tmp_path / "run")]):
+        assert main(argv) == 2
+        assert re.search(message, capsys.readouterr().err)
+    # the other side: a large, finite product is a history
+    large = load(_dynamic_bar(tmp_path, '{ type = "sine", frequency = 1e300 }'))
+    assert large.loads[0]["history"]["frequency"] == 1e300
+
+
+def test_5_a_history_infinite_only_inside_the_horizon_is_refused_at_that_time(tmp_path):
+    # finite at its times, overflowing between them: -1.7e308 / 0.01 is -inf
+    path = _dynamic_bar(tmp_path, '{ type = "tabulated", t = [0.0, 0.01, 0.03], values = [0.0, -1.7e308, 1.7e308] }')
+    with pytest.raises(ValueError, match=r"load\[0\].history = .*the load factor it gives is -inf at t = 0.005"):
+        load(path)
+    fine = _dynamic_bar(tmp_path, '{ type = "tabulated", t = [0.0, 0.01, 0.03], values = [0.0, -1e300, 1e300] }')
+    assert load(fine).loads[0]["history"]["values"][2] == 1e300
+
+
+def test_5_a_monitor_point_off_the_body_is_refused_by_scene_check_as_by_run(tmp_path, capsys):
+    path = bar(tmp_path, _load("point", "[0.0, -1.0, 0.0]", TIP))
+    off = tmp_path / "off.toml"
+    off.write_text(path.read_text().replace("point = [1.0, 0.05, 0.05]", "point = [5.0, 0.05, 0.05]"))
+    message = "bar: monitor 'tip': point [5.0, 0.05, 0.05] is not on the body: it lies 4 from the mesh"
+    errors = []
+    for argv in (["scene", "check", str(off), "--out", "-"], ["run", str(off), "--out", str(tmp_path / "run")],
+                 ["sweep", "--scene", str(off), "--all-methods", "--out", str(tmp_path / "sweep")]):
+        assert main(argv) == 2, argv
+        errors.append(capsys.readouterr().err.strip().splitlines()[-1])
+    assert errors[0] == errors[1] == errors[2] and message in errors[0], errors
+    # the other side: a point just off the faceted surface (within half a cell) is read there
+    near = tmp_path / "near.toml"
+    near.write_text(path.read_text().replace("point = [1.0, 0.05, 0.05]", "point = [1.01, 0.05, 0.05]"))
+    assert main(["scene", "check", str(near), "--out", "-"]) == 0
+
+
+def _alarm(seconds):
+    """A test that would hang (a FIFO opened for reading) fails instead."""
+    import signal
+
+    def fail(*_):
+        raise TimeoutError(f"no answer in {seconds} s: the file was opened")
+    signal.signal(signal.SIGALRM, fail)
+    signal.alarm(seconds)
+
+
+@pytest.mark.parametrize("kind, message", [
+    ("folder", r"mesh file .*special.msh is a folder, not a mesh file"),
+    ("fifo", r"mesh file .*special.msh is a FIFO \(named pipe\), not a regular file: not read"),
+    ("loop", r"mesh file .*special.msh is a loop of symbolic links: it never reaches a file"),
+    ("device", r"mesh file /dev/zero is a character device, not a regular file: not read"),
+    ("dangling", r"mesh file .*special.msh is a symbolic link to 'nowhere.msh', which does not exist \(a relative"),
+    ("missing", r"mesh file .*special.msh does not exist \(a relative path is taken from the scene file's folder"),
+])
+def test_5_a_mesh_file_that_is_not_a_regular_file_is_said_for_what_it_is_never_opened(tmp_path, capsys, kind,
+                                                                                     message):
+    import os
+    import signal
+
+    target = tmp_path / "special.msh"
+    {"folder": lambda: target.mkdir(), "fifo": lambda: os.mkfifo(target), "loop": lambda: target.symlink_to(target),
+     "dangling": lambda: target.symlink_to("nowhere.msh"), "device": lambda: None, "missing": lambda: None}[kind]()
+    name = "/dev/zero" if kind == "device" else "special.msh"
+    path = mesh_scene_file(tmp_path, mesh=f'file = "{name}"\nunit = "mm"\nelement = "P1"')
+    _alarm(30)
+    try:
+        with pytest.raises(ValueError, match=rf"mesh.file = '{re.escape(name)}': {message}"):
+            load(path)
+        assert main(["scene", "check", str(path), "--out", "-"]) == 2
+        assert re.search(message, capsys.readouterr().err)
+    finally:
+        signal.alarm(0)
+    # the other side: the same name as a regular mesh file loads
+    if kind != "device":
+        if target.is_dir():
+            target.rmdir()
+        target.unlink(missing_ok=True)
+        write_block(tmp_path, name="special.msh")
+        assert load(mesh_scene_file(tmp_path, mesh='file = "special.msh"\nunit = "mm"\nelement = "P1"')).mesh.n_cells
+
+
+def test_5_read_mesh_refuses_a_fifo_without_opening_it(tmp_path):
+    import os
+    import signal
+
+    from tissuebench.cases.io import read_mesh
+
+    os.mkfifo(tmp_path / "pipe.vtu")
+    _alarm(30)
+    try:
+        with pytest.raises(ValueError, match=r"mesh file .*pipe.vtu is a FIFO"):
+            read_mesh(tmp_path / "pipe.vtu")
+    finally:
+        signal.alarm(0)
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        read_mesh(tmp_path / "none.vtu")

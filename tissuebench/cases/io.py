@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..refsolvers.mesh import CELL_TYPES, HEX_FACES, TET_FACES, Mesh
+from .builder_params import require_regular_file
 
 __all__ = ["read_mesh", "data_dir", "liver_mesh_path", "DATA_ENV", "PACKAGE_DATA_DIR"]
 
@@ -97,14 +98,14 @@ def read_mesh(path, cell_type: str | None = None, reorient: bool = True) -> Mesh
     FileNotFoundError
         The file does not exist.
     ValueError
+        It is not a regular file (a folder, a FIFO, a device, a loop of links: never opened),
         meshio cannot read it, it has no tetrahedra/hexahedra, both kinds without
         ``cell_type``, or a degenerate (zero-volume, tangled) cell; the message names ``path``.
     """
     import meshio
 
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"mesh file {path} does not exist")
+    require_regular_file(path, f"mesh file {path}")  # a FIFO or a device is never handed to meshio
     said = io.StringIO()
     try:  # meshio prints its complaints: they go into the message, not onto the terminal
         with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..cases.monitors import resolve_monitors
 from ..cases.scene import LENGTH_UNITS
 from ..refsolvers.backends import make_backend
 from ..refsolvers.dynamics import SecondOrderSystem, critical_time_step
@@ -65,6 +66,7 @@ def scene_summary(scene, backend: str = "skfem") -> dict:
         return {"name": scene.name, "model": scene.model, "nodes": int(len(scene.mesh.points))}
 
     pb = scene.to_problem()  # the problem's checks: node sets, shared dofs, rigid-body modes
+    resolve_monitors(scene, pb)  # a monitor point off the body: the run's refusal, before it
     be = make_backend(backend, pb)
     nodes = pb.nodes
     clamps = []
