@@ -131,6 +131,11 @@ def test_a_missing_unit_is_a_regression_and_options_compare_parsed(gated, tmp_pa
     (lambda t: t[:t.index("[[unit]]")], "has no \\[\\[unit\\]\\]"),
     (lambda t: t + "\n" + t[t.index("[[unit]]"):], r"the same unit as unit\[0\]"),
     (lambda t: t.replace('options = "{', 'options = "not json{', 1), "not JSON"),
+    # issue 37: an infinite baseline value or tolerance made the gate pass anything
+    (lambda t: re.sub(r"\nerror = [^\n]+", "\nerror = inf", t, count=1), r"unit\[0\].error = inf: must be a finite"),
+    (lambda t: re.sub(r"latency_per_calibration = [^\n]+", "latency_per_calibration = inf", t, count=1),
+     r"unit\[0\].latency_per_calibration = inf: must be a finite"),
+    (lambda t: t.replace("error_atol = 1e-09", "error_atol = inf"), r"defaults.error_atol = inf: must be a finite"),
 ])
 def test_a_bad_baseline_exits_2_naming_the_key(gated, tmp_path, capsys, edit, message):
     _, out, baseline = gated
@@ -159,6 +164,20 @@ def test_no_vacuous_pass(gated, tmp_path, capsys):
     assert main(["check", str(failed), "--baseline", str(baseline), "--update-baseline"]) == 2
     assert baseline.read_text() == before
     assert main(["check", str(out)]) == 2  # nothing asked for
+
+
+def test_a_unit_with_an_infinite_error_is_left_out_of_the_baseline_and_said(gated, tmp_path, capsys):
+    """The other side of the finite rule: --update-baseline never writes what load_baseline refuses."""
+    _, out, _ = gated
+    store = _copy_store(out, tmp_path, "inf")
+    _edit_rows(store, method="pod_interp", max_rel_l2=lambda t: float("inf"))
+    kept, left = baseline_rows(store)
+    assert [k[1] for k in kept] == ["anm_pod"]
+    assert [(k[1], why[:9]) for k, why in left] == [("pod_interp", "error inf")]
+    fresh = tmp_path / "fresh.toml"
+    assert main(["check", str(store), "--baseline", str(fresh), "--update-baseline"]) == 0
+    assert "pod_interp" in capsys.readouterr().out
+    assert [u["method"] for u in load_baseline(fresh)[1]] == ["anm_pod"]
 
 
 def test_update_baseline_is_atomic(gated, tmp_path, monkeypatch):

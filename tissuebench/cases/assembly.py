@@ -14,6 +14,7 @@ import numpy as np
 
 from ..refsolvers import BodyForce, Dirichlet, FollowerPressure, PointLoad, Problem, SurfaceTraction
 from ..refsolvers.mesh import node_layout
+from ..refsolvers.well_posed import IdleLoadError, check_loads_do_work
 from .histories import History
 from .monitors import unit_vector
 
@@ -118,8 +119,20 @@ def fe_problem(scene, element: str | None = None):
                            motion=rotation_motion(d["motion"]) if "motion" in d else None)
                  for i, d in enumerate(scene.dirichlet)]
     loads = [_fe_load(scene, i, ld, nodes) for i, ld in enumerate(scene.loads)]
-    return Problem(scene.mesh, scene.make_material(), element, dirichlet=dirichlet, loads=loads,
-                   density=scene.density or 1.0)
+    problem = Problem(scene.mesh, scene.make_material(), element, dirichlet=dirichlet, loads=loads,
+                      density=scene.density or 1.0)
+    try:
+        check_loads_do_work(problem)
+        return problem
+    except IdleLoadError as exc:  # said in the scene's own keys: the load's type and region, the clamp's region
+        ld = scene.loads[exc.load]
+        where = "" if ld["type"] == "body" else f", region = {ld['region']}"
+        clamps = "; ".join(f"dirichlet[{k}] (region = {scene.dirichlet[k]['region']}, components = "
+                           f"{''.join('xyz'[c] for c in scene.dirichlet[k]['components'])})" for k in exc.clamps)
+        raise ValueError(f"{scene.name}: load[{exc.load}] (type = {ld['type']!r}{where}) acts only on fixed dofs: "
+                         f"its {exc.n_nodes} loaded nodes are held in the direction of its force by {clamps}. The "
+                         "load does no work (the supports carry it; the solution would be the unloaded one): move "
+                         "it off the clamp, or free those components") from None
 
 
 def line_model(scene) -> LineModel:
@@ -128,13 +141,23 @@ def line_model(scene) -> LineModel:
     fixed = [(scene.select(f"dirichlet[{i}]", d["region"], x), c)
              for i, d in enumerate(scene.dirichlet) for c in d["components"]]
     loads = []
+    held = np.concatenate([idx for idx, c in fixed if c == 0] + [np.zeros(0, dtype=np.int64)])
     for i, ld in enumerate(scene.loads):
         if ld["type"] == "point" and ld["distribute"] == "interpolate":
-            loads += [(np.array([node]), share, History(ld["history"]))
-                      for node, share in _interpolated_line_load(scene, i, ld, x[:, 0])]
-            continue
-        idx = scene.select(f"load[{i}]", ld["region"], x)
-        loads.append((idx, _per_node(ld, ld["value"], idx), History(ld["history"])))
+            mine = [(np.array([node]), share, History(ld["history"]))
+                    for node, share in _interpolated_line_load(scene, i, ld, x[:, 0])]
+        else:
+            idx = scene.select(f"load[{i}]", ld["region"], x)
+            mine = [(idx, _per_node(ld, ld["value"], idx), History(ld["history"]))]
+        loaded = np.concatenate([idx for idx, value, _ in mine if value != 0])
+        if loaded.size and np.isin(loaded, held).all():  # the loads act on component 0 (u or w)
+            clamps = sorted({k for k, d in enumerate(scene.dirichlet) if 0 in d["components"]
+                             and np.isin(loaded, scene.select(f"dirichlet[{k}]", d["region"], x)).any()})
+            raise ValueError(f"{scene.name}: load[{i}] (type = {ld['type']!r}, region = {ld['region']}) acts only on "
+                             f"fixed dofs: its {len(np.unique(loaded))} loaded nodes are held by "
+                             f"{', '.join(f'dirichlet[{k}]' for k in clamps)}. The load does no work (the supports "
+                             "carry it; the solution would be the unloaded one): move it off the support")
+        loads += mine
     return LineModel(scene.model, scene.mesh, dict(scene.model_params), fixed, loads)
 
 

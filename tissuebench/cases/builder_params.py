@@ -9,12 +9,15 @@ not a ``TypeError`` from deep inside a mesher, minutes later. Sizes are bounded
 """
 from __future__ import annotations
 
+import errno
 import math
+import os
+import stat
 from pathlib import Path
 
 from .schema import accepts, c_bool, c_enum, c_int_range, c_num, c_pos, c_str, fail, key_text, value_text
 
-__all__ = ["MAX_CELLS", "BUILDER_PARAMS", "MeshFileNotFound", "check_builder_params"]
+__all__ = ["MAX_CELLS", "BUILDER_PARAMS", "MeshFileNotFound", "check_builder_params", "require_regular_file"]
 
 #: Largest mesh a scene may ask for (cells, estimated from the parameters before meshing).
 MAX_CELLS = 5_000_000
@@ -23,6 +26,38 @@ MAX_CELLS = 5_000_000
 class MeshFileNotFound(FileNotFoundError, ValueError):
     """A mesh file named by a scene does not exist: bad input (a ValueError) and a missing
     file (a FileNotFoundError), so either ``except`` clause catches it."""
+
+
+_SPECIAL = {stat.S_IFIFO: "FIFO (named pipe)", stat.S_IFCHR: "character device", stat.S_IFBLK: "block device",
+            stat.S_IFSOCK: "socket"}
+
+
+def require_regular_file(p: Path, what: str, hint: str = "") -> None:
+    """Refuse a mesh path ``p`` that is not a regular file, found from its metadata alone: it
+    is never opened (a FIFO would block the reader, a device such as ``/dev/zero`` never end).
+    :class:`MeshFileNotFound` where nothing is there (a dangling link included, ``hint`` added),
+    ValueError saying what is there otherwise: a folder, a FIFO, a device, a socket, a loop of
+    symbolic links. Messages start with ``what`` (``mesh.file = 'kidney.msh': mesh file /x``)."""
+    try:
+        st = os.stat(p)  # follows links: what a reader would open
+    except FileNotFoundError:
+        try:
+            target = os.readlink(p)
+        except OSError:  # not a link (or its folder is missing): nothing there
+            raise MeshFileNotFound(f"{what} does not exist{hint}") from None
+        raise MeshFileNotFound(f"{what} is a symbolic link to {target!r}, which does not exist{hint}") from None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise ValueError(f"{what} is a loop of symbolic links: it never reaches a file") from None
+        raise ValueError(f"{what} cannot be inspected: {exc.strerror or exc}") from None
+    except ValueError as exc:  # an embedded NUL byte
+        raise ValueError(f"{what}: not a usable file path ({exc})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise ValueError(f"{what} is a folder, not a mesh file")
+    if not stat.S_ISREG(st.st_mode):
+        kind = _SPECIAL.get(stat.S_IFMT(st.st_mode), "special file")
+        raise ValueError(f"{what} is a {kind}, not a regular file: not read (a FIFO would block, a device such "
+                         "as /dev/zero never end)")
 
 
 def _vec(n, positive=False):
@@ -69,8 +104,7 @@ def _mesh_file(path, v):
 
 def _require_file(path, v):
     p = Path(v).expanduser()
-    if not p.is_file():
-        raise MeshFileNotFound(f"{path} = {value_text(v)}: mesh file {p} does not exist")
+    require_regular_file(p, f"{path} = {value_text(v)}: mesh file {p}")
 
 
 _COUNT = c_int_range(1, 100_000)

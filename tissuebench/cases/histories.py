@@ -12,7 +12,7 @@ import numpy as np
 
 from .schema import accepts, c_nonneg, c_num, c_numlist, c_pos, c_str, c_table, check_table, fail
 
-__all__ = ["DEFAULT_HISTORY", "History", "check_history"]
+__all__ = ["DEFAULT_HISTORY", "History", "check_history", "check_history_values"]
 
 # a load without a history is ramped from 0 at t = 0 to full at t = 1
 DEFAULT_HISTORY = {"type": "ramp", "t1": 1.0}
@@ -55,6 +55,27 @@ def check_history(path, h):
         if len(t) != len(v) or len(t) < 2 or np.any(np.diff(t) <= 0):
             fail(f"{path}.t", t, "needs >= 2 strictly increasing times, as many as values")
     return out
+
+
+#: how many times of an analysis's horizon a history is checked at (its steps, half steps)
+_CHECKED_TIMES = 100_001
+
+
+def check_history_values(path, spec: dict, horizon: float, dt: float | None = None) -> None:
+    """Refuse a history that is not a finite number somewhere on ``[0, horizon]`` (the time of a
+    dynamic analysis, the load factor of a static one): a parameter whose product overflows
+    (``frequency = 1e308``: 2 pi f is inf, and inf x 0 is NaN at t = 0) is named here, by its
+    ``path``, rather than by the solver's 'load(t) contains a non-finite value'. Checked at
+    every half step of ``dt`` when that is at most :data:`_CHECKED_TIMES` points."""
+    n = int(min(np.ceil(2 * horizon / dt), _CHECKED_TIMES - 1)) if dt else _CHECKED_TIMES - 1
+    t = np.linspace(0.0, horizon, n + 1)
+    with np.errstate(all="ignore"):
+        v = np.asarray(History(spec)(t), float)
+    bad = np.flatnonzero(~np.isfinite(v))
+    if bad.size:
+        k = int(bad[0])
+        fail(path, spec, f"the load factor it gives is {v[k]} at t = {t[k]:g} (not a finite number: a parameter "
+             "too large, whose products overflow)")
 
 
 @dataclass(frozen=True)

@@ -19,8 +19,6 @@ licence in ``data/liver/README.md``).
 """
 from __future__ import annotations
 
-import contextlib
-import io
 import os
 import warnings
 from pathlib import Path
@@ -28,6 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from ..refsolvers.mesh import CELL_TYPES, HEX_FACES, TET_FACES, Mesh
+from .builder_params import require_regular_file
+from .meshio_guard import read_with_deadline
 
 __all__ = ["read_mesh", "data_dir", "liver_mesh_path", "DATA_ENV", "PACKAGE_DATA_DIR"]
 
@@ -97,26 +97,18 @@ def read_mesh(path, cell_type: str | None = None, reorient: bool = True) -> Mesh
     FileNotFoundError
         The file does not exist.
     ValueError
-        meshio cannot read it, it has no tetrahedra/hexahedra, both kinds without
-        ``cell_type``, or a degenerate (zero-volume, tangled) cell; the message names ``path``.
+        It is not a regular file (a folder, a FIFO, a device, a loop of links: never opened),
+        meshio cannot read it (or does not finish: :mod:`.meshio_guard`), it has no
+        tetrahedra/hexahedra, both kinds without ``cell_type``, or a degenerate (zero-volume,
+        tangled) cell; the message names ``path``.
     """
-    import meshio
-
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"mesh file {path} does not exist")
-    said = io.StringIO()
-    try:  # meshio prints its complaints: they go into the message, not onto the terminal
-        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
-            m = meshio.read(path)
-    except (Exception, SystemExit) as exc:  # ReadError, KeyError, ...; meshio 5 even calls sys.exit
-        detail = " ".join(said.getvalue().split())[:300]
-        raise ValueError(f"{path}: meshio cannot read it: {type(exc).__name__}: {exc}"
-                         + (f" ({detail})" if detail else "")) from exc
+    require_regular_file(path, f"mesh file {path}")  # a FIFO or a device is never handed to meshio
+    m = read_with_deadline(path)  # a reader looping on a truncated file is stopped, said
     blocks: dict[str, list[np.ndarray]] = {}
-    for block in m.cells:
-        if block.type in CELL_TYPES and len(block.data):
-            blocks.setdefault(block.type, []).append(np.asarray(block.data, dtype=np.int64))
+    for i, block in enumerate(m.cells):
+        if block.type in CELL_TYPES and np.size(block.data):
+            blocks.setdefault(block.type, []).append(_vertex_indices(path, i, block))
     if not blocks:
         found = sorted({b.type for b in m.cells}) or ["none"]
         raise ValueError(f"{path}: no volume cells (tetra or hexahedron); cell blocks found: {found}")
@@ -129,7 +121,10 @@ def read_mesh(path, cell_type: str | None = None, reorient: bool = True) -> Mesh
     elif cell_type not in blocks:
         raise ValueError(f"{path}: no {cell_type!r} cells (found {sorted(blocks)})")
     cells = np.vstack(blocks[cell_type])
-    points = np.asarray(m.points, dtype=float)
+    try:
+        points = np.asarray(m.points, dtype=float)
+    except (TypeError, ValueError) as exc:  # a reader's ragged or textual rows
+        raise ValueError(f"{path}: points are not an array of numbers ({exc})") from None
     if points.ndim != 2 or points.shape[1] not in (2, 3):
         raise ValueError(f"{path}: points have shape {points.shape}, expected (n, 3)")
     if points.shape[1] == 2:
@@ -147,6 +142,28 @@ def read_mesh(path, cell_type: str | None = None, reorient: bool = True) -> Mesh
         return Mesh(points, cells, cell_type, reorient=reorient)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from exc
+
+
+def _vertex_indices(path, i, block) -> np.ndarray:
+    """The cells of meshio's block ``i``, shape (n, 4 or 8) int64: a damaged file can make a
+    reader return rows of another length, or numbers that are not indices."""
+    n = CELL_TYPES[block.type]
+    try:
+        data = np.asarray(block.data)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: cell block {i} ({block.type}) is not an array of vertex indices ({exc})") from None
+    if data.ndim != 2 or data.shape[1] != n:
+        raise ValueError(f"{path}: cell block {i} ({block.type}) has shape {data.shape}, expected (n, {n}) "
+                         "vertex indices")
+    if np.issubdtype(data.dtype, np.integer):
+        return data.astype(np.int64)
+    with np.errstate(invalid="ignore"):
+        integral = np.issubdtype(data.dtype, np.floating) and np.all(np.isfinite(data)) and \
+            np.all(data == np.round(data)) and np.abs(data).max() < 2.0 ** 62
+    if not integral:
+        raise ValueError(f"{path}: cell block {i} ({block.type}) holds values that are not vertex indices "
+                         f"({data.dtype})")
+    return data.astype(np.int64)
 
 
 def coincident_nodes(points: np.ndarray, rtol: float = 1e-10) -> np.ndarray:

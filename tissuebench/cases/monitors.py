@@ -29,7 +29,8 @@ from .probes import Probe, make_probe
 from .regions import check_region
 from .schema import AXES, c_bool, c_enum, c_frame, c_name, c_num, c_pos, c_str, c_vec3, check_table, require
 
-__all__ = ["MONITOR_QUANTITIES", "check_monitor", "evaluate_monitors", "linear_outputs", "unit_vector"]
+__all__ = ["MONITOR_QUANTITIES", "check_monitor", "evaluate_monitors", "linear_outputs", "resolve_monitors",
+           "unit_vector"]
 
 MONITOR_QUANTITIES = ("max_displacement", "displacement", "deformed_coordinate", "reaction_force",
                       "nominal_stress", "moment", "volume_ratio", "strain_energy")
@@ -95,6 +96,17 @@ def evaluate_monitors(scene, problem, u, f_int=None) -> dict:
             raise ValueError(f"monitor {m['name']!r}: quantity {q!r} needs a backend (strain energy)")
         out[m["name"]] = val * m.get("scale", 1.0)
     return out
+
+
+def resolve_monitors(scene, problem) -> None:
+    """Place every monitor on ``problem`` as a run does (a point's probe, a reaction's region),
+    before any solve: a point off the body or a region that selects no node is the run's
+    ValueError, said by ``scene check`` and ``sweep --scene`` rather than after a reference."""
+    for m in scene.monitors:
+        if m["quantity"] in ("displacement", "deformed_coordinate"):
+            _probe(scene, m, problem)
+        elif m["quantity"] in ("reaction_force", "nominal_stress", "moment"):
+            scene.select(m["name"], m["region"], problem.nodes)
 
 
 def linear_outputs(scene, problem) -> dict:

@@ -76,9 +76,9 @@ from ..choices import RESOLUTIONS
 from ..refsolvers import make_material
 from . import assembly
 from .assembly import LineModel
-from .builder_params import MeshFileNotFound, check_builder_params
+from .builder_params import check_builder_params, require_regular_file
 from .cutting import check_cut
-from .histories import DEFAULT_HISTORY, History
+from .histories import DEFAULT_HISTORY, History, check_history_values
 from .monitors import check_monitor, evaluate_monitors
 from .parameters import apply_mu, check_parameters_table
 from .regions import MeshGeometry, compile_region
@@ -133,6 +133,7 @@ class Scene:
         """This scene with ``loads`` (validated as in a scene file) and other non-mesh ``fields``
         replaced, ``mu`` recorded (it enters :meth:`content_hash`). The mesh is shared, not rebuilt."""
         loads = [check_load(f"load[{i}]", ld, self.model) for i, ld in enumerate(loads)]
+        _check_histories(loads, fields.get("analysis", self.analysis))
         new = dataclasses.replace(self, mu={**self.mu, **dict(mu)}, loads=loads, **fields)
         if "built" in self.__dict__:  # cached_property: reuse the mesh already built
             new.__dict__["built"] = self.__dict__["built"]
@@ -375,12 +376,11 @@ def _check_mesh_file(raw, model, path: Path, units: dict):
     try:
         p = Path(mesh["file"]).expanduser()
         p = p if p.is_absolute() else path.parent / p
-        exists = p.is_file()
-    except (OSError, ValueError, RuntimeError) as exc:  # NUL byte, name too long, unknown ~user
+    except (OSError, ValueError, RuntimeError) as exc:  # unknown ~user
         fail("mesh.file", mesh["file"], f"not a usable file path ({exc})")
-    if not exists:
-        raise MeshFileNotFound(f"mesh.file = {mesh['file']!r}: mesh file {p} does not exist (a relative path is "
-                               f"taken from the scene file's folder {path.parent})")
+    # a folder, a FIFO, /dev/zero, a loop of links: said as what they are, never opened
+    require_regular_file(p, f"mesh.file = {mesh['file']!r}: mesh file {p}", hint=" (a relative path is taken from "
+                         f"the scene file's folder {path.parent})")
     if "unit" in mesh and "scale" in mesh:
         fail("mesh.scale", mesh["scale"], "give the file's unit or a scale, not both")
     if "unit" in mesh:
@@ -510,12 +510,24 @@ def load(name_or_path, resolution: str = "ci", variant: str | None = None) -> Sc
         model_params = check_model("model", _require_table(raw, "model", path), model)
     dirichlet, loads, monitors = _check_entries(raw, model, path)
     analysis = check_analysis("analysis", raw["analysis"])
+    _check_histories(loads, analysis)
     return Scene(name=case["name"], path=path, resolution=resolution, variant=variant, variants=all_variants,
                  case=case, units=units, mesh_spec=mesh, material=material, model_params=model_params,
                  dirichlet=dirichlet, loads=loads, analysis=analysis, monitors=monitors,
                  paper=_check_paper(raw.get("paper", {}), monitors),
                  cut=check_cut("cut", raw["cut"]) if "cut" in raw else None,
                  parameters=check_parameters_table("parameters", raw.get("parameters", {}), loads))
+
+
+def _check_histories(loads, analysis) -> None:
+    """Every load's history a finite number over the analysis: the time of a dynamic one (at its
+    half steps), the load factor of a static one (its pseudo-time)."""
+    if analysis["type"] == "dynamic":
+        horizon, dt = float(analysis["t_end"]), float(analysis["dt"])
+    else:
+        horizon, dt = float(analysis.get("max_load_factor", 1.0)), None
+    for i, ld in enumerate(loads):
+        check_history_values(f"load[{i}].history", ld["history"], horizon, dt)
 
 
 def _jsonable(obj):

@@ -211,6 +211,19 @@ class Mesh:
         _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
         return faces[counts[inv.ravel()] == 1]
 
+    @cached_property
+    def components(self) -> np.ndarray:
+        """Connected body of each vertex, shape (n_vertices,), labels ``0 .. n_bodies - 1``: cells
+        sharing a vertex belong to one body (two bodies in one file touch nowhere)."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        # each cell linked as a star from its first vertex: enough for connectivity
+        rows = np.repeat(self.cells[:, 0], self.cells.shape[1] - 1)
+        graph = coo_matrix((np.ones(rows.size, dtype=np.int8), (rows, self.cells[:, 1:].ravel())),
+                           shape=(self.n_vertices, self.n_vertices))
+        return connected_components(graph, directed=False)[1]
+
     def select_facets(self, where) -> np.ndarray:
         """Boundary facets all of whose vertices satisfy ``where(x) -> bool mask``."""
         f = self.boundary_facets
@@ -243,3 +256,16 @@ def node_layout(mesh: Mesh, element: str):
     edge_ids = np.searchsorted(edges[:, 0] * nv + edges[:, 1], code)
     nodes = np.vstack([mesh.points, mesh.points[edges].mean(axis=1)])
     return nodes, np.hstack([mesh.cells, nv + edge_ids])
+
+
+def facet_nodes(mesh: Mesh, facets, element: str) -> np.ndarray:
+    """Discretisation nodes of boundary ``facets`` (n_facets, 3|4): their vertices, then for
+    ``P2`` the nodes of their edges 0-1, 1-2, 0-2, shape (n_facets, 3|4|6)."""
+    facets = np.asarray(facets, dtype=np.int64)
+    if element != "P2":
+        return facets
+    nv = mesh.n_vertices
+    ours = mesh.edges
+    pairs = np.sort(facets[:, [[0, 1], [1, 2], [0, 2]]], axis=2)
+    ids = np.searchsorted(ours[:, 0] * nv + ours[:, 1], pairs[..., 0] * nv + pairs[..., 1])
+    return np.hstack([facets, nv + ids])

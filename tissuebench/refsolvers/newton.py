@@ -31,8 +31,13 @@ class NewtonError(RuntimeError):
 class NewtonOptions:
     """Tolerances and stepping controls.
 
-    Converged when ``||r_free|| <= rtol * f_ref + atol`` and ``||du|| <= utol * ||u||``,
-    with ``f_ref`` the larger of the external-load norm and the reaction norm.
+    Converged when ``||r_free|| <= max(rtol * f_ref + atol, floor)`` and
+    ``||du|| <= utol * ||u||``, with ``f_ref`` the larger of the external-load norm and the
+    reaction norm, and ``floor`` the residual's round-off floor: machine epsilon times the
+    nodal forces of a unit strain of the body (``||K_f X||``, :data:`ROUND_OFF_FACTOR`), below
+    which no iteration can go. Both terms scale with the problem (its unit of length, its
+    stiffness, its load), so the test is scale-free; an increment whose whole load lies below
+    the floor fails at once, said (its strains are below double precision).
     Iterative linear solvers (``amg-cg``) stop at the Eisenstat-Walker forcing term
     (:func:`~tissuebench.refsolvers.solver_base.forcing_term`), at most ``forcing_max``.
     """
@@ -88,6 +93,10 @@ class Increment:
     wall_s: float = 0.0
     linear_iterations: int = 0
     message: str = ""
+    round_off_floor: float = 0.0  # the residual norm round-off hides equilibrium below (_Equilibrium)
+    below_round_off: bool = False  # the increment's whole load is below that floor: not solvable in float64
+    force_scale: float = 0.0  # f_ref: the larger of the external-load and reaction norms
+    round_off_limited: bool = False  # converged with the floor, not rtol * f_ref + atol, the larger tolerance
 
 
 @dataclass
@@ -147,6 +156,11 @@ def _norm(x):
     return float(np.linalg.norm(x))
 
 
+#: the round-off floor of a residual, in machine epsilons of the force of a unit strain (see
+#: :meth:`_Equilibrium.round_off_floor`); measured floors lie at 0.01-0.5 of it (P1/P2/Q1, nu 0.3-0.49)
+ROUND_OFF_FACTOR = 1.0
+
+
 class _Equilibrium:
     """Residual and tangent at a fixed load factor (free/fixed partition of the dofs)."""
 
@@ -155,6 +169,19 @@ class _Equilibrium:
         pb = backend.problem
         self.free, self.fixed = pb.free_dofs, pb.fixed_dofs
         self._last = (None, None)  # (state, f_int) of the last residual evaluation
+        nodes = np.asarray(pb.nodes, float)
+        # the displacement of a unit dilation about the centre, zero on any other dof (a pressure)
+        self._dilation = np.zeros(backend.ndof)
+        self._dilation[:nodes.size] = (nodes - nodes.mean(axis=0)).ravel()
+
+    def round_off_floor(self, K_f) -> float:
+        """The residual norm below which round-off hides the equilibrium: ``ROUND_OFF_FACTOR`` x
+        eps x ``||K_f X||``, the free rows of the tangent times a unit dilation ``X`` (the nodal
+        forces of a strain of 1, i.e. the material's stiffness times the body's area). The
+        stresses are sums of terms of this size that cancel near the reference state, so their
+        round-off does not shrink with the load: a load tiny against the body's stiffness (a mesh
+        in mm declared in m, a body of 1e6 m) has a residual floor far above ``rtol * f_ref``."""
+        return ROUND_OFF_FACTOR * np.finfo(float).eps * _norm(K_f @ self._dilation)
 
     def residual(self, u):
         """(free residual, reference force norm): f_ref = max(|f_ext|, |reactions|)."""
@@ -178,6 +205,7 @@ class _Equilibrium:
         if K_ext is not None:
             K = K - K_ext
         K_f = K[self.free]
+        self.floor = self.round_off_floor(K_f)
         return r[self.free], max(_norm(f_ext), _norm(r[self.fixed])), K_f[:, self.free], K_f[:, self.fixed]
 
 
@@ -206,11 +234,20 @@ def _newton_increment(backend, solver, u_start, lam, opts):
         if not math.isfinite(res):
             inc.message = "non-finite residual"
             break
-        tol = opts.rtol * f_ref + opts.atol
+        tol = max(opts.rtol * f_ref + opts.atol, eq.floor)
+        inc.round_off_limited = eq.floor > opts.rtol * f_ref + opts.atol  # meaningful once converged
+        inc.round_off_floor, inc.force_scale = eq.floor, f_ref
         if it > 1 and res <= tol and inc.increment_norms[-1] <= opts.utol * max(_norm(u), 1e-300):
             inc.converged = True
             break
         rhs = -r - K_fc @ du_c if du_c.any() else -r
+        if it == 1 and 0.0 < max(f_ref, _norm(rhs)) <= eq.floor:  # halving the increment cannot help
+            inc.below_round_off = True
+            inc.message = (f"the load is below round-off: its force {max(f_ref, _norm(rhs)):.3g} is under the "
+                           f"round-off floor {eq.floor:.3g} of the internal force (machine epsilon x the force of a "
+                           "unit strain of the body), so the strains it causes are below double precision: a body "
+                           "far too large or too stiff for its load (is its length unit right?)")
+            break
         try:
             if getattr(solver, "iterative", False):
                 eta = forcing_term(res, res_prev, eta, tol, opts.forcing_max)
@@ -314,11 +351,17 @@ def newton_solve(backend, load_factor: float = 1.0, options: NewtonOptions | Non
             d_lam = math.copysign(min(abs(d_lam), abs(target - lam)), d_lam) if lam != target else d_lam
             continue
         d_lam *= 0.5
-        if abs(d_lam) < opts.min_increment * abs(target):
+        if abs(d_lam) < opts.min_increment * abs(target) or inc.below_round_off:
             status = "stalled"
             message = (f"Newton stopped converging at load factor {lam_try:.6g} ({inc.message}); "
                        f"last converged load factor {lam:.6g} of {target:.6g}")
             break
+    limited = [inc for inc in increments if inc.converged and inc.round_off_limited]
+    if limited:
+        worst = max(inc.residual_norms[-1] / inc.force_scale for inc in limited)
+        message += (f"; {len(limited)} of {sum(inc.converged for inc in increments)} increments only to the "
+                    f"round-off floor of the residual (relative residual up to {worst:.2g}): the load is small "
+                    "against the body's stiffness")
     result = StaticResult(status, message, u, lam, target, increments, states)
     if opts.strict and not result.success:
         raise NewtonError(result)

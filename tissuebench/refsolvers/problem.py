@@ -21,6 +21,7 @@ import numpy as np
 
 from .materials import Material
 from .mesh import ELEMENTS, Mesh, node_layout
+from .well_posed import check_rigid_body_modes
 
 
 def _finite_array(name, value, shape=None):
@@ -154,8 +155,10 @@ class Problem:
     ------
     ValueError
         Unknown element, material data inconsistent with the mesh, no Dirichlet set
-        (rigid-body modes left free), or a Dirichlet set that cannot remove all six
-        rigid-body modes.
+        (rigid-body modes left free), a Dirichlet set that cannot remove all six
+        rigid-body modes of every connected body of the mesh (see
+        :mod:`~tissuebench.refsolvers.well_posed`, which also has the check a scene makes of
+        its loads, :func:`~tissuebench.refsolvers.well_posed.check_loads_do_work`).
     """
 
     mesh: Mesh
@@ -186,7 +189,7 @@ class Problem:
                 raise TypeError(f"loads: unsupported load type {type(ld).__name__}")
         if not self.dirichlet:
             raise ValueError("dirichlet: no Dirichlet condition given; the six rigid-body modes are free")
-        self._check_rigid_body_modes()
+        check_rigid_body_modes(self)
 
     # ---------------------------------------------------------------- layout
     @cached_property
@@ -296,23 +299,3 @@ class Problem:
                     raise ValueError(f"dirichlet[{a}] and dirichlet[{b}] prescribe different values on the dofs they "
                                      f"share ({n_shared} dofs; e.g. node {dof // 3} component {'xyz'[dof % 3]}: "
                                      f"{va:.6g} vs {vb:.6g} at load factor {lf:g}); give each dof one value")
-
-    def _check_rigid_body_modes(self):
-        """Refuse a constraint set that leaves a rigid-body mode free (u = a + w x X). The
-        coordinates are centred and scaled by the body's size, so the verdict does not depend
-        on the unit of length (a 1 m bar and the same bar in pm are the same problem)."""
-        dofs = self.fixed_dofs
-        nodes, comps = dofs // 3, dofs % 3
-        centre = self.nodes.mean(axis=0)
-        size = float(np.max(np.abs(self.nodes - centre), initial=0.0)) or 1.0
-        X = (self.nodes[nodes] - centre) / size
-        rows = np.zeros((len(dofs), 6))
-        rows[np.arange(len(dofs)), comps] = 1.0
-        # rotation part: (w x X)_c
-        e = np.eye(3)
-        for k in range(3):
-            rows[:, 3 + k] = np.cross(e[k], X)[np.arange(len(dofs)), comps]
-        s = np.linalg.svd(rows, compute_uv=False) if len(dofs) else np.zeros(0)
-        rank = int(np.sum(s > 1e-10 * max(1.0, s.max(initial=0.0))))
-        if rank < 6:
-            raise ValueError(f"dirichlet: the fixed dofs remove only {rank} of 6 rigid-body modes")

@@ -20,7 +20,8 @@ import math
 
 from ..cases.schema import is_num, value_text
 
-__all__ = ["LIMITS", "MAX_UNITS", "MAX_OPTION_INT", "check_count", "check_protocol", "check_option_values"]
+__all__ = ["LIMITS", "MAX_UNITS", "MAX_BEYOND_FACTOR", "MAX_OPTION_INT", "check_count", "check_protocol",
+           "check_option_values"]
 
 LIMITS = {
     # protocol
@@ -33,6 +34,12 @@ LIMITS = {
     "trajectory_steps": 1_000_000,  # t_end / dt of a trajectory evaluation
 }
 MAX_UNITS = 10_000
+#: the largest ``evaluation.beyond`` factor (times the path's top load). The continued reference
+#: stops at 1 + BEYOND_MAX_INCREMENTS (5) times the top, so points past it only check that a model
+#: flags itself (the shipped presets ask up to 100x); below 1e6 every load factor the code derives
+#: from it stays finite: factor x load_steps (the continuation's increments, at most 1e6 x 1e5),
+#: factor x top, and a model's powers of it (an ANM series: 1e300 x the top overflowed there)
+MAX_BEYOND_FACTOR = 1e6
 MAX_OPTION_INT = 1_000_000  # an integer option (modes, segments, iterations) beyond it is a typo
 _PROTOCOL_MIN = {"latency_steps": 1, "warmup": 0, "blas_threads": 0, "reference_samples": 1, "seed": 0}
 
@@ -55,13 +62,15 @@ def check_protocol(path, protocol: dict) -> None:
         check_count(f"{path}.{k}", v, k, _PROTOCOL_MIN[k])
 
 
-def _numbers(path, value, name, lo=1, positive=False):
-    """A list of ``lo`` .. ``LIMITS[name]`` finite numbers (> 0 with ``positive``)."""
+def _numbers(path, value, name, lo=1, positive=False, hi=None):
+    """A list of ``lo`` .. ``LIMITS[name]`` finite numbers (> 0 with ``positive``, <= ``hi``)."""
     if not isinstance(value, list) or not lo <= len(value) <= LIMITS[name]:
         _fail(path, value, f"expected a list of {lo} to {LIMITS[name]} numbers (LIMITS[{name!r}])")
     for i, x in enumerate(value):
         if not is_num(x) or (positive and x <= 0):
             _fail(f"{path}[{i}]", x, "expected a finite number" + (" > 0" if positive else ""))
+        if hi is not None and x > hi[0]:
+            _fail(f"{path}[{i}]", x, f"expected at most {hi[0]:g} ({hi[1]})")
     return value
 
 
@@ -139,7 +148,8 @@ def check_path_evaluation(path, evaluation: dict, scene, training: dict | None =
             _fail(f"{path}.held_out", evaluation["held_out"], "the states a path training left out: needs "
                   "training = { kind = \"path\", every = 2 } (or more)")
     if "beyond" in evaluation:
-        _numbers(f"{path}.beyond", evaluation["beyond"], "beyond", lo=0, positive=True)
+        _numbers(f"{path}.beyond", evaluation["beyond"], "beyond", lo=0, positive=True,
+                 hi=(MAX_BEYOND_FACTOR, "times the path's top load: MAX_BEYOND_FACTOR of tissuebench.studies.limits"))
 
 
 def check_positions_evaluation(path, evaluation: dict, scene, training: dict | None = None) -> None:

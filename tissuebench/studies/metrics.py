@@ -4,6 +4,10 @@
   (``inf`` for a step that failed where a reference exists: never a silent NaN; NaN only
   where there is no reference to compare with, e.g. loads past the path);
 * each monitored scalar the model outputs, relative to the reference's value;
+* where the reference of a point is zero (a trajectory at rest before its load starts), the
+  error is relative to the largest reference of the evaluation (the field's, or the
+  monitor's); where every reference of the evaluation is zero, no relative error exists and
+  it is ``inf``: a model matching a zero field is never "0 % error" (issue 37);
 * the relative RMSE over a history (the wsc paper's):
   ``sqrt(sum_k ||u_rom,k - u_ref,k||^2 / sum_k ||u_ref,k||^2)``;
 * the validity radius: the largest abscissa (load factor, distance to the nearest stored
@@ -49,10 +53,29 @@ def seen_points(evaluation, snapshots) -> list[bool]:
     return out
 
 
+#: the message of a point whose evaluation has nothing but zero references
+ZERO_REFERENCE = "every reference field of the evaluation is zero: no relative error (inf)"
+
+
+def _relative(diff: float, ref: float, scale: float) -> float:
+    """``diff / ref``, or ``diff / scale`` where the reference ``ref`` is zero; ``inf`` where the
+    evaluation's largest reference ``scale`` is zero too (module docstring)."""
+    if ref > 0:
+        return diff / ref
+    return diff / scale if scale > 0 else np.inf
+
+
+def _magnitudes(ref) -> tuple[float, float]:
+    """(l2 norm, largest nodal displacement) of a reference field."""
+    return float(np.linalg.norm(ref)), max_displacement(ref) if ref.size % 3 == 0 else float(np.abs(ref).max())
+
+
 def point_rows(evaluation, driven, seen=None) -> list[dict]:
     """One row per evaluation point: mu, abscissa, step status, errors, ``seen`` (:func:`seen_points`)."""
     rows = []
     seen = seen or [False] * len(evaluation.points)
+    refs = [_magnitudes(p.reference) for p in evaluation.points if p.reference is not None and p.reference.size]
+    scale_l2, scale_max = np.max(refs, axis=0) if refs else (0.0, 0.0)
     for k, (p, res, u) in enumerate(zip(evaluation.points, driven.results, driven.fields)):
         status = "initial" if res is None and k == 0 and evaluation.kind == "trajectory" else (
             "not_reached" if res is None else res.status)
@@ -64,13 +87,15 @@ def point_rows(evaluation, driven, seen=None) -> list[dict]:
         elif not np.all(np.isfinite(u)) or np.abs(u).max() > 1e150:  # a blow-up: its error is inf
             rel, dmax = np.inf, np.inf
         else:
-            den = np.linalg.norm(ref)
-            rel = float(np.linalg.norm(u - ref) / den) if den > 0 else float(np.linalg.norm(u))
-            rm = max_displacement(ref) if ref.size % 3 == 0 else float(np.abs(ref).max())
+            den, rm = _magnitudes(ref)
+            rel = float(_relative(np.linalg.norm(u - ref), den, scale_l2))
             um = max_displacement(u) if u.size % 3 == 0 else float(np.abs(u).max())
-            dmax = abs(um - rm) / rm if rm > 0 else abs(um)
+            dmax = float(_relative(abs(um - rm), rm, scale_max))
+        message = "" if res is None else res.message[:300]
+        if ref is not None and status != "initial" and scale_l2 == 0:
+            message = "; ".join(filter(None, [message, ZERO_REFERENCE]))
         rows.append({"point": k, "x": p.x, "group": np.nan if p.group is None else p.group,
-                     "mu": _mu_text(p.mu), "status": status, "message": "" if res is None else res.message[:300],
+                     "mu": _mu_text(p.mu), "status": status, "message": message,
                      "rel_l2": rel, "rel_max_displacement": dmax, "has_reference": ref is not None,
                      "seen": bool(seen[k]) and status != "initial", "beyond": bool(getattr(p, "beyond", False))})
     return rows
@@ -79,12 +104,16 @@ def point_rows(evaluation, driven, seen=None) -> list[dict]:
 def output_rows(evaluation, driven) -> list[dict]:
     """Long form: one row per (point, monitored output the model reports and the reference has)."""
     rows = []
+    scale: dict = {}
+    for p in evaluation.points:
+        for name, r in p.monitors.items():
+            scale[name] = max(scale.get(name, 0.0), abs(float(r)))
     for k, (p, out) in enumerate(zip(evaluation.points, driven.outputs)):
         for name, value in out.items():
             if name in p.monitors:
                 r = p.monitors[name]
                 rows.append({"point": k, "x": p.x, "monitor": name, "reference": r, "rom": float(value),
-                             "rel_error": abs(value - r) / abs(r) if r != 0 else abs(value - r)})
+                             "rel_error": float(_relative(abs(value - r), abs(r), scale[name]))})
     return rows
 
 
@@ -133,7 +162,7 @@ def summarise_points(points: pd.DataFrame, outputs: pd.DataFrame, evaluation, fi
            "max_rel_l2": float(rel.max()) if rel.size else np.nan,
            "mean_rel_l2": float(rel.mean()) if rel.size else np.nan,
            "max_rel_l2_in_envelope": float(rel[inside].max()) if inside.any() else np.nan,
-           "rmse_rel": float(np.sqrt(num / den)) if den > 0 else np.nan,
+           "rmse_rel": float(np.sqrt(num / den)) if den > 0 else (np.inf if has_ref.any() else np.nan),
            "max_monitor_rel_error": float(outputs["rel_error"].max()) if len(outputs) else np.nan,
            "x_name": evaluation.x_name}
     for status in ("ok", "extrapolation", "beyond_validity", "failed", "not_reached"):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..cases.monitors import resolve_monitors
 from ..cases.scene import LENGTH_UNITS
 from ..refsolvers.backends import make_backend
 from ..refsolvers.dynamics import SecondOrderSystem, critical_time_step
@@ -61,9 +62,11 @@ def scene_summary(scene, backend: str = "skfem") -> dict:
     removed, the material at small strain, the critical time step. Raises ValueError (naming the
     entry) where the problem cannot be built (a region that selects no node, free rigid modes)."""
     if not scene.is_fe:
+        scene.line_model()  # its checks: node sets, a load on the supports
         return {"name": scene.name, "model": scene.model, "nodes": int(len(scene.mesh.points))}
 
     pb = scene.to_problem()  # the problem's checks: node sets, shared dofs, rigid-body modes
+    resolve_monitors(scene, pb)  # a monitor point off the body: the run's refusal, before it
     be = make_backend(backend, pb)
     nodes = pb.nodes
     clamps = []
@@ -79,6 +82,7 @@ def scene_summary(scene, backend: str = "skfem") -> dict:
             "vertices": int(scene.mesh.n_vertices), "cells": int(scene.mesh.n_cells), "nodes": int(len(nodes)),
             "dofs": int(pb.ndof), "free_dofs": int(len(pb.free_dofs)), "bbox": _bbox(scene), "clamps": clamps,
             "fixed_nodes": int(len(np.unique(pb.fixed_dofs // 3))), "rigid_modes_removed": 6,
+            "bodies": int(scene.mesh.components.max()) + 1,
             "loaded_nodes": int(len(loaded)), "total_load": f.sum(axis=0).tolist(), "monitors": monitors,
             "material": {"name": scene.material["name"], **small_strain(scene.material)},
             "density": scene.density, "analysis": scene.analysis["type"],
@@ -101,7 +105,8 @@ def summary_lines(s: dict, units: dict) -> list[str]:
     for c in s["clamps"]:
         what = "prescribed displacement" if c["prescribed"] else "fixed"
         lines.append(f"  dirichlet {c['name'] or ''}: {c['nodes']} nodes, components {c['components']} {what}")
-    lines.append(f"  {s['fixed_nodes']} constrained nodes remove all 6 rigid-body modes")
+    bodies = f" of each of the {s['bodies']} bodies (connected parts) of the mesh" if s.get("bodies", 1) > 1 else ""
+    lines.append(f"  {s['fixed_nodes']} constrained nodes remove all 6 rigid-body modes{bodies}")
     total = np.asarray(s["total_load"])
     lines.append(f"  loads: {s['loaded_nodes']} loaded nodes, total force at load factor 1 "
                  f"[{', '.join(f'{x:.4g}' for x in total)}] {F} (|F| = {np.linalg.norm(total):.4g} {F})")

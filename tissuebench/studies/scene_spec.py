@@ -28,6 +28,7 @@ import json
 import os
 from pathlib import Path
 
+from ..cases.monitors import resolve_monitors
 from ..cases.scene import load
 from ..rom import METHODS
 from .atomic_files import write_text
@@ -185,6 +186,8 @@ def write_scene_spec(scene_path, out: Path, variant: str | None = None,
     returns its path and the methods left out with why."""
 
     scene = load(scene_path, resolution=resolution, variant=variant)
+    if scene.is_fe:  # what run and scene check refuse is refused before any unit: a load on the clamp, a free
+        resolve_monitors(scene, scene.to_problem())  # body, a monitor off the body
     spec_path = Path(f"{Path(out)}.spec.toml")
     if spec_path.exists() and (not spec_path.is_file() or not spec_path.read_text(
             encoding="utf-8", errors="replace").startswith(_MARKER)):

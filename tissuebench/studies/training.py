@@ -56,8 +56,19 @@ def case_scene(case: CaseEntry):
     return scene.at(case.mu) if case.mu else scene
 
 
+def require_converged(ref) -> None:
+    """Refuse a reference run that converged at no step (its only state is the initial one): a
+    RuntimeError naming the case and saying why the reference stopped, not a shape error later."""
+    if len(ref.displacement) < 2:
+        variant = f" (variant {ref.variant})" if ref.variant else ""
+        raise RuntimeError(f"case {ref.case!r}{variant}: the reference run ({ref.backend}) converged at no step, so "
+                           f"there is no state to learn from or measure against: {ref.status}: {ref.message[:400]}")
+
+
 def reference_states(ref) -> tuple[np.ndarray, np.ndarray]:
-    """``(states (n_dof, k), steps (k,))`` of a reference result without its initial state."""
+    """``(states (n_dof, k), steps (k,))`` of a reference result without its initial state
+    (RuntimeError naming the case when it has none, :func:`require_converged`)."""
+    require_converged(ref)
     U = ref.displacement[1:].reshape(len(ref.displacement) - 1, -1).T
     return np.ascontiguousarray(U), np.asarray(ref.steps[1:], float)
 
@@ -78,6 +89,7 @@ def _outputs(scene, problem) -> dict:
 
 def _path(scene, case, spec, info):
     ref, _ = cached_solve(scene, case.backend)
+    require_converged(ref)
     # the initial state (load factor 0, at rest) belongs to the path: known exactly for free,
     # it anchors interpolation between the origin and the first converged state
     U = ref.displacement.reshape(len(ref.displacement), -1).T

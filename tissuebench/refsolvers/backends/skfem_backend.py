@@ -14,6 +14,7 @@ import scipy.sparse as sp
 import skfem
 
 from ..materials import Material
+from ..mesh import facet_nodes
 from ..quadrature import default_order, facet_rule, mass_order, volume_rule
 from ..problem import BodyForce, FollowerPressure, SurfaceTraction
 from .base import Backend, CellKernel, check_cells, material_on_cells
@@ -261,12 +262,7 @@ class SkfemBackend(Backend):
 
     def _facet_kernel(self, facets):
         """(node indices (f, n_loc), N (q, n_loc), dN (q, n_loc, 2), weights (q,))."""
-        if self.problem.element == "P2":
-            nv = self.problem.mesh.n_vertices
-            ours = self.problem.mesh.edges
-            pairs = np.sort(facets[:, [[0, 1], [1, 2], [0, 2]]], axis=2)
-            ids = np.searchsorted(ours[:, 0] * nv + ours[:, 1], pairs[..., 0] * nv + pairs[..., 1])
-            facets = np.hstack([facets, nv + ids])
+        facets = facet_nodes(self.problem.mesh, facets, self.problem.element)
         elem = _FACET_ELEMENTS[facets.shape[1]]()
         X, W = facet_rule(self.problem.element, self._order)
         N = np.stack([elem.lbasis(X, a)[0] for a in range(facets.shape[1])], axis=-1)

@@ -69,6 +69,9 @@ def baseline_rows(results_dir) -> tuple[dict, list]:
             left.append((k, "failed"))
         elif math.isnan(now["error"]) or not math.isfinite(now["latency_per_calibration"]):
             left.append((k, "no error or no latency measured"))
+        elif math.isinf(now["error"]):  # a baseline holds finite values only (baseline.py)
+            left.append((k, "error inf (a step failed inside its range, or its reference is zero): nothing to gate "
+                            "against"))
         else:
             if not math.isfinite(now["latency_per_reference"]):
                 now["latency_per_reference"] = 0.0

@@ -19,10 +19,13 @@
     latency_per_reference = 0.0004  # haptic median / the reference's step (in the report)
     flagged_steps = 0               # failed + extrapolated + beyond validity + not reached
 
-Every value is checked (type, range, duplicates) and a bad one raises :class:`BaselineError`
-naming the key. :func:`update_baseline` rewrites the units from a results folder with
-tomlkit (comments, defaults and per-unit overrides kept) through a temporary file renamed
-into place: a kill at any moment leaves the old file or the new one, never a torn one.
+Every value is checked (type, range, finite, duplicates) and a bad one raises
+:class:`BaselineError` naming the key and the value: ``inf`` and ``nan`` are refused everywhere
+(an infinite error or tolerance would make every comparison hold).
+
+:func:`update_baseline` rewrites the units from a results folder with tomlkit (comments,
+defaults and per-unit overrides kept) through a temporary file renamed into place: a kill at
+any moment leaves the old file or the new one, never a torn one.
 """
 from __future__ import annotations
 
@@ -72,15 +75,15 @@ def _number(path, v, kind):
         as_float = float(v)
     except OverflowError:
         raise BaselineError(f"{path} = {str(v)[:20]}...: a number too large") from None
-    if math.isnan(as_float) or as_float == -math.inf:
-        raise BaselineError(f"{path} = {v!r}: expected a number")
+    if not math.isfinite(as_float):
+        # an infinite error or tolerance makes every comparison hold: the gate would pass anything
+        raise BaselineError(f"{path} = {v!r}: must be a finite number (a non-finite baseline value or tolerance "
+                            "gates nothing)")
     name = path.rsplit(".", 1)[-1]
     if name in _RANGES:
         low, inclusive = _RANGES[name]
         if v < low or (v == low and not inclusive):
             raise BaselineError(f"{path} = {v!r}: must be {'>=' if inclusive else '>'} {low:g}")
-        if v == math.inf and name in DEFAULTS and name != "error_atol":
-            raise BaselineError(f"{path} = {v!r}: must be finite")
     return v
 
 
@@ -89,8 +92,9 @@ def load_baseline(path) -> tuple[dict, list]:
     and the bad key.
 
     Refused: a missing or unreadable file, TOML errors, unknown keys, wrong types, values out
-    of range (negative errors or counts, tolerances <= 1 or negative), a baseline with no
-    unit, and the same unit (options compared parsed) twice."""
+    of range (negative errors or counts, tolerances <= 1 or negative), non-finite values
+    (``inf``, ``nan``), a baseline with no unit, and the same unit (options compared parsed)
+    twice."""
     try:
         return _load(Path(path))
     except BaselineError as exc:

@@ -33,6 +33,8 @@ def tolerances(unit: dict | None, defaults: dict) -> dict:
 def _error_changed(was: float, now: float, tol: dict) -> bool:
     if was == now or (math.isinf(was) and math.isinf(now)):
         return False
+    if math.isinf(was) or math.isinf(now):  # inf - x is inf, within a tolerance of inf * rtol: said, not held
+        return True
     return not abs(now - was) <= max(tol["error_rtol"] * abs(was), tol["error_atol"])
 
 
