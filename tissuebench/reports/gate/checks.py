@@ -33,7 +33,8 @@ def tolerances(unit: dict | None, defaults: dict) -> dict:
 def _error_changed(was: float, now: float, tol: dict) -> bool:
     if was == now or (math.isinf(was) and math.isinf(now)):
         return False
-    return not abs(now - was) <= max(tol["error_rtol"] * abs(was), tol["error_atol"])
+    # from inf (a failed step) to a number is a change: inf * rtol would let every number through
+    return math.isinf(was) or not abs(now - was) <= max(tol["error_rtol"] * abs(was), tol["error_atol"])
 
 
 def _value_findings(out, key, was: dict, now: dict, tol: dict, against: str, declared: bool) -> None:
