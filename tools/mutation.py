@@ -9,6 +9,7 @@ when a module's score (killed + equivalent over all its mutants) is below its ta
     python tools/mutation.py                 # every module
     python tools/mutation.py metrics gate    # the modules whose name starts with these
     python tools/mutation.py --scores        # the table of the last run, nothing re-run
+    python tools/mutation.py --retest pod    # re-test only the mutants that were not killed (after new tests)
 
 mutmut keeps its results in ``mutants/`` (git-ignored) and re-tests only what changed since.
 """
@@ -91,11 +92,11 @@ def score(glob: str, codes: dict, equiv: dict) -> dict:
     return {"count": count, "survivors": survivors}
 
 
-def run_module(glob: str, children: int) -> float:
-    """Run mutmut over the mutants of one module; the wall time [s]."""
+def run_module(names: list, children: int) -> float:
+    """Run mutmut over the mutants ``names`` (names or globs); the wall time [s]."""
     t0 = time.monotonic()
     env = {**os.environ, "MPLBACKEND": "Agg", "PYVISTA_OFF_SCREEN": "true"}
-    subprocess.run([sys.executable, "-m", "mutmut", "run", "--max-children", str(children), glob], cwd=ROOT,
+    subprocess.run([sys.executable, "-m", "mutmut", "run", "--max-children", str(children), *names], cwd=ROOT,
                    env=env, check=False, stdout=subprocess.DEVNULL)
     return time.monotonic() - t0
 
@@ -106,15 +107,18 @@ def main(argv=None) -> int:
     ap.add_argument("--scores", action="store_true", help="print the scores of the last run only")
     ap.add_argument("--children", type=int, default=1, help="mutants tested at once (default 1)")
     ap.add_argument("--survivors", action="store_true", help="list each surviving mutant")
+    ap.add_argument("--retest", action="store_true", help="re-test only the mutants not killed in the last run")
     args = ap.parse_args(argv)
     chosen = [m for m in MODULES if not args.modules or any(m[0].startswith(p) for p in args.modules)]
     if not chosen:
         ap.error(f"modules {args.modules}: none of {[m[0] for m in MODULES]}")
     walls = {}
     if not args.scores:
+        codes, equiv = results(), equivalent()
         for name, glob, _ in chosen:
-            walls[name] = run_module(glob, args.children)
-            print(f"{name}: {walls[name]:.0f} s", flush=True)
+            names = [m for m in score(glob, codes, equiv)["survivors"]] if args.retest else [glob]
+            walls[name] = run_module(names, args.children) if names else 0.0
+            print(f"{name}: {len(names) if args.retest else 'all'} mutants, {walls[name]:.0f} s", flush=True)
     codes, equiv = results(), equivalent()
     below = []
     print(f"{'module':14s} {'total':>6s} {'killed':>6s} {'timeout':>7s} {'equiv':>6s} {'survived':>8s} "

@@ -54,11 +54,12 @@ def test_tolerances_take_the_unit_override_else_the_default():
     (1.0, 1.0 - 0.999e-3, False), (1.0, 1.0 - 1.001e-3, True),
     (2.0, 2.0 + 1.999e-3, False), (2.0, 2.0 + 2.001e-3, True),      # relative to the baseline's, not to 1
     (0.0, 0.999e-9, False), (0.0, 1.001e-9, True),                  # absolute near zero
+    (0.0, 1e-9, False), (1.0, 1.5, False), (1.0, 1.75, True),       # exactly at the bound holds (rtol 0.5 below)
     (1e-7, 1e-7 + 0.999e-9, False), (1e-7, 1e-7 + 1.001e-9, True),  # atol above rtol * was
     (math.inf, math.inf, False), (math.inf, 1.0, True), (1.0, math.inf, True), (1.0, math.nan, True),
 ])
 def test_the_error_rule_at_its_boundary(was, now, changed):
-    tol = {**DEFAULTS, "error_rtol": 1e-3, "error_atol": 1e-9}
+    tol = {**DEFAULTS, "error_rtol": 0.5 if (was, now) in ((1.0, 1.5), (1.0, 1.75)) else 1e-3, "error_atol": 1e-9}
     assert checks._error_changed(was, now, tol) is changed
 
 
@@ -108,15 +109,16 @@ def test_a_declared_change_is_a_note_not_a_finding():
 # ---------------------------------------------------------------- against the baseline file
 def test_errors_against_the_baseline_every_outcome():
     k3, k4 = ("cube", "pod", '{"n":8}'), ("bar", "anm", "{}")
-    units = [_unit(KEY, error=0.01), _unit(KEY2, error=0.01), _unit(k3)]
+    units = [_unit(k3), _unit(KEY, error=0.01), _unit(KEY2, error=0.01)]  # the missing one first
     rows = {KEY: _row(error=0.01 * (1 + 0.5e-3)), KEY2: _row(status="failed", message="m" * 200),
             k4: _row(status="failed"), ("a", "b", "{}"): _row()}
     out = CheckResult()
     checks.errors_against_baseline(out, rows, units, DEFAULTS)
     assert out.errors_against == "baseline" and out.compared == 2
     assert [(f.case, f.method, f.options, f.metric, f.tolerance) for f in out.regressions] == [
-            (*KEY2, "unit_status", f"failed: {'m' * 120}"), (*k3, "unit", "missing from the results")]
-    assert [f.baseline for f in out.regressions] == [1.0, 1.0]
+        (*k3, "unit", "missing from the results"), (*KEY2, "unit_status", f"failed: {'m' * 120}")]
+    assert [f.baseline for f in out.regressions] == [1.0, 1.0] and all(math.isnan(f.now) for f in out.regressions)
+    assert set(out.per_unit) == {KEY, KEY2, k3}
     assert out.per_unit[KEY] == [] and len(out.per_unit[KEY2]) == 1
     assert out.new_units == [("a", "b", "{}"), k4] and out.new_failed == {k4}
 
@@ -128,7 +130,9 @@ def test_errors_against_the_baseline_flags_a_change_with_the_unit_tolerance():
     assert out.regressions == []
     checks.errors_against_baseline(out, {KEY: _row(error=1.11)}, units, DEFAULTS)
     assert [(f.metric, f.baseline, f.now) for f in out.regressions] == [("error", 1.0, 1.11)]
-    assert "the baseline" in out.regressions[0].tolerance and "0.1 relative" in out.regressions[0].tolerance
+    assert out.regressions[0].tolerance == ("changed against the baseline by more than 0.1 relative / 1e-09: "
+                                            "if intended, update the baseline in the same commit "
+                                            "(check --update-baseline)")
 
 
 def test_no_unit_compared_is_an_error_not_a_pass():
@@ -160,6 +164,7 @@ def test_errors_against_ref_every_branch():
         ("h", "unit_status", 1.0, got[2][3], "failed: bad"),
         ("x", "unit", 1.0, got[3][3], "in the baseline, missing from the results")]
     assert math.isnan(got[2][3]) and math.isnan(got[3][3])
+    assert set(out.per_unit) == {KEY, KEY2, k_base, k_fail_here, k_missing, k_ref_failed}
     assert out.notes == ['cube pod {"n":4}: error 1 -> 5, declared by the baseline update of this commit',
                          "b m {}: main has no such unit: compared with the baseline file",
                          "f m {}: fails here and on main (not a regression)",
@@ -191,8 +196,9 @@ def test_file_latency_at_its_limit_on_both_sides():
     units = [_unit(KEY, calib=base), _unit(KEY2, calib=base), _unit(("c", "m", "{}"), calib=base),
              _unit(("d", "m", "{}"), calib=base)]
     limit = base * 1.3
-    rows = {KEY: _row(calib=limit), KEY2: _row(calib=math.nextafter(limit, 2)),
-            ("c", "m", "{}"): _row(status="failed", calib=100.0)}
+    rows = {("c", "m", "{}"): _row(status="failed", calib=100.0), KEY: _row(calib=limit),
+            KEY2: _row(calib=math.nextafter(limit, 2))}
+    units = units[3:] + units[:3]  # the unit without a row first
     out = CheckResult()
     checks.latency_from_file(out, rows, units, DEFAULTS, "why: ")
     assert out.latency_mode == "file"
@@ -201,6 +207,7 @@ def test_file_latency_at_its_limit_on_both_sides():
     assert out.notes == ["why: latency gated against the baseline file's ratios (haptic median / calibration "
                          "kernel, tolerance x1.3, floor 0 calibrations): these move 2-3x between runs for "
                          "microsecond steps; the A/B (--against REF) is the sensitive test"]
+    assert set(out.per_unit) == {KEY2}
 
 
 def test_file_latency_raises_a_small_baseline_to_the_floor_first():
@@ -231,15 +238,16 @@ def _samples(uid, ref_s, head_s, rounds=3, blocks=3):
 
 def test_latency_ab_turns_verdicts_and_failures_into_findings(monkeypatch):
     k3 = ("c", "m", "{}")
-    ok_rows = {KEY: _row(), KEY2: _row(), k3: _row(), ("d", "m", "{}"): _row()}
+    ok_rows = {KEY: _row(), KEY2: _row(), k3: _row(), ("d", "n", "{}"): _row()}
     seen = {}
 
     def ab_units(results_dir, table):
-        seen["table"] = table
+        seen["table"], seen["dir"] = table, results_dir
         return [type("U", (), {"uid": f"u{i}"})() for i in range(len(table))]
 
     def run_ab(ab, ref_root, head_root, decide, min_rounds, max_rounds, blocks, budget_s, inject=None, log=None):
         seen["args"] = (ref_root, head_root, min_rounds, max_rounds, blocks, budget_s, inject)
+        seen["ab"], seen["log"] = ab, log
         seen["decide"] = decide
         samples = pd.concat([_samples("u0", 1e-3, 2e-3), _samples("u1", 1e-3, 1e-3)])
         return samples, {"u2": {"head": "h" * 200}, "u3": {"ref": "r" * 200}}
@@ -253,6 +261,8 @@ def test_latency_ab_turns_verdicts_and_failures_into_findings(monkeypatch):
     samples = checks.latency_ab(out, "res", ok_rows, units, DEFAULTS, "R", "H", "main", settings, logs.append)
     assert list(seen["table"]["case"]) == ["cube", "cube", "c", "d"]
     assert list(seen["table"]["options"]) == [KEY[2], KEY2[2], "{}", "{}"]
+    assert list(seen["table"]["method"]) == ["pod", "pod", "m", "n"] and seen["dir"] == "res"
+    assert [u.uid for u in seen["ab"]] == ["u0", "u1", "u2", "u3"] and seen["log"] == logs.append
     assert seen["args"] == ("R", "H", 2, 5, 4, 60.0, {"u1": 1.5})
     assert logs == ["A/B latency: 4 units, main against this code, 2-5 rounds of 4 blocks"]
     assert out.latency_mode == "ab" and set(out.ab) == {KEY, KEY2}
@@ -261,7 +271,8 @@ def test_latency_ab_turns_verdicts_and_failures_into_findings(monkeypatch):
     assert [(f.options, f.metric, f.tolerance) for f in out.regressions] == [("{}", "latency_ab", f"fails under A/B: "
                                                                                                   f"{'h' * 120}")]
     assert out.regressions[0].case == "c" and math.isnan(out.regressions[0].baseline)
-    assert out.notes == [f"d m {{}}: latency not compared: main's code cannot run it ({'r' * 120})"]
+    assert math.isnan(out.regressions[0].now) and set(out.per_unit) == {KEY, KEY2, k3}
+    assert out.notes == [f"d n {{}}: latency not compared: main's code cannot run it ({'r' * 120})"]
     assert list(samples["case"]) == ["cube"] * 36 and set(samples["options"]) == {KEY[2], KEY2[2]}
     assert set(samples["method"]) == {"pod"}
     assert seen["decide"](samples) == {"u0", "u1"}  # the per-unit tolerances: both decided
@@ -275,6 +286,7 @@ def test_latency_ab_flags_a_slowdown_beyond_the_default_tolerance(monkeypatch):
     v = out.ab[KEY]
     assert v.verdict == "slower" and v.ratio == pytest.approx(2.0)
     assert out.regressions == [Finding(*KEY, "latency_ab", 1.0, v.ratio, f"slower: {v.text()}")]
+    assert set(out.per_unit) == {KEY}
     # the floor: a 1 ms increase under a 2 ms floor holds
     out = CheckResult()
     checks.latency_ab(out, "res", {KEY: _row()}, [_unit(KEY, latency_floor_s=2e-3)], DEFAULTS, "R", "H", "main",
@@ -293,14 +305,16 @@ def test_latency_ab_that_compared_nothing_is_an_error(monkeypatch):
 # ---------------------------------------------------------------- requirements
 def test_a_requirement_met_at_its_boundary_and_missed_just_beyond():
     req = parse_requirement("rate>=1kHz, error<=1%")
-    rows = {KEY: _row(error=0.01, p99=1e-3, label="pod n=2"), ("bar", "m", "{}"): _row(error=0.0101, p99=1e-3),
+    rows = {("zed", "m", "{}"): _row(error=0.001, p99=1e-4, label="z"),
+            KEY: _row(error=0.01, p99=1e-3, label="pod n=2"), ("bar", "m", "{}"): _row(error=0.0101, p99=1e-3),
             ("bar", "n", "{}"): _row(error=0.001, p99=1.01e-3)}
     out = CheckResult()
     checks.requirement_met(out, rows, req, "max_rel_l2")
-    assert out.notes == ["cube: pod n=2 meets 'rate>=1kHz, error<=1%' (margin 1)"]
+    assert out.notes == ["cube: pod n=2 meets 'rate>=1kHz, error<=1%' (margin 1)",
+                         "zed: z meets 'rate>=1kHz, error<=1%' (margin 10)"]  # by case, sorted
     assert len(out.regressions) == 1
     f = out.regressions[0]
     assert (f.case, f.method, f.options, f.metric) == ("bar", "*", "*", "requirement") and math.isnan(f.baseline)
     assert f.now == pytest.approx(1 / 1.01)
     assert f.tolerance.startswith("no unit meets 'rate>=1kHz, error<=1%'; closest ")
-    assert set(out.per_unit) == {("cube", "*", "*"), ("bar", "*", "*")}
+    assert list(out.per_unit) == [("bar", "*", "*"), ("cube", "*", "*"), ("zed", "*", "*")]
