@@ -144,3 +144,27 @@ def test_the_text_of_a_verdict():
     v = ABVerdict("u", 1.23456, 1.1, 1.4, 1e-5, 1.23456e-5, 3, 4, 1.14, "slower", True)
     assert v.text() == "HEAD/REF 1.235 [1.100, 1.400] (12.35 vs 10 us, 3 rounds x 4 blocks)"
     assert v.floor_s == 0.0 and v.held_by_floor is False
+
+
+def test_units_come_back_sorted_and_an_undecided_one_does_not_hide_the_next():
+    straddling = _samples("a", "head", [[1.0] * 3] + [[3.0] * 3] * 3)  # undecided (see above)
+    df = _frame(_samples("b", "ref", [[1.0] * 3] * 2), _samples("b", "head", [[2.0] * 3] * 2),
+                _samples("a", "ref", [[1.0] * 3] * 4), straddling)
+    assert list(verdicts(df)) == ["a", "b"]
+    assert set(verdicts(df, final=False)) == {"b"}
+
+
+def test_decided_units_uses_its_tolerance_and_defaults_to_1_3():
+    # head's rounds at 1.3 and 1.8: the interval ~[1.3, 1.8] is clear of sqrt(1.3) = 1.14, not of sqrt(2.3) = 1.52
+    df = _frame(_samples("u", "ref", [[1.0] * 3] * 4), _samples("u", "head", [[1.3] * 3, [1.8] * 3] * 2))
+    assert decided_units()(df) == {"u"} and decided_units(1.3)(df) == {"u"}
+    assert decided_units(2.3)(df) == set() and decided_units({"u": 2.3})(df) == set()
+
+
+def test_the_text_in_microseconds_to_its_last_digit():
+    # values just below a rounding boundary: a factor off by 1e-6 rounds the other way
+    v = ABVerdict("u", 1.0, 1.0, 1.0, 2.0004999e-3, 1.2344999e-2, 1, 1, 1.14, "holds", True)
+    assert v.text() == "HEAD/REF 1.000 [1.000, 1.000] (1.234e+04 vs 2000 us, 1 rounds x 1 blocks)"
+    v = ABVerdict("u", 1.2, 1.0, 1.5, 1e-5, 1e-5 + 1.0349995e-6, 3, 2, 1.14, "holds", False, 1.2349999e-5, True)
+    assert v.text() == ("HEAD/REF 1.200 [1.000, 1.500] (11.03 vs 10 us, 3 rounds x 2 blocks) (undecided: judged by "
+                        "the estimate and the interval) (below the floor: +1.03 us < 12.3 us)")
