@@ -168,3 +168,30 @@ def test_the_text_in_microseconds_to_its_last_digit():
     v = ABVerdict("u", 1.2, 1.0, 1.5, 1e-5, 1e-5 + 1.0349995e-6, 3, 2, 1.14, "holds", False, 1.2349999e-5, True)
     assert v.text() == ("HEAD/REF 1.200 [1.000, 1.500] (11.03 vs 10 us, 3 rounds x 2 blocks) (undecided: judged by "
                         "the estimate and the interval) (below the floor: +1.03 us < 12.3 us)")
+
+
+def test_bootstrap_draws_every_block_and_every_round():
+    boot = ab_stats._boot_medians(np.array([[1.0, 2.0]]), np.random.default_rng(0), 200)
+    assert boot.min() == 1.0 and boot.max() == 2.0  # both blocks drawn (block 0 too)
+    boot = ab_stats._boot_medians(np.array([[1.0], [2.0]]), np.random.default_rng(0), 200)
+    assert boot.min() == 1.0 and boot.max() == 2.0  # both rounds drawn
+
+
+def test_the_interval_is_the_central_percentile_interval_of_the_log_ratios():
+    rng = np.random.default_rng(5)
+    ref = block_medians(_frame(_samples("u", "ref", 1.0 + 0.3 * rng.random((4, 3)))))
+    head = block_medians(_frame(_samples("u", "head", 1.2 + 0.3 * rng.random((4, 3)))))
+    draws = np.random.default_rng(9)
+    boot = np.log(ab_stats._boot_medians(ab_stats._grid(head), draws, 500)) - \
+        np.log(ab_stats._boot_medians(ab_stats._grid(ref), draws, 500))
+    _, lo, hi = ratio_interval(ref, head, confidence=0.9, n_boot=500, seed=9)
+    assert (lo, hi) == (pytest.approx(math.exp(np.quantile(boot, 0.05)), rel=1e-12),
+                        pytest.approx(math.exp(np.quantile(boot, 0.95)), rel=1e-12))
+
+
+def test_an_undecided_interval_ending_exactly_at_one_over_the_threshold_holds():
+    # tolerance 4: threshold 2, faster region below 0.5; head's rounds 0.5, 4, 4, 4: estimate
+    # 3.125, the interval's low end exactly 0.5 (a quarter of the bootstrap draws give 0.5)
+    v = _verdict([[1.0] * 3] * 4, [[0.5] * 3] + [[4.0] * 3] * 3, tolerance=4.0)
+    assert not v.decided and v.ratio == pytest.approx(3.125) and v.low == 0.5 and v.verdict == "holds"
+    assert v.uid == "u" and type(v.blocks) is int and type(v.rounds) is int
