@@ -109,7 +109,7 @@ def test_a_declared_change_is_a_note_not_a_finding():
 # ---------------------------------------------------------------- against the baseline file
 def test_errors_against_the_baseline_every_outcome():
     k3, k4 = ("cube", "pod", '{"n":8}'), ("bar", "anm", "{}")
-    units = [_unit(k3), _unit(KEY, error=0.01), _unit(KEY2, error=0.01)]  # the missing one first
+    units = [_unit(k3), _unit(KEY2, error=0.01), _unit(KEY, error=0.01)]  # the missing and the failed one first
     rows = {KEY: _row(error=0.01 * (1 + 0.5e-3)), KEY2: _row(status="failed", message="m" * 200),
             k4: _row(status="failed"), ("a", "b", "{}"): _row()}
     out = CheckResult()
