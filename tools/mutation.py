@@ -120,6 +120,9 @@ def main(argv=None) -> int:
     if not args.scores:
         codes, equiv = results(), equivalent()
         for name, glob, _ in chosen:
+            if codes and not score(glob, codes, equiv)["count"]["total"]:
+                print(f"{name}: no mutant (mutmut 3 leaves decorated functions alone)", flush=True)
+                continue
             names = [m for m in score(glob, codes, equiv)["survivors"]] if args.retest else [glob]
             walls[name] = run_module(names, args.children) if names else 0.0
             print(f"{name}: {len(names) if args.retest else 'all'} mutants, {walls[name]:.0f} s", flush=True)
