@@ -4,22 +4,30 @@ analysis, mesh, backend, solver settings, package versions and code.
 
 Two references may share an entry only when every field is equal; a field dropped from
 :func:`tissuebench.reference.cache.reference_key` would let two different references share one.
+And the entry behind a key reads back as the reference that was solved, field by field.
 """
 from __future__ import annotations
 
 import dataclasses
 import hashlib
 import importlib.metadata
+import json
+import shutil
 import subprocess
 from functools import lru_cache
 from pathlib import Path
 from unittest import mock
+
+import numpy as np
+import pandas as pd
+import pytest
 
 from hypothesis import given, settings, strategies as st
 
 import tissuebench
 from tissuebench.cases.scene import load
 from tissuebench.reference import cache, provenance
+from tissuebench.reference.cache import cached_solve, cached_table, list_entries, reference_key
 
 SCENES = [("cube_tension_twist", "tension"), ("cube_tension_twist", "twist"), ("frame_2dof", None),
           ("heat1d_source", None)]
@@ -162,3 +170,61 @@ def test_git_commit_inside_and_outside_a_repository():
     for exc in (OSError("no git"), subprocess.TimeoutExpired("git", 5)):
         with mock.patch.object(subprocess, "run", mock.Mock(side_effect=exc)):
             assert provenance.git_commit.__wrapped__() == "unknown"
+
+
+# ---------------------------------------------------------------- the entry read back
+@pytest.fixture(scope="module")
+def solved(tmp_path_factory):
+    cache = tmp_path_factory.mktemp("cache")
+    scene = load("frame_2dof").at({"load_scale": 0.5})
+    first, hit = cached_solve(scene, cache=cache)
+    assert hit is False
+    again, hit = cached_solve(scene, cache=cache)
+    assert hit is True
+    return cache, scene, first, again
+
+
+def test_every_field_reads_back_as_solved(solved):
+    _, _, first, again = solved
+    for f in dataclasses.fields(first):
+        a, b = getattr(first, f.name), getattr(again, f.name)
+        if f.name == "table":
+            pd.testing.assert_frame_equal(b, a)
+        elif isinstance(a, np.ndarray):
+            assert b.dtype == a.dtype and b.shape == a.shape, f.name
+            np.testing.assert_array_equal(b, a, err_msg=f.name)
+        elif f.name == "plan":
+            assert b == a and all(isinstance(r, tuple) for r in b.reasons), f.name
+        elif f.name == "info":
+            assert b == json.loads(json.dumps(a, default=str)), f.name
+        else:
+            assert b == a, f.name
+    assert again.velocity is not None and again.problem is None  # a line model: no FE problem
+    assert again.case == "frame_2dof" and again.components == first.components and again.wall_s == first.wall_s
+
+
+def test_cached_table_is_the_table_and_none_without_an_entry(solved, tmp_path):
+    cache, scene, first, _ = solved
+    pd.testing.assert_frame_equal(cached_table(scene, cache=cache), first.table)
+    assert cached_table(scene, cache=tmp_path) is None
+    assert cached_table(scene, backend="skfem", linear_solver="direct", cache=cache) is None  # another key
+
+
+def test_cached_table_of_a_damaged_table_is_none(solved, tmp_path):
+    cache, scene, _, _ = solved
+    copy = tmp_path / "c"
+    shutil.copytree(cache, copy)
+    entry = copy / "references" / reference_key(scene)
+    (entry / "table.parquet").write_bytes(b"x" * (entry / "table.parquet").stat().st_size)
+    assert cached_table(scene, cache=copy) is None
+
+
+def test_cache_ls_row_by_hand(solved):
+    cache, scene, first, _ = solved
+    row = list_entries(cache).iloc[0]
+    entry = cache / "references" / reference_key(scene)
+    assert row["key"] == reference_key(scene)[:16] and row["case"] == "frame_2dof"
+    assert row["variant"] == first.variant and row["resolution"] == "ci" and row["status"] == first.status
+    assert row["backend"] == first.backend and json.loads(row["mu"]) == {"load_scale": 0.5}
+    assert row["wall_s"] == first.wall_s and bool(row["valid"]) is True
+    assert row["bytes"] == sum(f.stat().st_size for f in entry.iterdir())
