@@ -228,3 +228,21 @@ def test_cache_ls_row_by_hand(solved):
     assert row["backend"] == first.backend and json.loads(row["mu"]) == {"load_scale": 0.5}
     assert row["wall_s"] == first.wall_s and bool(row["valid"]) is True
     assert row["bytes"] == sum(f.stat().st_size for f in entry.iterdir())
+
+
+def test_the_progress_bar_names_the_reference_being_computed(monkeypatch):
+    calls = []
+    monkeypatch.setattr(cache, "progress_bar", lambda *a, **k: calls.append((a, k)) or "bar")
+    line = load("frame_2dof").at({"load_scale": 0.5})
+    assert cache._reference_bar(line, "skfem") == "bar"
+    solid = load("cube_tension_twist", variant="twist").at({"load_scale": 2})
+    cache._reference_bar(solid, "ngsolve")
+    plain = load("cube_tension_twist", variant="twist")
+    cache._reference_bar(dataclasses.replace(plain, variant=None), "skfem")
+    assert calls == [
+        (("reference frame_2dof (load_scale=0.5) line", line.analysis["type"],
+          line.units.get("time", "s")), {"leave": False}),
+        (("reference cube_tension_twist [twist] (load_scale=2) ngsolve", "static", "s"), {"leave": False}),
+        (("reference cube_tension_twist skfem", "static", "s"), {"leave": False})]
+    cache._reference_bar(load("cube_tension_twist").at({"load_scale": 1 / 3}), "skfem")
+    assert calls[-1][0][0] == "reference cube_tension_twist [tension] (load_scale=0.3333) skfem"
