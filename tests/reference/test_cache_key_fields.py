@@ -246,3 +246,19 @@ def test_the_progress_bar_names_the_reference_being_computed(monkeypatch):
         (("reference cube_tension_twist skfem", "static", "s"), {"leave": False})]
     cache._reference_bar(load("cube_tension_twist").at({"load_scale": 1 / 3}), "skfem")
     assert calls[-1][0][0] == "reference cube_tension_twist [tension] (load_scale=0.3333) skfem"
+
+
+def test_the_key_ignores_the_order_of_a_table_and_the_type_of_a_number():
+    cfg = {"scene": 0, "resolution": "ci", "backend": "skfem", "linear_solver": "auto", "material_scale": 1.0,
+           "load_steps": 0, "mu": None, "divisions": None, "numpy": "2.0.0", "scikit-fem": "10.0.0",
+           "matplotlib": "3.9.0", "code": "c" * 64}
+    scene = _scene(0, "ci")
+    reordered = dataclasses.replace(scene, material=dict(reversed(list(scene.material.items()))))
+    with mock.patch.object(cache, "code_hash", lambda *a: "c" * 64):
+        assert cache.reference_key(reordered) == cache.reference_key(scene)
+        # a parameter given as a numpy number: the same reference as the float
+        assert cache.reference_key(scene.at({"load_scale": np.float64(0.5)})) == \
+            cache.reference_key(scene.at({"load_scale": 0.5}))
+        # the defaults are the solver's: scikit-fem, automatic linear solver
+        assert cache.reference_key(scene) == cache.reference_key(scene, "skfem", "auto")
+    assert _key(cfg) != _key({**cfg, "backend": "skfem", "linear_solver": "direct"})
