@@ -162,3 +162,11 @@ def test_seen_missing_or_na_is_not_seen_and_nan_headroom_is_no_margin():
     assert bool(o["meets"]) is True and bool(o["seen"]) is False and o["margin"] == pytest.approx(10.0)
     units = _units([{"label": "a", "e": 0.001, "haptic_p99_s": 1e-4, "seen": None}])
     assert bool(rank_units(units, parse_requirement("rate>=1kHz"), "e").iloc[0]["meets"]) is True
+
+
+def test_a_clause_that_holds_does_not_hide_the_next_that_fails_and_an_error_of_one_is_relative():
+    units = _units([{"label": "a", "e": 0.02, "haptic_p99_s": 1e-4}, {"label": "b", "e": 1.0, "haptic_p99_s": 1e-4}])
+    o = rank_units(units, parse_requirement("rate>=1kHz, error<=1%"), "e").set_index("label")
+    assert o.loc["a", "misses"] == "error 2 % is 2x over 1 %"
+    assert o.loc["b", "headroom_error"] == pytest.approx(0.01)
+    assert o.loc["b", "misses"] == "error 100 % is 100x over 1 %"
