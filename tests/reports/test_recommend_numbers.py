@@ -1,0 +1,172 @@
+"""The recommendation (:mod:`tissuebench.reports.recommend`): requirements parsed to SI numbers,
+each clause at its boundary on both sides (``>=`` holds at equality, ``>`` does not), margins
+and the ranking by hand, and what a unit misses by, word for word (issue 41)."""
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tissuebench.reports.recommend import (DEFAULT_REQUIREMENT, SEEN_REASON, Clause, parse_requirement, rank_units)
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("rate>=500Hz", [("rate", ">=", 500.0)]),
+    ("rate > 2kHz", [("rate", ">", 2000.0)]),
+    ("RATE>=500", [("rate", ">=", 500.0)]),
+    ("latency<=2ms", [("latency", "<=", 2e-3)]),
+    ("latency<5us, error<0.5%", [("latency", "<", 5e-6), ("error", "<", 5e-3)]),
+    ("latency <= 3 µs", [("latency", "<=", 3e-6)]),
+    ("latency<=.5s", [("latency", "<=", 0.5)]),
+    ("error<=0.02", [("error", "<=", 0.02)]),
+    ("error<=1e-1%", [("error", "<=", 1e-3)]),
+    ("error<=+2.5E-1%", [("error", "<=", 2.5e-3)]),
+    (" rate>=1kHz ,  error<=1% ", [("rate", ">=", 1000.0), ("error", "<=", 0.01)]),
+])
+def test_requirements_parse_to_si_numbers(text, expected):
+    req = parse_requirement(text)
+    assert [(c.quantity, c.op, c.value) for c in req.clauses] == [(q, o, pytest.approx(v, rel=1e-15))
+                                                                  for q, o, v in expected]
+    assert req.text == text and [c.text for c in req.clauses] == [p.strip() for p in text.split(",")]
+
+
+def test_the_default_requirement():
+    req = parse_requirement(None)
+    assert DEFAULT_REQUIREMENT == "rate>=1kHz, error<=1%" and req.text == DEFAULT_REQUIREMENT
+    assert [(c.quantity, c.op, c.value) for c in req.clauses] == [("rate", ">=", 1000.0), ("error", "<=", 0.01)]
+
+
+@pytest.mark.parametrize("text, why", [
+    ("", "empty clause; expected clauses like 'rate>=1kHz, error<=1%'"),
+    ("  ", "empty clause; expected clauses like 'rate>=1kHz, error<=1%'"),
+    ("rate>=1kHz,", "empty clause; expected clauses like 'rate>=1kHz, error<=1%'"),
+    ("speed>=3", "clause 'speed>=3': unknown quantity 'speed'; valid: ['error', 'latency', 'rate']"),
+    ("!!", "clause '!!': unknown quantity '!!'; valid: ['error', 'latency', 'rate']"),
+    ("rate<=3Hz", "clause 'rate<=3Hz': rate needs >= or >, not <="),
+    ("rate 3Hz", "clause 'rate 3Hz': rate needs >= or >"),
+    ("latency>=3ms", "clause 'latency>=3ms': latency needs <= or <, not >="),
+    ("error=1%", "clause 'error=1%': error needs <= or <, not ="),
+    ("rate>=fast", "clause 'rate>=fast': 'fast' is not a number with a unit"),
+    ("rate>=3GHz", "clause 'rate>=3GHz': unknown unit 'GHz' for rate; valid: ['hz', 'khz', 'none']"),
+    ("latency<=3", "clause 'latency<=3': unknown unit '' for latency; valid: ['s', 'ms', 'us', 'µs']"),
+    ("error<=1ppm", "clause 'error<=1ppm': unknown unit 'ppm' for error; valid: ['%', 'none']"),
+    ("rate>=0Hz", "clause 'rate>=0Hz': 0 must be a positive finite number"),
+    ("rate>=-5", "clause 'rate>=-5': -5 must be a positive finite number"),
+    ("rate>=1e400", "clause 'rate>=1e400': 1e400 must be a positive finite number"),
+    ("error<=1", "clause 'error<=1': error 1 without a unit is a fraction and must be < 1 (for percent write 1%)"),
+    ("error<=2", "clause 'error<=2': error 2 without a unit is a fraction and must be < 1 (for percent write 2%)"),
+    ("rate>=1kHz, rate>=2kHz", "clause 'rate>=2kHz': rate is given twice"),
+])
+def test_a_bad_requirement_names_the_clause_and_why(text, why):
+    with pytest.raises(ValueError, match="^" + re.escape(f"require = {text!r}: {why}") + "$"):
+        parse_requirement(text)
+
+
+def test_an_error_just_below_one_without_unit_and_100_percent_are_read():
+    assert parse_requirement("error<=0.999").clauses[0].value == 0.999
+    assert parse_requirement("error<=100%").clauses[0].value == 1.0
+
+
+def test_a_requirement_that_is_not_a_string():
+    with pytest.raises(TypeError, match=r"^require = 5: expected a string like 'rate>=1kHz, error<=1%'$"):
+        parse_requirement(5)
+
+
+def test_descriptions():
+    req = parse_requirement("rate>=2kHz, latency<1ms, error<=1.5%")
+    assert req.describe("max_rel_l2") == ("haptic rate >= 2 kHz on the p99 step (p99 <= 500 µs) and haptic step p99 "
+                                          "< 1 ms and error (max_rel_l2) <= 1.5 %")
+    assert Clause("rate", ">", 500.0, "").describe("e") == "haptic rate > 500 Hz on the p99 step (p99 < 2 ms)"
+
+
+def _units(rows):
+    base = {"unit_status": "ok", "message": "", "seen": False}
+    return pd.DataFrame([{**base, **r} for r in rows])
+
+
+@pytest.mark.parametrize("op, at, just_beyond", [
+    ("rate>=1kHz", True, False), ("rate>1kHz", False, False),
+    ("latency<=1ms", True, False), ("latency<1ms", False, False),
+])
+def test_latency_clauses_at_their_boundary(op, at, just_beyond):
+    units = _units([{"label": "at", "e": 0.0, "haptic_p99_s": 1e-3},
+                    {"label": "over", "e": 0.0, "haptic_p99_s": math.nextafter(1e-3, 1)},
+                    {"label": "under", "e": 0.0, "haptic_p99_s": 0.99e-3}])
+    out = rank_units(units, parse_requirement(op), "e").set_index("label")
+    assert bool(out.loc["at", "meets"]) is at and bool(out.loc["over", "meets"]) is just_beyond
+    assert bool(out.loc["under", "meets"]) is True
+    assert out.loc["under", "margin"] == pytest.approx(1 / 0.99)
+
+
+@pytest.mark.parametrize("op, at", [("error<=1%", True), ("error<1%", False)])
+def test_error_clauses_at_their_boundary(op, at):
+    units = _units([{"label": "at", "e": 0.01, "haptic_p99_s": 1e-6},
+                    {"label": "over", "e": 0.0101, "haptic_p99_s": 1e-6},
+                    {"label": "under", "e": 0.005, "haptic_p99_s": 1e-6},
+                    {"label": "zero", "e": 0.0, "haptic_p99_s": 1e-6}])
+    out = rank_units(units, parse_requirement(op), "e").set_index("label")
+    assert bool(out.loc["at", "meets"]) is at and bool(out.loc["over", "meets"]) is False
+    assert out.loc["under", "headroom_error"] == pytest.approx(2.0)
+    assert out.loc["zero", "headroom_error"] == math.inf and bool(out.loc["zero", "meets"]) is True
+    assert out.loc["over", "misses"] == "error 1.01 % is 1.01x over 1 %"
+
+
+def test_ranking_margins_and_misses_by_hand():
+    req = parse_requirement("rate>=1kHz, error<=1%")
+    units = _units([
+        {"label": "a", "e": 0.005, "haptic_p99_s": 0.5e-3},   # headroom rate 2, error 2: margin 2
+        {"label": "b", "e": 0.0025, "haptic_p99_s": 0.8e-3},  # rate 1.25, error 4: margin 1.25
+        {"label": "c", "e": 0.02, "haptic_p99_s": 4e-3},      # rate 0.25, error 0.5: misses both
+        {"label": "d", "e": 0.001, "haptic_p99_s": 2e-3},     # rate 0.5: misses the rate only
+        {"label": "f", "e": 0.0, "haptic_p99_s": 1e-6, "unit_status": "failed", "message": "boom"},
+        {"label": "g", "e": np.nan, "haptic_p99_s": 1e-6},
+        {"label": "h", "e": 0.001, "haptic_p99_s": np.nan},
+        {"label": "i", "e": 0.001, "haptic_p99_s": 0.0},
+        {"label": "s", "e": 0.0, "haptic_p99_s": 1e-6, "seen": True},
+    ])
+    out = rank_units(units, req, "e")
+    assert list(out["label"]) == ["a", "b", "d", "c", "f", "g", "h", "i", "s"]
+    o = out.set_index("label")
+    assert o.loc["a", "margin"] == pytest.approx(2.0) and o.loc["b", "margin"] == pytest.approx(1.25)
+    assert o.loc["d", "margin"] == pytest.approx(0.5) and o.loc["c", "margin"] == pytest.approx(0.25)
+    assert o.loc["a", "rate_hz"] == pytest.approx(2000.0) and o.loc["a", "p99_s"] == 0.5e-3
+    assert o.loc["c", "headroom_rate"] == pytest.approx(0.25) and o.loc["c", "headroom_error"] == pytest.approx(0.5)
+    assert list(o["meets"]) == [True, True, False, False, False, False, False, False, False]
+    assert list(o["measurable"]) == [True, True, True, True, False, False, False, False, False]
+    assert o.loc["a", "misses"] == "" and o.loc["b", "misses"] == ""
+    assert o.loc["c", "misses"] == "rate 250 Hz (p99 4 ms) is 4x short of 1 kHz; error 2 % is 2x over 1 %"
+    assert o.loc["d", "misses"] == "rate 500 Hz (p99 2 ms) is 2x short of 1 kHz"
+    assert o.loc["f", "misses"] == "unit failed: boom"
+    assert o.loc["g", "misses"] == "no error (no evaluation point with a reference)"
+    assert o.loc["h", "misses"] == "no latency measured" and o.loc["i", "misses"] == "no latency measured"
+    assert o.loc["s", "misses"] == SEEN_REASON and bool(o.loc["s", "seen"]) is True
+    for k in "fghis":
+        assert math.isnan(o.loc[k, "margin"]), k
+    assert "seen" not in units or units["seen"].dtype == bool  # the input is not changed
+
+
+def test_latency_clause_misses_and_unknown_metric():
+    units = _units([{"label": "a", "e": 0.0, "haptic_p99_s": 4e-3}])
+    o = rank_units(units, parse_requirement("latency<=1ms"), "e").iloc[0]
+    assert o["misses"] == "p99 4 ms is 4x over 1 ms" and o["margin"] == pytest.approx(0.25)
+    with pytest.raises(ValueError, match=r"^error_metric = 'rmse': not a column of the results$"):
+        rank_units(units, parse_requirement("latency<=1ms"), "rmse")
+
+
+def test_seen_missing_or_na_is_not_seen_and_nan_headroom_is_no_margin():
+    units = _units([{"label": "a", "e": 0.001, "haptic_p99_s": 1e-4}]).drop(columns=["seen"])
+    o = rank_units(units, parse_requirement("rate>=1kHz"), "e").iloc[0]
+    assert bool(o["meets"]) is True and bool(o["seen"]) is False and o["margin"] == pytest.approx(10.0)
+    units = _units([{"label": "a", "e": 0.001, "haptic_p99_s": 1e-4, "seen": None}])
+    assert bool(rank_units(units, parse_requirement("rate>=1kHz"), "e").iloc[0]["meets"]) is True
+
+
+def test_a_clause_that_holds_does_not_hide_the_next_that_fails_and_an_error_of_one_is_relative():
+    units = _units([{"label": "a", "e": 0.02, "haptic_p99_s": 1e-4}, {"label": "b", "e": 1.0, "haptic_p99_s": 1e-4}])
+    o = rank_units(units, parse_requirement("rate>=1kHz, error<=1%"), "e").set_index("label")
+    assert o.loc["a", "misses"] == "error 2 % is 2x over 1 %"
+    assert o.loc["b", "headroom_error"] == pytest.approx(0.01)
+    assert o.loc["b", "misses"] == "error 100 % is 100x over 1 %"

@@ -1,0 +1,359 @@
+"""The error metrics and the validity radius against hand-computed values on tiny arrays (issue 41).
+
+Each test states the number a user reads in a results table and checks it to round-off, so a
+one-line slip in :mod:`tissuebench.studies.metrics` or :mod:`tissuebench.studies.timing` (a
+sign, a factor, ``<`` for ``<=``, a dropped term) fails here. Every rule is tested on both
+sides of its boundary.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tissuebench.studies.evaluation import Evaluation, EvaluationPoint
+from tissuebench.studies.metrics import (SEEN_RTOL, TOLERANCES, output_rows, pareto_front, point_rows, seen_points,
+                                         summarise_points, validity_radius)
+from tissuebench.studies.timing import LatencyStats, latency_stats, max_displacement, relative_l2
+
+
+def _evaluation(refs, kind="path", monitors=None, xs=None, beyond=None, groups=None, mus=None):
+    n = len(refs)
+    points = [EvaluationPoint(mu=(mus or [{}] * n)[k], reference=None if r is None else np.asarray(r, float),
+                              monitors=(monitors or [{}] * n)[k], x=float((xs or range(n))[k]),
+                              group=(groups or [None] * n)[k], beyond=(beyond or [False] * n)[k])
+              for k, r in enumerate(refs)]
+    return Evaluation(kind=kind, x_name="load factor", points=points)
+
+
+def _driven(fields, statuses=None, messages=None, outputs=None):
+    n = len(fields)
+    statuses = statuses or ["ok"] * n
+    results = [None if s is None else SimpleNamespace(status=s, message=(messages or [""] * n)[k])
+               for k, s in enumerate(statuses)]
+    return SimpleNamespace(results=results, fields=[None if u is None else np.asarray(u, float) for u in fields],
+                           outputs=outputs or [{}] * n)
+
+
+# ---------------------------------------------------------------- point errors
+def test_rel_l2_and_max_displacement_error_of_one_node_by_hand():
+    # ref (3, 4, 0): |ref| = 5; u - ref = (0, 0, 1): rel_l2 = 1/5; |u| = sqrt(26)
+    row, = point_rows(_evaluation([[3, 4, 0]]), _driven([[3, 4, 1]]))
+    assert row["rel_l2"] == pytest.approx(0.2, rel=1e-14)
+    assert row["rel_max_displacement"] == pytest.approx((math.sqrt(26) - 5) / 5, rel=1e-14)
+    assert row["status"] == "ok" and row["has_reference"] is True and row["seen"] is False
+    assert row["beyond"] is False and row["message"] == "" and row["point"] == 0 and row["x"] == 0.0
+    assert math.isnan(row["group"]) and row["mu"] == ""
+
+
+def test_max_displacement_error_takes_the_largest_node_not_the_largest_component():
+    # node-major (2 nodes x 3): ref's largest node is |(3, 4, 0)| = 5 (largest component 4);
+    # u's is |(0, 0, 6)| = 6: (6 - 5) / 5 = 0.2 (by components it would be (6 - 4) / 4)
+    ref = [3, 4, 0, 0, 0, 1]
+    u = [3, 4, 0, 0, 0, 6]
+    row, = point_rows(_evaluation([ref]), _driven([u]))
+    assert row["rel_max_displacement"] == pytest.approx(0.2, rel=1e-14)
+    assert row["rel_l2"] == pytest.approx(5 / math.sqrt(26), rel=1e-14)
+
+
+def test_a_vector_not_of_three_components_uses_the_largest_absolute_entry():
+    # ref (1, -2): |ref| = sqrt(5); u (1, -3): |u - ref| = 1; max |ref| 2, max |u| 3
+    row, = point_rows(_evaluation([[1, -2]]), _driven([[1, -3]]))
+    assert row["rel_l2"] == pytest.approx(1 / math.sqrt(5), rel=1e-14)
+    assert row["rel_max_displacement"] == pytest.approx(0.5, rel=1e-14)
+    row, = point_rows(_evaluation([[1, -2, 2, 0]]), _driven([[1, -3, 2, 0]]))
+    assert row["rel_max_displacement"] == pytest.approx(0.5, rel=1e-14)  # 4 entries: not nodes of 3
+
+
+def test_a_small_reference_is_still_relative():
+    # |ref| = 0.5 < 1: relative errors, not absolute ones
+    row, = point_rows(_evaluation([[0.3, 0.4, 0]]), _driven([[0.3, 0.4, 0.1]]))
+    assert row["rel_l2"] == pytest.approx(0.2, rel=1e-14)
+    assert row["rel_max_displacement"] == pytest.approx((math.sqrt(0.26) - 0.5) / 0.5, rel=1e-12)
+
+
+def test_a_point_object_without_beyond_is_not_beyond():
+    ev = _evaluation([[1, 0, 0]])
+    p = ev.points[0]
+    ev.points[0] = SimpleNamespace(mu=p.mu, reference=p.reference, monitors={}, x=p.x, group=None)
+    assert point_rows(ev, _driven([[1, 0, 0]]))[0]["beyond"] is False
+
+
+def test_a_zero_reference_gives_the_absolute_error():
+    row, = point_rows(_evaluation([[0, 0, 0]]), _driven([[0, 3, 4]]))
+    assert row["rel_l2"] == pytest.approx(5.0, rel=1e-14)
+    assert row["rel_max_displacement"] == pytest.approx(5.0, rel=1e-14)
+    row, = point_rows(_evaluation([[0, 0]]), _driven([[0, -3]]))
+    assert row["rel_l2"] == pytest.approx(3.0) and row["rel_max_displacement"] == pytest.approx(3.0)
+
+
+def test_a_failed_step_is_inf_and_a_point_without_reference_is_nan():
+    ev = _evaluation([[1, 0, 0], None, [1, 0, 0], [1, 0, 0], [1, 0, 0], [1, 0, 0]])
+    big = 1e150
+    rows = point_rows(ev, _driven([None, [1, 0, 0], [np.nan, 0, 0], [2 * big, 0, 0], [big, 0, 0], [-2 * big, 0, 0]],
+                                  statuses=["failed", "ok", "ok", "ok", "ok", "ok"]))
+    assert rows[0]["rel_l2"] == math.inf and rows[0]["rel_max_displacement"] == math.inf
+    assert math.isnan(rows[1]["rel_l2"]) and math.isnan(rows[1]["rel_max_displacement"])
+    assert rows[1]["has_reference"] is False
+    assert rows[2]["rel_l2"] == math.inf and rows[2]["rel_max_displacement"] == math.inf  # non-finite field
+    assert rows[3]["rel_l2"] == math.inf and rows[3]["rel_max_displacement"] == math.inf  # a blow-up, > 1e150
+    # exactly 1e150 is still a number: its error is computed, not inf
+    assert rows[4]["rel_l2"] == pytest.approx(big) and rows[4]["rel_max_displacement"] == pytest.approx(big)
+    assert rows[5]["rel_l2"] == math.inf  # the magnitude counts, not the signed value
+
+
+def test_statuses_initial_not_reached_and_the_message():
+    ev = _evaluation([[1, 0, 0]] * 3, kind="trajectory")
+    rows = point_rows(ev, _driven([[1, 0, 0], None, [1, 0, 0]], statuses=[None, None, "extrapolation"],
+                                  messages=["", "", "x" * 400]), seen=[True, True, True])
+    assert [r["status"] for r in rows] == ["initial", "not_reached", "extrapolation"]
+    assert math.isnan(rows[0]["rel_l2"]) and math.isnan(rows[0]["rel_max_displacement"])  # the initial state
+    assert rows[0]["seen"] is False and rows[1]["seen"] is True and rows[2]["seen"] is True
+    assert rows[1]["rel_l2"] == math.inf and rows[1]["message"] == ""
+    assert rows[2]["message"] == "x" * 300 and rows[2]["rel_l2"] == 0.0
+    # on a path (not a trajectory) a first point that never ran is not_reached, and has an error
+    row = point_rows(_evaluation([[1, 0, 0]]), _driven([None], statuses=[None]))[0]
+    assert row["status"] == "not_reached" and row["rel_l2"] == math.inf
+    # a trajectory's later point without a result is not_reached too, not initial
+    rows = point_rows(ev, _driven([[1, 0, 0], None, None], statuses=["ok", None, None]))
+    assert [r["status"] for r in rows] == ["ok", "not_reached", "not_reached"]
+
+
+def test_row_fields_x_group_mu_beyond():
+    ev = _evaluation([[1, 0, 0], [2, 0, 0]], xs=[0.25, 0.5], groups=[None, 3.0], beyond=[False, True],
+                     mus=[{"b": 0.5, "a": 1 / 3}, {}])
+    rows = point_rows(ev, _driven([[1, 0, 0], [2, 0, 0]]), seen=[False, True])
+    assert rows[0]["mu"] == "a=0.333333, b=0.5"
+    assert rows[0]["x"] == 0.25 and math.isnan(rows[0]["group"]) and rows[1]["group"] == 3.0
+    assert rows[0]["beyond"] is False and rows[1]["beyond"] is True
+    assert rows[0]["seen"] is False and rows[1]["seen"] is True and rows[1]["point"] == 1
+
+
+def test_monitor_errors_relative_and_absolute_at_zero():
+    ev = _evaluation([[1, 0, 0], [1, 0, 0]], monitors=[{"force": 4.0, "zero": 0.0}, {"force": -2.0}])
+    out = output_rows(ev, _driven([[1, 0, 0]] * 2, outputs=[{"force": 5.0, "zero": -0.25, "other": 1.0},
+                                                            {"force": -1.0}]))
+    assert [(r["point"], r["monitor"]) for r in out] == [(0, "force"), (0, "zero"), (1, "force")]
+    assert out[0]["rel_error"] == pytest.approx(0.25) and out[0]["reference"] == 4.0 and out[0]["rom"] == 5.0
+    assert out[1]["rel_error"] == pytest.approx(0.25)  # the reference is 0: the absolute error
+    assert out[2]["rel_error"] == pytest.approx(0.5) and out[2]["x"] == 1.0
+
+
+# ---------------------------------------------------------------- seen points
+def test_seen_at_the_tolerance_on_both_sides():
+    rng = np.random.default_rng(0)
+    S = rng.normal(size=(6, 3))
+    r = S[:, 1]
+    d = rng.normal(size=6)
+    d /= np.linalg.norm(d)
+    n = np.linalg.norm(r)
+    S *= 100.0  # |r|^2 far from 1: the tolerance is relative to it
+    r = S[:, 1]
+    n = np.linalg.norm(r)
+    refs = [S[:, 0], r + 0.5 * SEEN_RTOL * n * d, r + 2 * SEEN_RTOL * n * d, r + 1e-3 * n * d, None,
+            np.zeros(6), np.ones(5)]
+    seen = seen_points(_evaluation(refs), np.column_stack([S, np.zeros(6)]))
+    assert seen == [True, True, False, False, False, False, False]
+
+
+def test_nothing_is_seen_without_snapshots_or_references():
+    ev = _evaluation([[1.0, 2.0], [3.0, 4.0]])
+    assert seen_points(ev, None) == [False, False]
+    assert seen_points(ev, np.zeros((2, 0))) == [False, False]
+    assert seen_points(_evaluation([None, None]), np.eye(2)) == [False, False]
+    assert seen_points(ev, np.array([[1.0], [2.0]])) == [True, False]
+
+
+def test_seen_against_float32_snapshots():
+    # snapshots stored in single precision: the reference that is a snapshot is seen, one 2e-6 off is not
+    rng = np.random.default_rng(2)
+    S = rng.normal(size=(50, 8)).astype(np.float32) * np.float32(1000)
+    exact = [S[:, k].astype(float) for k in range(8)]
+    off = [e * (1 + 2 * SEEN_RTOL) for e in exact]
+    assert seen_points(_evaluation(exact + off), S) == [True] * 8 + [False] * 8
+
+
+def test_seen_over_more_points_than_one_chunk():
+    rng = np.random.default_rng(1)
+    S = rng.normal(size=(4, 3))
+    refs = [S[:, k % 3] for k in range(600)]
+    refs[300] = S[:, 0] + 1.0
+    seen = seen_points(_evaluation(refs), S)
+    assert seen == [k != 300 for k in range(600)]
+
+
+# ---------------------------------------------------------------- validity radius
+@pytest.mark.parametrize("tol", TOLERANCES)
+def test_validity_radius_at_the_tolerance_on_both_sides(tol):
+    x = [0.4, 0.1, 0.3, 0.2]
+    just_over = tol * (1 + 1e-12)
+    assert validity_radius(x, [0.0, 0.0, 0.0, tol], tol) == 0.4  # == tol holds
+    assert validity_radius(x, [0.0, 0.0, just_over, tol], tol) == 0.2  # unsorted x; the first bad at 0.3
+    assert validity_radius(x, [just_over, 0.0, 0.0, 0.0], tol) == 0.3
+    assert validity_radius(x, [0.0, just_over, 0.0, 0.0], tol) == 0.0  # the first fails
+
+
+def test_validity_radius_ignores_nan_and_stops_at_a_tie():
+    assert math.isnan(validity_radius([0.1, 0.2], [np.nan, np.nan], 0.01))
+    assert validity_radius([0.1, 0.2, 0.3], [0.0, np.nan, 0.0], 0.01) == 0.3
+    assert validity_radius([0.1, 0.2, 0.3], [0.0, 0.0, np.nan], 0.01) == 0.2
+    assert validity_radius([0.1, 0.2, 0.3], [np.nan, 0.0, 0.02], 0.01) == 0.2
+    # two points at one abscissa, one bad: that abscissa is not valid
+    assert validity_radius([0.1, 0.2, 0.2, 0.3], [0.0, 0.0, 0.5, 0.0], 0.01) == 0.1
+    assert validity_radius([0.2, 0.1, 0.2, 0.3], [0.0, 0.0, 0.5, 0.0], 0.01) == 0.1
+    assert validity_radius([0.1, 0.2, 0.3], [0.0, math.inf, 0.0], 0.01) == 0.1  # a failed step is bad
+    assert validity_radius(np.array([0.3, 0.1, 0.2]), np.array([0.0, 0.0, 0.0]), 0.01) == 0.3
+
+
+# ---------------------------------------------------------------- a unit's summary
+def _summary_case():
+    # five points: ok, ok (seen), extrapolation, beyond the path, and the initial state of nothing
+    refs = [[3, 4, 0], [0, 0, 2], [1, 0, 0], [0, 2, 0], None]
+    fields = [[3, 4, 0.1], [0, 0, 2], [1, 0, 0.5], [0, 2, 2], [0, 0, 0]]
+    ev = _evaluation(refs, xs=[0.1, 0.2, 0.3, 0.4, 0.5], beyond=[False, False, False, True, False],
+                     monitors=[{"f": 2.0}, {}, {}, {}, {}])
+    driven = _driven(fields, statuses=["ok", "ok", "extrapolation", "ok", "not_reached"],
+                     outputs=[{"f": 2.5}, {}, {}, {}, {}])
+    points = pd.DataFrame(point_rows(ev, driven, seen=[False, True, False, False, False]))
+    outputs = pd.DataFrame(output_rows(ev, driven))
+    return points, outputs, ev, driven
+
+
+def test_unit_summary_by_hand():
+    points, outputs, ev, driven = _summary_case()
+    row = summarise_points(points, outputs, ev, driven.fields)
+    # rel_l2 of the three points with a reference inside the path: 0.1/5, 0, 0.5/1
+    assert row["max_rel_l2"] == pytest.approx(0.5) and row["mean_rel_l2"] == pytest.approx(0.52 / 3)
+    assert row["max_rel_l2_in_envelope"] == pytest.approx(0.02)  # the extrapolated point left out
+    # sqrt((0.01 + 0 + 0.25) / (25 + 4 + 1)): the beyond point and the point without reference left out
+    assert row["rmse_rel"] == pytest.approx(math.sqrt(0.26 / 30), rel=1e-14)
+    assert row["max_monitor_rel_error"] == pytest.approx(0.25)
+    assert (row["n_points"], row["n_reference_points"], row["n_seen"], row["n_beyond_reference"]) == (5, 3, 1, 1)
+    assert row["seen"] is False and row["x_name"] == "load factor"
+    assert (row["n_ok"], row["n_extrapolation"], row["n_beyond_validity"], row["n_failed"],
+            row["n_not_reached"]) == (3, 1, 0, 0, 1)
+    # validity over every point with a reference (the beyond one too): 0.02 fails 1 % at the first
+    # point; 5 % holds up to 0.2, where the 0.5 of x = 0.3 fails it
+    assert row["validity_1pct"] == 0.0 and row["validity_5pct"] == 0.2
+
+
+def test_unit_summary_seen_when_every_reference_point_is_seen_and_a_failure_is_inf():
+    points, outputs, ev, driven = _summary_case()
+    points["seen"] = True
+    assert summarise_points(points, outputs, ev, driven.fields)["seen"] is True
+    fields = list(driven.fields)
+    fields[2] = None
+    points = pd.DataFrame(point_rows(ev, _driven([None if f is None else f for f in fields],
+                                                 statuses=["ok", "ok", "failed", "ok", "not_reached"])))
+    row = summarise_points(points, pd.DataFrame(), ev, fields)
+    assert row["rmse_rel"] == math.inf and row["max_rel_l2"] == math.inf
+    assert row["max_rel_l2_in_envelope"] == math.inf  # a failure on its own range is never accurate
+    assert math.isnan(row["max_monitor_rel_error"]) and row["n_failed"] == 1 and row["n_seen"] == 0
+
+
+def test_unit_summary_of_rows_without_beyond_and_seen_columns():
+    # older stores: no beyond column (nothing is past the path) and no seen column
+    points, outputs, ev, driven = _summary_case()
+    row = summarise_points(points.drop(columns=["beyond", "seen"]), outputs, ev, driven.fields)
+    assert (row["n_reference_points"], row["n_beyond_reference"], row["n_seen"]) == (4, 0, 0)
+    assert row["max_rel_l2"] == pytest.approx(1.0) and row["mean_rel_l2"] == pytest.approx(1.52 / 4)
+    assert row["rmse_rel"] == pytest.approx(math.sqrt(4.26 / 34), rel=1e-14)
+
+
+def test_a_trajectory_initial_state_with_a_reference_is_not_a_reference_point():
+    # the initial state (point 0) has a reference but is not an error point; the rmse sums the later ones
+    ev = _evaluation([[5, 0, 0], [0.1, 0, 0], [0.2, 0, 0]], kind="trajectory")
+    fields = [[5, 0, 0], [0.1, 0, 0.01], [0.2, 0, 0.01]]
+    points = pd.DataFrame(point_rows(ev, _driven(fields, statuses=[None, "ok", "ok"])))
+    row = summarise_points(points, pd.DataFrame(), ev, [np.asarray(f, float) for f in fields])
+    assert row["n_reference_points"] == 2 and row["max_rel_l2"] == pytest.approx(0.1)
+    # den = 0.01 + 0.04 < 1: still relative
+    assert row["rmse_rel"] == pytest.approx(math.sqrt(0.0002 / 0.05), rel=1e-12)
+
+
+def test_a_finite_blow_up_is_inf_without_a_warning():
+    ev = _evaluation([[1, 0, 0], [1, 0, 0]])
+    fields = [np.array([1.0, 0, 0]), np.array([1e200, 0, 0])]  # finite, its square overflows
+    points = pd.DataFrame(point_rows(ev, _driven(fields)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        row = summarise_points(points, pd.DataFrame(), ev, fields)
+    assert row["rmse_rel"] == math.inf and row["max_rel_l2"] == math.inf  # > 1e150: a blow-up
+
+
+def test_unit_summary_without_a_reference_is_nan_not_zero():
+    ev = _evaluation([None, None])
+    points = pd.DataFrame(point_rows(ev, _driven([[1.0], [2.0]])))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no mean of an empty array
+        row = summarise_points(points.drop(columns=["beyond", "seen"]), pd.DataFrame(), ev, [None, None])
+    for k in ("max_rel_l2", "mean_rel_l2", "max_rel_l2_in_envelope", "rmse_rel", "validity_1pct"):
+        assert math.isnan(row[k]), k
+    assert row["n_seen"] == 0 and row["seen"] is False and row["n_reference_points"] == 0
+
+
+def test_rmse_is_over_the_history_not_the_mean_of_the_points():
+    ev = _evaluation([[1, 0, 0], [10, 0, 0]])
+    fields = [[2, 0, 0], [10, 0, 0]]  # errors 1 and 0, |ref|^2 1 and 100
+    points = pd.DataFrame(point_rows(ev, _driven(fields)))
+    row = summarise_points(points, pd.DataFrame(), ev, [np.asarray(f, float) for f in fields])
+    assert row["rmse_rel"] == pytest.approx(math.sqrt(1 / 101), rel=1e-14)
+    assert row["mean_rel_l2"] == pytest.approx(0.5)
+
+
+def test_in_envelope_without_any_inside_point_is_nan():
+    ev = _evaluation([[1, 0, 0]])
+    points = pd.DataFrame(point_rows(ev, _driven([[2, 0, 0]], statuses=["beyond_validity"])))
+    row = summarise_points(points, pd.DataFrame(), ev, [np.array([2.0, 0, 0])])
+    assert math.isnan(row["max_rel_l2_in_envelope"]) and row["max_rel_l2"] == 1.0 and row["n_beyond_validity"] == 1
+
+
+# ---------------------------------------------------------------- Pareto front
+def test_pareto_front_by_hand():
+    units = pd.DataFrame([
+        {"case": "a", "unit_status": "ok", "max_rel_l2": 0.1, "haptic_median_s": 1.0},   # front
+        {"case": "a", "unit_status": "ok", "max_rel_l2": 0.1, "haptic_median_s": 1.0},   # a tie: front too
+        {"case": "a", "unit_status": "ok", "max_rel_l2": 0.1, "haptic_median_s": 2.0},   # slower, as accurate
+        {"case": "a", "unit_status": "ok", "max_rel_l2": 0.2, "haptic_median_s": 1.0},   # less accurate, as fast
+        {"case": "a", "unit_status": "ok", "max_rel_l2": 0.05, "haptic_median_s": 3.0},  # front
+        {"case": "a", "unit_status": "failed", "max_rel_l2": 0.0, "haptic_median_s": 0.1},  # never on it
+        {"case": "a", "unit_status": "ok", "max_rel_l2": np.nan, "haptic_median_s": 0.1},
+        {"case": "a", "unit_status": "ok", "max_rel_l2": 0.0, "haptic_median_s": np.inf},
+        {"case": "b", "unit_status": "ok", "max_rel_l2": 0.3, "haptic_median_s": 5.0},   # alone in its case
+    ])
+    out = pareto_front(units)
+    assert out["pareto"].tolist() == [True, True, False, False, True, False, False, False, True]
+    assert "pareto" not in units  # a copy
+    other = pareto_front(units.rename(columns={"max_rel_l2": "e", "haptic_median_s": "t"}), error="e", latency="t")
+    assert other["pareto"].tolist() == out["pareto"].tolist()
+
+
+# ---------------------------------------------------------------- latency statistics
+def test_latency_stats_by_hand():
+    s = latency_stats([4.0, 1.0, 100.0, 2.0, 3.0])
+    # 99th percentile, linear: rank 0.99 * 4 = 3.96 between 4 and 100
+    assert s == LatencyStats(3.0, pytest.approx(4 + 0.96 * 96), 1.0, 100.0, 5)
+    assert s.as_dict("h_") == {"h_median_s": 3.0, "h_p99_s": s.p99, "h_min_s": 1.0, "h_max_s": 100.0, "h_n": 5}
+    assert set(s.as_dict()) == {"median_s", "p99_s", "min_s", "max_s", "n"}
+    assert latency_stats([2.0]) == LatencyStats(2.0, 2.0, 2.0, 2.0, 1)
+
+
+@pytest.mark.parametrize("bad", [[], [[1.0, 2.0]], [1.0, np.nan], [1.0, np.inf]])
+def test_latency_stats_refuses_what_is_not_a_finite_sample(bad):
+    with pytest.raises(ValueError, match=r"latency samples must be a non-empty finite 1D sequence, got shape"):
+        latency_stats(bad)
+
+
+def test_relative_l2_and_max_displacement_by_hand():
+    assert relative_l2([3, 4, 1], [3, 4, 0]) == pytest.approx(0.2, rel=1e-14)
+    assert relative_l2([[3, 4], [1, 0]], [[3, 4], [0, 0]]) == pytest.approx(0.2, rel=1e-14)  # flattened
+    assert relative_l2([0, 3, 4], [0, 0, 0]) == 5.0
+    assert relative_l2([0.3, 0.4, 0.1], [0.3, 0.4, 0.0]) == pytest.approx(0.2, rel=1e-14)  # |ref| < 1: relative
+    with pytest.raises(ValueError, match=r"relative_l2: shapes differ: \(3,\) vs \(2,\)"):
+        relative_l2([1, 2, 3], [1, 2])
+    assert max_displacement([3, 4, 0, 0, 0, 4.5]) == 5.0
+    assert max_displacement([0, 0, -6, 3, 4, 0]) == 6.0
