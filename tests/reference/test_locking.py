@@ -103,11 +103,16 @@ def test_formulation_is_part_of_the_cache_key(tmp_path, monkeypatch):
     ("P1", "mixed", "mesh.element must be 'P2'"),
     ("P2", "anp", "mesh.element must be 'P1'"),
     (None, "displacement\nincompressible = true", "only the mixed formulation imposes J = 1"),
+    ("P2", "dynamic", "the mixed formulation is static only"),
 ])
 def test_inconsistent_formulations_are_refused_at_load(tmp_path, element, formulation, message, capsys):
     """scene check, describe and run all load the scene: one refusal, naming the key."""
-    path = _dome(tmp_path, 0.499, element=element, extra_analysis=f'formulation = "{formulation}"'
-                 if "\n" not in formulation else 'formulation = "displacement"\nincompressible = true')
+    extra = {"displacement\nincompressible = true": 'formulation = "displacement"\nincompressible = true',
+             "dynamic": 'formulation = "mixed"'}.get(formulation, f'formulation = "{formulation}"')
+    path = _dome(tmp_path, 0.499, element=element, extra_analysis=extra, density=1000.0)
+    if formulation == "dynamic":
+        path.write_text(path.read_text().replace('type = "static"\nload_steps = 6',
+                                                 'type = "dynamic"\ndt = 0.01\nt_end = 0.03\nintegrator = "hht"'))
     with pytest.raises(ValueError, match=message):
         load(path)
     for argv in (["scene", "check", str(path), "--out", "-"], ["describe", str(path)]):

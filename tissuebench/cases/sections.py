@@ -60,7 +60,7 @@ _STATIC = {"type": c_str, "load_steps": c_int_range(1, MAX_LOAD_STEPS), "max_loa
            "note": c_str}
 _DYNAMIC = {"type": c_str, "dt": c_pos, "t_end": c_pos, "integrator": c_str, "integrator_options": c_table,
             "lumped": c_bool, "dt_sweep": c_numlist, "store_every": c_int_range(1, MAX_TIME_STEPS), "note": c_str,
-            "formulation": c_enum("displacement", "anp")}
+            "formulation": c_enum("displacement", "anp", "mixed")}
 #: materials with a volumetric part U(J) (the mixed formulation replaces it, ANP averages it)
 VOLUMETRIC_MATERIALS = ("neo_hookean", "neo_hookean_decoupled", "mooney_rivlin", "guccione")
 
@@ -165,6 +165,10 @@ def check_formulation(element, analysis, material):
     if analysis.get("incompressible") and form != "mixed":
         fail("analysis.incompressible", True, "only the mixed formulation imposes J = 1 (formulation = 'mixed')")
     if form == "mixed":
+        if analysis.get("type") == "dynamic":
+            fail("analysis.formulation", form, "the mixed formulation is static only (its pressure field has no "
+                 "inertia); a dynamic scene without a formulation gets average nodal pressure tetrahedra where P1 "
+                 "locks")
         if element not in (None, "P2"):
             fail("analysis.formulation", form, f"the mixed formulation is Taylor-Hood P2-P1: mesh.element must be "
                  f"'P2' (or left out), not {element!r}")
