@@ -47,3 +47,8 @@ def test_verify_convergence_writes_the_table_the_report_shows(tmp_path, capsys):
     html = (tmp_path / "r.html").read_text()
     assert "Reference convergence (h and h/2)" in html and "average nodal pressure tetrahedra" in html
     assert "No convergence check" not in html
+
+
+def test_sweep_convergence_goes_with_a_scene(capsys):
+    assert main(["sweep", "--preset", "extremes", "--convergence"]) == 2
+    assert "--convergence go with --scene" in capsys.readouterr().err
