@@ -158,3 +158,14 @@ def test_a_dynamic_scene_runs_on_the_non_locking_formulation(tmp_path):
     ref = solve(scene)
     assert ref.ok and ref.info["formulation"] == "anp" and ref.info["locking_indicator"]["locks"]
     assert len(ref.steps) == 4 and np.all(np.isfinite(ref.displacement))
+
+
+def test_svk_keeps_p1_and_says_why(tmp_path):
+    """SVK has no volumetric part to average: P1 stays, with the indicator's number and the reason
+    (before: the formulation chose ANP and the run failed building it)."""
+    path = _dome(tmp_path, 0.499)
+    path.write_text(path.read_text().replace('name = "neo_hookean"', 'name = "svk"'))
+    form = formulation_of(load(path))
+    assert form.name == "displacement" and form.indicator["locks"]
+    assert "no formulation that does not lock for material 'svk'" in form.warning
+    assert "small-strain comparison with the linear material" in form.indicator["material_note"]

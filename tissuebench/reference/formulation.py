@@ -18,12 +18,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..cases.sections import VOLUMETRIC_MATERIALS
 from ..refsolvers.anp import AnpBackend, volumetric_modulus
 from ..refsolvers.backends import make_backend
 from .locking import LOCKING_BULK_TO_SHEAR, bulk_to_shear, indicator_text, locking_indicator
 
 __all__ = ["Formulation", "formulation_of", "scene_backend", "FORMULATION_LABELS"]
 
+#: the materials average nodal pressure tetrahedra can model (a volumetric part U(J), or linear)
+ANP_MATERIALS = VOLUMETRIC_MATERIALS + ("linear",)
 FORMULATION_LABELS = {"displacement": "displacement", "anp": "average nodal pressure tetrahedra (ANP)",
                       "mixed": "mixed u-p (Taylor-Hood P2-P1)"}
 
@@ -93,6 +96,12 @@ def formulation_of(scene, backend: str = "skfem") -> Formulation:
                    "reference that does not lock") if ind.get("locks") else ""
         return Formulation("displacement", "P1", f"{how} asked for ({text})", warning=warning, indicator=ind)
     if ind.get("computed") and ind["locks"]:
+        if scene.material["name"] not in ANP_MATERIALS:
+            return Formulation("displacement", "P1", f"kept: material {scene.material['name']!r} has no volumetric "
+                               "part for average nodal pressure tetrahedra", indicator=ind, warning=(
+                                   f"WARNING: {text}; no formulation that does not lock for material "
+                                   f"{scene.material['name']!r}: a law with a volumetric part "
+                                   f"({', '.join(ANP_MATERIALS)}) gets one"))
         return Formulation("anp", "P1", f"chosen because {text}", indicator=ind)
     return Formulation("displacement", "P1", text if ind.get("computed") else ind.get("why", ""), indicator=ind)
 
