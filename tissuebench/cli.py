@@ -67,6 +67,8 @@ def _parser():
                        "method that applies (held-out evaluation) beside the results folder and run it")
     sweep.add_argument("--all-methods", action="store_true", help="with --scene: every registered method that applies")
     sweep.add_argument("--variant", default=None, help="with --scene: the scene's variant")
+    sweep.add_argument("--convergence", action="store_true", help="with --scene: also the reference's h/2 check "
+                       "(the monitored quantities on the mesh refined once), written to OUT/_convergence.parquet")
     _sweep_options(sweep)
     study = sub.add_parser("study", help="alias: sweep --preset NAME")
     study.add_argument("name", help="preset name (anm_pod, interpolation, ...)")
@@ -91,6 +93,10 @@ def _parser():
     _cache_option(ver)
     ver.add_argument("--backend", default="ngsolve", choices=BACKEND_NAMES)
     ver.add_argument("--cases", default=None, help="only these anchor cases (comma-separated)")
+    ver.add_argument("--convergence", default=None, metavar="SCENE",
+                     help="only the reference convergence check of SCENE (a scene file or case): its monitored "
+                          "quantities at h and h/2 (with RESULTS: written to RESULTS/_convergence.parquet)")
+    ver.add_argument("--variant", default=None, help="with --convergence: the scene's variant")
     ver.add_argument("--no-backends", action="store_true",
                      help="skip the backend agreement (with RESULTS: every FE scene of the sweep on both backends, "
                           "written to RESULTS/_backends.parquet)")
@@ -218,6 +224,11 @@ def _run_scene(scene, args, out) -> int:
     print((shown if len(shown) <= 25 else shown.iloc[:: max(1, len(shown) // 20)]).to_string(index=False))
     for row in paper_comparison(scene, t).itertuples():
         print(f"{row.monitor}: ours {row.ours:.4g}, paper {row.paper:.4g} (ratio {row.ratio:.3f}); {row.note}")
+    if result.info.get("formulation"):  # which formulation, and why (a locking warning with its number)
+        print(f"formulation: {result.info['formulation']} ({result.info.get('element')}): "
+              f"{result.info.get('formulation_reason', '')}")
+        if result.info.get("locking_warning"):
+            print(result.info["locking_warning"], file=sys.stderr)
     print(f"{result.status}: {result.message}; results in {out}")
     return 0 if result.ok else 1
 
@@ -243,8 +254,8 @@ def _sweep(args, preset=None) -> int:
         if spec_arg or preset_arg:
             raise ValueError("sweep: give either --scene FILE --all-methods, or SPEC.toml, or --preset NAME")
         spec_arg, args.out = _scene_spec(args)
-    elif getattr(args, "all_methods", False) or getattr(args, "variant", None):
-        raise ValueError("sweep: --all-methods and --variant go with --scene FILE")
+    elif getattr(args, "all_methods", False) or getattr(args, "variant", None) or getattr(args, "convergence", False):
+        raise ValueError("sweep: --all-methods, --variant and --convergence go with --scene FILE")
     source = preset or preset_arg or spec_arg
     if source is None or (spec_arg and preset_arg):
         raise ValueError("sweep: give exactly one of SPEC.toml, --preset NAME, --scene FILE --all-methods or --list")
@@ -254,6 +265,8 @@ def _sweep(args, preset=None) -> int:
     log = (lambda *_: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     for s in spec.skipped:  # before any reference is computed: one line per (case, method) pair
         log(f"skipped: {s['case']} {s['method']}{' ' + s['options'] if s['options'] else ''}: {s['why']}")
+    if getattr(args, "scene", None) is not None:  # the yardstick every method is measured against, and why
+        _say_formulation(args.scene, args.variant, spec.resolution)
     resume_hint = f"tissuebench sweep {source} --out {out} --resume"
     try:
         summary = run_sweep(spec, out, args.executor, args.workers, args.scheduler, args.resume,
@@ -274,7 +287,23 @@ def _sweep(args, preset=None) -> int:
           f"{len(summary.skipped)} kept from before, {len(summary.recomputed)} recomputed; results in {out}")
     for why, n in summary.why_recomputed.items():
         print(f"recomputed {n} unit{'s' if n != 1 else ''}: {why}")
-    return 1 if summary.failed else 0
+    failed = 1 if summary.failed else 0
+    if getattr(args, "convergence", False):
+        failed |= _convergence(args.scene, args.variant, spec.resolution, "skfem", out)
+    return failed
+
+
+def _say_formulation(case, variant, resolution) -> None:
+    """One line: the formulation of the scene's reference and why; its locking warning beside."""
+    from .cases.scene import load
+    from .reference.formulation import formulation_of
+
+    scene = load(case, resolution=resolution, variant=variant)
+    if scene.is_fe:
+        form = formulation_of(scene)
+        print(f"reference formulation: {form.label}: {form.reason}", file=sys.stderr)
+        if form.warning:
+            print(form.warning, file=sys.stderr)
 
 
 def _scene_spec(args):
@@ -437,6 +466,8 @@ def _verify(args) -> int:
         if not args.results.is_dir():
             raise FileNotFoundError(f"results: {args.results} is not a folder")
         check_output_location(args.results, overwrite=True)  # writable, before minutes of solves
+    if args.convergence is not None:
+        return _convergence(args.convergence, args.variant, args.resolution, args.backend, args.results)
     table = external_anchors(args.resolution, args.backend, _id_list(args.cases, "--cases"))
     with _pd_display():
         print(table[["case", "quantity", "unit", "ours", "anchor", "low", "high", "verdict"]].to_string(index=False))
@@ -454,6 +485,27 @@ def _verify(args) -> int:
         else:
             print(f"verify: {args.results} holds no sweep (_sweep.json): no scenes for the backend agreement")
     return 1 if len(bad) or disagree else 0
+
+
+def _convergence(case, variant, resolution, backend, results) -> int:
+    """The h/2 check of a scene (:mod:`.reference.convergence`), printed and, with ``results``,
+    written to ``results/_convergence.parquet`` (the report's verification section shows it)."""
+    from .cases.scene import load
+    from .reference.convergence import convergence_check
+    from .studies.results import write_table
+
+    scene = load(case, resolution=resolution, variant=variant)
+    print(f"verify: {scene.name}: the reference at h and h/2 ({backend})", flush=True)
+    table = convergence_check(scene, backend)
+    with _pd_display():
+        print(table[["case", "quantity", "h", "h_half", "rel_diff", "dofs_h", "dofs_h_half", "status_h",
+                     "status_h_half"]].to_string(index=False))
+    print(f"verify: {table['how'].iloc[0] if len(table) else ''}")
+    if results is not None:
+        write_table(table, Path(results) / "_convergence.parquet")
+        print(f"verify: convergence check written to {Path(results) / '_convergence.parquet'}")
+    bad = table[(table["status_h"] != "success") | (table["status_h_half"] != "success")]
+    return 1 if len(bad) else 0
 
 
 def _verify_backends(results) -> int:

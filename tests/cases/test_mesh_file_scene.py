@@ -45,12 +45,21 @@ def test_a_scale_instead_of_a_unit(tmp_path):
     ('file = "missing.msh"\nunit = "mm"\nelement = "P1"', "mesh.file = 'missing.msh': mesh file .*missing.msh does "
                                                          "not exist"),
     ('file = "block.msh"\nbuilder = "liver"\nunit = "mm"\nelement = "P1"', "mesh.builder = 'liver': give either"),
-    ('file = "block.msh"\nunit = "mm"', "mesh.element: missing required key"),
+    ('file = "block.msh"\nunit = "mm"\nelement = "P3"', "mesh.element = 'P3'"),
 ])
 def test_mesh_file_mistakes_are_named(tmp_path, mesh, message):
     write_block(tmp_path)
     with pytest.raises(ValueError, match=message):
         load(scene_file(tmp_path, mesh=mesh))
+
+
+def test_the_element_may_be_left_out(tmp_path):
+    """Without [mesh] element a tetrahedral mesh gets P1 (issue 43: the reference may then choose a
+    formulation that does not lock), and the scene says the element was not given."""
+    write_block(tmp_path)
+    s = load(scene_file(tmp_path, mesh='file = "block.msh"\nunit = "mm"'))
+    assert s.element == "P1" and not s.element_given
+    assert load(scene_file(tmp_path)).element_given
 
 
 def test_a_unit_the_scene_cannot_convert_to(tmp_path):

@@ -115,6 +115,7 @@ BUILDER_PARAMS = {  # builder: ({parameter: checker}, required parameters)
     "cornea_dome": ({"radius": c_pos, "thickness": c_pos, "base_diameter": c_pos, "core_cells": _COUNT,
                      "ring_cells": _COUNT, "layers": _COUNT, "core_fraction": _fraction}, ()),
     "lv_ellipsoid": ({"endo": _vec(2, True), "epi": _vec(2, True), "z_base": c_num, "maxh": c_pos}, ()),
+    "half_ellipsoid": ({"semi_axes": _vec(3, True), "maxh": c_pos}, ()),
     "liver": ({"path": _mesh_file, "scale": c_pos, "maxh": c_pos, "grading": _grading, "fallback_maxh": c_pos,
                "allow_fallback": c_bool}, ()),
     "file": ({"path": _mesh_file, "scale": c_pos}, ("path",)),
@@ -137,6 +138,9 @@ def _estimated_cells(builder, p):
     if builder == "lv_ellipsoid":
         a, c = p.get("epi", [10.0, 20.0])
         return 6 * a * a * c / p.get("maxh", 2.0) ** 3
+    if builder == "half_ellipsoid":
+        a, b, c = p.get("semi_axes", [60.0, 60.0, 120.0])
+        return 6 * (2 * math.pi / 3) * a * b * c / p.get("maxh", 20.0) ** 3
     return None
 
 

@@ -12,6 +12,7 @@ Builders
 ``netgen_box``   unstructured netgen box
 ``cornea_dome``  structured hexahedral spherical-cap shell (O-grid disc mapped on the cap)
 ``lv_ellipsoid`` truncated thick-walled ellipsoid of Land et al. 2015 problem 2 (netgen CSG)
+``half_ellipsoid`` a dome (half ellipsoid on its flat base, netgen CSG): a nearly incompressible organ
 ``liver``        the SOFA liver shipped in tissuebench/data (VTU), any meshio volume mesh, an STL surface
                  tetrahedralised by netgen, or a built-in organ-like fallback shape
 ``file``         a user's volume mesh file (any meshio format), coordinates scaled: what a scene's
@@ -25,11 +26,11 @@ import numpy as np
 
 from ..refsolvers.mesh import Mesh
 from ..refsolvers.mesh import hex_corner_jacobians as corner_jacobians
-from .builders_organs import cornea_dome, liver, lv_ellipsoid, truncated_spheroid_volume
+from .builders_organs import cornea_dome, half_ellipsoid, liver, lv_ellipsoid, truncated_spheroid_volume
 from .builtmesh import BuiltMesh, LineMesh
 
 __all__ = ["BuiltMesh", "LineMesh", "BUILDERS", "build_mesh", "box", "netgen_box", "cornea_dome", "mesh_file",
-           "lv_ellipsoid", "truncated_spheroid_volume", "liver", "interval", "beam1d",
+           "lv_ellipsoid", "half_ellipsoid", "truncated_spheroid_volume", "liver", "interval", "beam1d",
            "hex_corner_jacobians"]
 
 
@@ -89,7 +90,7 @@ def mesh_file(path, scale: float = 1.0) -> BuiltMesh:
 
 
 BUILDERS = {"box": box, "netgen_box": netgen_box, "cornea_dome": cornea_dome, "lv_ellipsoid": lv_ellipsoid,
-            "liver": liver, "interval": interval, "beam1d": beam1d, "file": mesh_file}
+            "half_ellipsoid": half_ellipsoid, "liver": liver, "interval": interval, "beam1d": beam1d, "file": mesh_file}
 
 
 def mesh_sources(builder: str, params: dict) -> list:

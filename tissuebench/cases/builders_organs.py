@@ -159,6 +159,24 @@ def _lv_mesh(a0, c0, a1, c1, z_base, maxh) -> Mesh:  # meshes are immutable: saf
     return ngmesh_to_mesh(geo.GenerateMesh(maxh=maxh))
 
 
+def half_ellipsoid(semi_axes=(60.0, 60.0, 120.0), maxh=20.0) -> BuiltMesh:
+    """The half ellipsoid x^2/a^2 + y^2/b^2 + z^2/c^2 <= 1, z >= 0 (a dome on its flat base z = 0),
+    netgen CSG tetrahedra: the nearly incompressible organ of the locking indicator's tests and
+    of the ``extremes`` preset (``examples/nearly_incompressible_organ`` meshes it with gmsh)."""
+    a, b, c = (float(v) for v in semi_axes)
+    mesh = _half_ellipsoid_mesh(a, b, c, float(maxh))
+    return BuiltMesh(mesh, {"builder": "half_ellipsoid", "maxh": maxh, "volume_exact": 2 * math.pi * a * b * c / 3})
+
+
+@lru_cache(maxsize=8)
+def _half_ellipsoid_mesh(a, b, c, maxh) -> Mesh:  # meshes are immutable: safe to share
+    from netgen.csg import CSGeometry, Ellipsoid, Plane, Pnt, Vec
+
+    geo = CSGeometry()
+    geo.Add(Ellipsoid(Pnt(0, 0, 0), Vec(a, 0, 0), Vec(0, b, 0), Vec(0, 0, c)) * Plane(Pnt(0, 0, 0), Vec(0, 0, -1)))
+    return ngmesh_to_mesh(geo.GenerateMesh(maxh=maxh))
+
+
 # ----------------------------------------------------------------------------- liver
 def _tetrahedralise_stl(path: Path, maxh: float, grading: float) -> Mesh:
     from netgen.meshing import MeshingParameters

@@ -11,7 +11,9 @@ Schema (see the README of the catalogue, and any scene file, for examples)
                  model ("fe" default | "poisson1d" | "frame2dof" | "hermite_beam"), default_variant
                  (optional; without it the base scene is the default, whatever variants exist)
 ``[units]``      length (required), force, stress, mass, time (strings, documentation)
-``[mesh]``       builder (see :mod:`.builders`), element ("P1" | "P2" | "Q1"; FE only),
+``[mesh]``       builder (see :mod:`.builders`), element ("P1" | "P2" | "Q1"; FE only, optional: without
+                 it P1 on tetrahedra, where the reference may choose a formulation that does not
+                 lock, Q1 on hexahedra, P2 for the mixed formulation),
                  ``[mesh.params]`` shared builder parameters, ``[mesh.ci]`` and
                  ``[mesh.paper]`` per-resolution parameters (merged over params);
                  or a mesh file: ``file = "kidney.msh"`` (any meshio volume mesh of tetrahedra
@@ -86,7 +88,7 @@ from .regions import MeshGeometry, compile_region
 from .schema import (MODELS, c_name, key_text, c_any, c_bool, c_enum, c_int1, c_nonneg, c_num, c_numlist, c_nu,  # noqa: F401
                      c_pos, c_str, c_table, c_vec3, check_table, fail)
 from .sections import (INTEGRATOR_NAMES, LOAD_TYPES, MATERIAL_SCHEMAS, MODEL_SCHEMAS,  # noqa: F401
-                       check_analysis, check_dirichlet, check_load, check_material, check_model)
+                       check_analysis, check_dirichlet, check_formulation, check_load, check_material, check_model)
 from .variants import apply_variant
 
 __all__ = ["CATALOGUE_DIR", "Scene", "History", "load", "list_cases", "compile_region", "MODELS",
@@ -194,7 +196,20 @@ class Scene:
 
     @property
     def element(self) -> str | None:
-        return self.mesh_spec.get("element")
+        """The element: the scene's ``[mesh] element``, else P2 for the mixed formulation, Q1 on
+        hexahedra, P1 on tetrahedra (reading the cell type builds the mesh)."""
+        given = self.mesh_spec.get("element")
+        if given or not self.is_fe:
+            return given
+        if self.analysis.get("formulation") == "mixed":
+            return "P2"
+        return "Q1" if self.mesh.cell_type == "hexahedron" else "P1"
+
+    @property
+    def element_given(self) -> bool:
+        """True when the scene names its element (``[mesh] element``): then it gets that one,
+        even where it locks; otherwise the reference may choose a formulation that does not."""
+        return bool(self.mesh_spec.get("element"))
 
     @property
     def density(self) -> float | None:
@@ -370,7 +385,7 @@ def _resolve_path(name_or_path) -> Path:
 def _check_mesh_file(raw, model, path: Path, units: dict):
     """``[mesh] file = ...``: the file (relative to the scene file), its length unit or scale
     (stated, and converted to ``[units] length``), the element."""
-    mesh = check_table("mesh", raw, _MESH_FILE_SCHEMA, required=("file",) + (("element",) if model == "fe" else ()))
+    mesh = check_table("mesh", raw, _MESH_FILE_SCHEMA, required=("file",))
     if model != "fe":
         fail("mesh.file", mesh["file"], f"a {model} model builds its own 1D mesh (mesh.builder)")
     try:
@@ -408,8 +423,7 @@ def _check_mesh(raw, resolution, model, path: Path | None = None, units: dict | 
         if "builder" in raw:
             fail("mesh.builder", raw["builder"], "give either a builder or a file, not both")
         return _check_mesh_file(raw, model, path or Path("."), units or {})
-    mesh = check_table("mesh", raw, _MESH_SCHEMA,
-                       required=("builder",) + RESOLUTIONS + (("element",) if model == "fe" else ()))
+    mesh = check_table("mesh", raw, _MESH_SCHEMA, required=("builder",) + RESOLUTIONS)
     from .builders import BUILDERS
 
     if mesh["builder"] not in BUILDERS:
@@ -511,6 +525,8 @@ def load(name_or_path, resolution: str = "ci", variant: str | None = None) -> Sc
     dirichlet, loads, monitors = _check_entries(raw, model, path)
     analysis = check_analysis("analysis", raw["analysis"])
     _check_histories(loads, analysis)
+    if model == "fe":
+        check_formulation(mesh.get("element"), analysis, material)
     return Scene(name=case["name"], path=path, resolution=resolution, variant=variant, variants=all_variants,
                  case=case, units=units, mesh_spec=mesh, material=material, model_params=model_params,
                  dirichlet=dirichlet, loads=loads, analysis=analysis, monitors=monitors,

@@ -12,10 +12,13 @@ point force at the region's ``nearest`` point, spread on the nodes of its cell b
 functions, so the load moves continuously with the point), history.
 ``[analysis]``: type static (load_steps, max_load_factor, stop_at_divergence, max_cuts (halvings of
 an increment Newton does not converge before the run stalls; default: down to 1/4096 of the
-target), formulation:
-"displacement" (default) | "mixed": incompressible u-p Taylor-Hood P2-P1, J = 1 imposed by a
-pressure field, the material's volumetric penalty unused, see :mod:`tissuebench.refsolvers.mixed`)
-or dynamic (dt, t_end, integrator, integrator_options, lumped, dt_sweep).
+target), formulation (below), incompressible (mixed only: J = 1 imposed, the material's volumetric
+part unused; default false: the perturbed Lagrangian with the material's volumetric modulus)
+or dynamic (dt, t_end, integrator, integrator_options, lumped, dt_sweep, formulation).
+``formulation``: "displacement" | "anp" (linear tetrahedra with the volumetric energy averaged at
+the vertices, which do not lock, see :mod:`tissuebench.refsolvers.anp`) | "mixed" (static only:
+u-p Taylor-Hood P2-P1, see :mod:`tissuebench.refsolvers.mixed`); without it the reference chooses
+(:mod:`tissuebench.reference.formulation`).
 """
 from __future__ import annotations
 
@@ -28,7 +31,8 @@ from .schema import (COMPONENTS_1D, c_any, c_bool, c_enum, c_int_range, c_name, 
                      c_nu, c_pos, c_str, c_table, c_vec3, check_components, check_table, fail, is_num, require)
 
 __all__ = ["MATERIAL_SCHEMAS", "MODEL_SCHEMAS", "LOAD_TYPES", "INTEGRATOR_NAMES", "MAX_LOAD_STEPS", "MAX_TIME_STEPS",
-           "check_material", "check_model", "check_dirichlet", "check_load", "check_analysis"]
+           "VOLUMETRIC_MATERIALS", "check_material", "check_model", "check_dirichlet", "check_load", "check_analysis",
+           "check_formulation"]
 
 # bounds on the work a scene may ask for: a typo (dt = 1e-300, load_steps = 10**9) is refused
 # when the scene loads, naming the key, instead of exhausting the memory hours later
@@ -109,11 +113,14 @@ DYNAMIC_DOC = {
     "store_every": "keep every n-th step in the results", "note": "documentation",
 }
 _STATIC = {"type": c_str, "load_steps": c_int_range(1, MAX_LOAD_STEPS), "max_load_factor": c_pos,
-           "stop_at_divergence": c_bool, "formulation": c_enum("displacement", "mixed"),
-           "max_cuts": c_int_range(0, 20),
+           "stop_at_divergence": c_bool, "formulation": c_enum("displacement", "anp", "mixed"),
+           "incompressible": c_bool, "max_cuts": c_int_range(0, 20),
            "note": c_str}
 _DYNAMIC = {"type": c_str, "dt": c_pos, "t_end": c_pos, "integrator": c_str, "integrator_options": c_table,
-            "lumped": c_bool, "dt_sweep": c_numlist, "store_every": c_int_range(1, MAX_TIME_STEPS), "note": c_str}
+            "lumped": c_bool, "dt_sweep": c_numlist, "store_every": c_int_range(1, MAX_TIME_STEPS), "note": c_str,
+            "formulation": c_enum("displacement", "anp", "mixed")}
+#: materials with a volumetric part U(J) (the mixed formulation replaces it, ANP averages it)
+VOLUMETRIC_MATERIALS = ("neo_hookean", "neo_hookean_decoupled", "mooney_rivlin", "guccione")
 
 
 def check_material(path, m):
@@ -202,6 +209,33 @@ def check_analysis(path, a):
     if "integrator_options" in a:
         _check_integrator_options(f"{path}.integrator_options", a["integrator"], a["integrator_options"])
     return a
+
+
+def check_formulation(element, analysis, material):
+    """Refuse an ``analysis.formulation`` the element or material cannot have, naming both
+    (what ``scene check``, ``describe`` and ``run`` then all refuse alike)."""
+    form = analysis.get("formulation")
+    name = (material or {}).get("name")
+    if analysis.get("incompressible") and form != "mixed":
+        fail("analysis.incompressible", True, "only the mixed formulation imposes J = 1 (formulation = 'mixed')")
+    if form == "mixed":
+        if analysis.get("type") == "dynamic":
+            fail("analysis.formulation", form, "the mixed formulation is static only (its pressure field has no "
+                 "inertia); a dynamic scene without a formulation gets average nodal pressure tetrahedra where P1 "
+                 "locks")
+        if element not in (None, "P2"):
+            fail("analysis.formulation", form, f"the mixed formulation is Taylor-Hood P2-P1: mesh.element must be "
+                 f"'P2' (or left out), not {element!r}")
+        if name not in VOLUMETRIC_MATERIALS:
+            fail("analysis.formulation", form, f"material {name!r} has no volumetric part to replace by a pressure; "
+                 f"valid: {list(VOLUMETRIC_MATERIALS)}")
+    if form == "anp":
+        if element not in (None, "P1"):
+            fail("analysis.formulation", form, f"average nodal pressure is for linear tetrahedra: mesh.element must "
+                 f"be 'P1' (or left out), not {element!r}")
+        if name not in VOLUMETRIC_MATERIALS + ("linear",):
+            fail("analysis.formulation", form, f"material {name!r} has no volumetric part U(J) to average at the "
+                 f"vertices; valid: {list(VOLUMETRIC_MATERIALS + ('linear',))}")
 
 
 def _check_step_count(path, dt, t_end):

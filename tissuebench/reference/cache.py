@@ -41,6 +41,7 @@ import pandas as pd
 from .entry import FILES, EntryUnreadable, arrays_of, check_meta, read_files
 from .entry import meta_checksum as _meta_checksum  # the tests reseal entries with it
 from .location import CACHE_ENV, as_buffer, cache_url, open_cache
+from .formulation import formulation_of
 from .plan import ModelPlan
 from .provenance import code_hash, package_versions
 from .result import ReferenceResult
@@ -61,6 +62,9 @@ def reference_key(scene, backend: str = "skfem", linear_solver: str = "auto") ->
     """SHA-256 identifying the reference run of ``scene`` (module docstring)."""
     versions = package_versions()
     content = {"scene": scene.content(), "backend": backend if scene.is_fe else "line",
+               # the formulation the reference chose (:mod:`.formulation`): a scene without an element
+               # gets P1 or ANP by its locking indicator, and a run of one is no run of the other
+               "formulation": formulation_of(scene).name if scene.is_fe else None,
                "solver": {"linear_solver": linear_solver},
                "versions": {k: versions.get(k) for k in _PACKAGES},
                "code": code_hash("refsolvers", "cases", "reference")}
@@ -84,7 +88,7 @@ def _write(root, entry, result: ReferenceResult, scene, key: str) -> None:
                 "backend": result.backend, "mu": scene.mu, "status": result.status, "message": result.message,
                 "wall_s": result.wall_s, "cell_type": result.cell_type, "components": list(result.components),
                 "plan": {k: getattr(result.plan, k) for k in ("analysis", "model", "linear", "mass", "tangent",
-                                                              "algorithm", "reasons")},
+                                                              "algorithm", "reasons", "formulation")},
                 "info": result.info, "files": {f: {"sha256": hashlib.sha256(data[f]).hexdigest(),
                                                    "bytes": len(data[f])} for f in FILES}}
         meta = json.loads(json.dumps(meta, default=str))  # as it reads back

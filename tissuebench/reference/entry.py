@@ -70,7 +70,8 @@ def check_meta(root, entry) -> tuple[dict | None, str]:
         return None, f"meta.json status {str(meta.get('status'))[:40]!r} is not a reference status"
     plan = meta.get("plan")
     if not isinstance(plan, dict) or not isinstance(plan.get("reasons"), list) or not all(
-            isinstance(r, list) for r in plan["reasons"]):
+            isinstance(r, list) for r in plan["reasons"]) \
+            or plan.get("formulation", "displacement") not in ("displacement", "anp", "mixed"):
         return None, "meta.json plan is malformed"
     for k in ("case", "resolution", "backend", "cell_type"):
         if not isinstance(meta.get(k), str):

@@ -68,5 +68,6 @@ class Memo:
 
 
 #: the one memo of the reference layer: reference-step seconds per (scene, backend, samples),
-#: the last two dynamics systems, the cut references of the last strip, the anchors' solves
-MEMO = Memo({"reference_step": None, "dynamics_system": 2, "cut_references": 1, "anchors": None})
+#: the last two dynamics systems, the cut references of the last strip, the anchors' solves, the
+#: locking indicators of the last scenes (two linear solves each, asked by the plan and the check)
+MEMO = Memo({"reference_step": None, "dynamics_system": 2, "cut_references": 1, "anchors": None, "locking": 64})

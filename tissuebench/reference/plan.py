@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from .formulation import formulation_of
+
 __all__ = ["ModelPlan", "plan_for", "EXPLICIT_INTEGRATORS"]
 
 EXPLICIT_INTEGRATORS = ("central_difference", "forward_euler")
@@ -32,6 +34,8 @@ class ModelPlan:
     algorithm : str
         The solver that runs (``"newton_solve"``, ``"linear_static"``, ``"integrate:<name>"``).
     reasons : list of (item, reason)
+    formulation : {"displacement", "anp", "mixed"}
+        The finite-element formulation (:mod:`.formulation`).
     """
 
     analysis: str
@@ -41,6 +45,7 @@ class ModelPlan:
     tangent: str
     algorithm: str
     reasons: list = field(default_factory=list)
+    formulation: str = "displacement"
 
     def lines(self) -> list[str]:
         return [f"- {item}: {why}" for item, why in self.reasons]
@@ -57,7 +62,7 @@ def _nonlinear_causes(scene) -> list[str]:
     return causes
 
 
-def _static(scene, causes, reasons):
+def _static(scene, causes, reasons, formulation="displacement"):
     reasons.append(("no mass matrix", "static analysis: inertia plays no part"
                     + (" (the density in [material] is not used)" if scene.density else "")))
     a = scene.analysis
@@ -68,10 +73,7 @@ def _static(scene, causes, reasons):
     reasons.append(("Newton-Raphson with load stepping", "; ".join(causes)
                     + f": K_t assembled every iteration, {a.get('load_steps', 1)} initial increments "
                       f"up to load factor {a.get('max_load_factor', 1.0):g}, step cutting on failure"))
-    if a.get("formulation") == "mixed":
-        reasons.append(("mixed u-p formulation (Taylor-Hood P2-P1)", "analysis.formulation = 'mixed': "
-                        "incompressible, J = 1 imposed by a pressure field; the material's volumetric "
-                        "penalty is not used"))
+    if formulation == "mixed":
         return dict(linear=False, mass=None, tangent="per_iteration", algorithm="newton_solve:mixed")
     if a.get("stop_at_divergence"):
         reasons.append(("run until Newton stops converging", "the last converged load factor is "
@@ -108,14 +110,19 @@ def plan_for(scene) -> ModelPlan:
     """The :class:`ModelPlan` of a validated scene."""
     analysis = scene.analysis["type"]
     reasons = []
+    name = "displacement"
     if scene.is_fe:
+        form = formulation_of(scene)
+        name = form.name
         causes = _nonlinear_causes(scene)
-        reasons.append(("finite elements", f"{scene.element} on {scene.mesh_label}, "
-                        f"material {scene.material['name']}"))
+        reasons.append(("finite elements", f"{form.element} on {scene.mesh_label}, material {scene.material['name']}"))
+        reasons.append((f"formulation: {form.label}", form.reason))
+        if form.warning:
+            reasons.append(("locking", form.warning))
     else:
         causes = []
         reasons.append((f"1D model {scene.model}", "linear discrete model: assembled once"))
-    kw = _static(scene, causes, reasons) if analysis == "static" else _dynamic(scene, causes, reasons)
+    kw = _static(scene, causes, reasons, name) if analysis == "static" else _dynamic(scene, causes, reasons)
     if not scene.is_fe and analysis == "static":
         kw.update(mass=None)
-    return ModelPlan(analysis=analysis, model=scene.model, reasons=reasons, **kw)
+    return ModelPlan(analysis=analysis, model=scene.model, reasons=reasons, formulation=name, **kw)

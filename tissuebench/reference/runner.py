@@ -15,11 +15,11 @@ import numpy as np
 import pandas as pd
 
 from ..cases.scene import Scene, load
-from ..refsolvers.backends import make_backend
 from ..refsolvers.dynamics import SecondOrderSystem, integrate
 from ..refsolvers.mixed import static_run
 from ..refsolvers.sparse_direct import factorized
 from ..refsolvers.newton import NewtonOptions, newton_solve
+from .formulation import formulation_of, scene_backend
 from .line import line_dynamics_system, solve_line
 from .plan import plan_for
 from .result import ReferenceResult, dynamics_output
@@ -58,11 +58,12 @@ def solve(case, backend: str = "skfem", resolution: str = "ci", variant: str | N
         backend_name = "line"
     else:
         pb = scene.to_problem()
-        be = make_backend(backend, pb)
+        be = scene_backend(scene, backend, pb)
         backend_name = backend if isinstance(backend, str) else backend.__name__
         runner = _static if plan.analysis == "static" else _dynamic
         out = runner(scene, plan, be, progress, linear_solver)
         out["problem"] = pb
+        out["info"] = {**formulation_of(scene).manifest(), **out.get("info", {})}
     out["table"].insert(0, "backend", backend_name)
     out["table"].insert(0, "case", scene.name)
     info = {"mesh": scene.mesh_info, "stop_at_divergence": bool(scene.analysis.get("stop_at_divergence")),
@@ -128,7 +129,8 @@ def _mixed_static(scene, be, n_steps, target, progress):
     pb = be.problem
     return static_run(pb, be, n_steps, target, lambda u, f: scene.evaluate_monitors(pb, u, f),
                       needs_force=any(m["quantity"] in ("reaction_force", "nominal_stress", "moment")
-                                      for m in scene.monitors), progress=progress)
+                                      for m in scene.monitors), progress=progress,
+                      bulk_modulus=formulation_of(scene).bulk_modulus)
 
 
 def _linear_static(be, n_steps, target, monitors, progress):
@@ -193,7 +195,7 @@ def dynamics_system(scene, backend="skfem") -> SecondOrderSystem:
     plan = plan_for(scene)
     if not scene.is_fe:
         return line_dynamics_system(scene, plan)
-    be = make_backend(backend, scene.to_problem()) if isinstance(backend, str) else backend
+    be = scene_backend(scene, backend) if isinstance(backend, str) else backend
     return SecondOrderSystem.from_backend(be, scene.history, lumped=plan.mass == "lumped", linear=plan.linear)
 
 

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from ..refsolvers.backends import make_backend
+from .formulation import scene_backend
 from ..refsolvers.dynamics import integrate
 from ..refsolvers.line_models import assemble_line_model
 from ..refsolvers.linear_solvers import DirectSolver
@@ -41,7 +41,7 @@ def _reference_step(ref, scene, backend, samples) -> float:
         lu = DirectSolver().factorize(K)
         f = system.load_vector(1.0)[system.free]
         return _median_of(lambda: lu.solve(f), samples)
-    be = make_backend(backend, ref.problem)
+    be = scene_backend(scene, backend, ref.problem)
     if ref.plan.linear:
         free = ref.problem.free_dofs
         lu = DirectSolver().factorize(be.tangent(np.zeros(be.ndof))[free][:, free])

@@ -39,8 +39,9 @@ from .paper import paper_rows
 from .plotly_figures import error_figure, pareto_figure
 from .recommend import LATENCY_STATISTIC, parse_requirement
 from .report_data import load_results
-from .report_sections import (Table, anchors_table, backends_table, calibration, extremes_table_view, offline_table,
-                       paper_table, provenance_rows, radius_table, ranking_table, recommendation, scene_info, scene_of)
+from .report_sections import (Table, anchors_table, backends_table, calibration, convergence_table,
+                              extremes_table_view, offline_table, paper_table, provenance_rows, radius_table,
+                              ranking_table, recommendation, scene_info, scene_of)
 
 __all__ = ["write_report", "TEMPLATES", "DEFAULT_NAME"]
 
@@ -263,6 +264,9 @@ def write_report(results_dir, out_html, require: str | None = None, case: str | 
     backends = backends_table("backends", data.backends) if data.backends is not None else None
     if backends is not None:
         tables.append(backends)
+    convergence = convergence_table("convergence", data.convergence) if data.convergence is not None else None
+    if convergence is not None:
+        tables.append(convergence)
     ladder = ladder_section(data, Table)
     tables += ladder["tables"] if ladder else []
     scaling = scaling_section(data, Table)  # cost versus size (studies/scaling.py)
@@ -272,6 +276,7 @@ def write_report(results_dir, out_html, require: str | None = None, case: str | 
                "data_folder": f"{out_html.stem}_data", "requirement": requirement, "require_text": requirement.text,
                "error_metric": data.error_metric, "latency_statistic": LATENCY_STATISTIC, "sections": sections,
                "papers": papers, "ladder": ladder, "scaling": scaling, "anchors": anchors, "backends": backends,
+               "convergence": convergence, "convergence_how": _convergence_how(data.convergence),
                "calibration": calibration(data.units),
                "provenance": provenance_rows(data.manifest, data.units),
                "spec_text": data.manifest.get("spec_text", ""),
@@ -282,6 +287,13 @@ def write_report(results_dir, out_html, require: str | None = None, case: str | 
     page = _environment().get_template("report.html.j2").render(**context)
     _write(out_html, page, tables)
     return out_html
+
+
+def _convergence_how(conv) -> str:
+    """What the convergence check solved (its ``how`` column, the formulation and why)."""
+    if conv is None or "how" not in conv or not len(conv):
+        return ""
+    return "; ".join(dict.fromkeys(str(h) for h in conv["how"]))
 
 
 def _description(manifest: dict) -> str:

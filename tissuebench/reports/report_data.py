@@ -38,6 +38,7 @@ class ReportData:
     anchors: pd.DataFrame | None
     notes: list = field(default_factory=list)
     backends: pd.DataFrame | None = None  # _backends.parquet of `tissuebench verify RESULTS`
+    convergence: pd.DataFrame | None = None  # _convergence.parquet: the reference at h and h/2
 
     @property
     def cases(self) -> list:
@@ -122,8 +123,11 @@ def load_results(results_dir, case: str | None = None) -> ReportData:
         backends = backends[backends["case"].astype(str).isin(set(units["case"]))].reset_index(drop=True)
     points, outputs = read_points(root, foreign), read_outputs(root, foreign)
     _foreign_notes(foreign, notes)
+    path = root / "_convergence.parquet"
+    convergence = _side_table(path, notes, ("case", "quantity", "h", "h_half", "rel_diff")) if path.is_file() else None
     return ReportData(root, units, _select(points, keys), _select(outputs, keys),
-                      _select(pareto, keys), _select(radius, keys), manifest, metric, anchors, notes, backends)
+                      _select(pareto, keys), _select(radius, keys), manifest, metric, anchors, notes, backends,
+                      convergence)
 
 
 _DERIVED_COLUMNS = {"pareto.parquet": ["case", "method", "label", "options", "unit_key", "pareto", "error",

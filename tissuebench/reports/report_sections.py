@@ -15,7 +15,7 @@ from .format import hz, nbytes, number, percent, seconds
 from .recommend import rank_units
 
 __all__ = ["Table", "scene_of", "scene_info", "recommendation", "ranking_table", "extremes_table_view",
-           "offline_table", "radius_table", "paper_table", "anchors_table", "backends_table",
+           "offline_table", "radius_table", "paper_table", "anchors_table", "backends_table", "convergence_table",
            "provenance_rows", "calibration", "plugin_methods"]
 
 
@@ -188,6 +188,19 @@ def backends_table(name: str, agreement: pd.DataFrame) -> dict:
     cols = ["case", "scene", "dofs", "status skfem / ngsolve", "final field: relative L2 difference",
             "monitor: skfem / ngsolve (largest relative difference)", f"verdict (agree within {RTOL:g})", "how"]
     return Table(name, cols, rows, agreement)
+
+
+def convergence_table(name: str, conv: pd.DataFrame) -> dict:
+    """The reference's h/2 check (``_convergence.parquet``): one row per monitored quantity."""
+    def col(r, k, default="-"):
+        return getattr(r, k, default)
+
+    rows = [[str(r.case), str(col(r, "formulation")), str(r.quantity), number(r.h), number(r.h_half),
+             number(r.rel_diff, 2), f"{col(r, 'dofs_h')} / {col(r, 'dofs_h_half')}",
+             f"{col(r, 'status_h')} / {col(r, 'status_h_half')}"] for r in conv.itertuples()]
+    cols = ["case", "formulation", "quantity", "at h", "at h/2", "relative difference", "dofs h / h/2",
+            "status h / h/2"]
+    return Table(name, cols, rows, conv)
 
 
 def provenance_rows(manifest: dict, units: pd.DataFrame) -> list:

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..cases.monitors import resolve_monitors
 from ..cases.scene import LENGTH_UNITS
+from ..reference.formulation import formulation_of
 from ..refsolvers.backends import make_backend
 from ..refsolvers.dynamics import SecondOrderSystem, critical_time_step
 
@@ -68,6 +69,7 @@ def scene_summary(scene, backend: str = "skfem") -> dict:
     pb = scene.to_problem()  # the problem's checks: node sets, shared dofs, rigid-body modes
     resolve_monitors(scene, pb)  # a monitor point off the body: the run's refusal, before it
     be = make_backend(backend, pb)
+    form = formulation_of(scene, backend)
     nodes = pb.nodes
     clamps = []
     for d, entry in zip(pb.dirichlet, scene.dirichlet):
@@ -87,6 +89,8 @@ def scene_summary(scene, backend: str = "skfem") -> dict:
             "material": {"name": scene.material["name"], **small_strain(scene.material)},
             "density": scene.density, "analysis": scene.analysis["type"],
             "dt_critical": _critical_time_step(scene, be), "load_nodes": loaded, "load_vectors": f[loaded],
+            "formulation": form.label, "formulation_reason": form.reason, "locking_warning": form.warning,
+            "locking_indicator": form.indicator or {},
             "fixed": np.unique(pb.fixed_dofs // 3)}
 
 
@@ -123,4 +127,8 @@ def summary_lines(s: dict, units: dict) -> list[str]:
     else:
         lines.append("  no density: no critical time step (a static scene needs none)")
     lines.append(f"  analysis: {s['analysis']}")
+    if s.get("formulation"):
+        lines.append(f"  formulation: {s['formulation']}: {s['formulation_reason']}")
+    if s.get("locking_warning"):
+        lines.append(f"  {s['locking_warning']}")
     return lines

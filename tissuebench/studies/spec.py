@@ -173,6 +173,10 @@ def _check_case(i, c, resolution, default_resolution, folder: Path | None = None
         # a scene file named relative to the spec's folder (a spec written by sweep --scene) is that
         # one, whatever lies at the same relative path from the working folder
         name = str((folder / name).resolve())
+    elif isinstance(name, str) and name not in list_cases() and not Path(name).is_absolute() \
+            and not _is_file(name) and _is_file(str(PRESETS_DIR / name)):
+        # a scene shipped with the presets (presets/scenes/), also from a copy of a preset elsewhere
+        name = str((PRESETS_DIR / name).resolve())
     if not isinstance(name, str) or (name not in list_cases() and not _is_file(name)):
         _fail(f"{path}.name", name, f"unknown case; valid: {list_cases()}")
     backend = c.get("backend", "skfem")

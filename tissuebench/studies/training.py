@@ -31,7 +31,7 @@ import numpy as np
 
 from ..cases import load
 from ..cases.monitors import linear_outputs
-from ..refsolvers.backends import make_backend
+from ..reference.formulation import scene_backend
 from ..refsolvers.line_models import assemble_line_model
 from ..rom import Training
 from .kinds import Kind, no_references, the_scene
@@ -96,7 +96,7 @@ def _path(scene, case, spec, info):
     lams = np.asarray(ref.steps, float)
     keep = training_indices(len(lams), spec.get("every", 1))
     keep = np.tile(keep, int(spec.get("repeat", 1)))  # a duplicated snapshot set (extremes)
-    be = make_backend(case.backend, ref.problem)
+    be = scene_backend(scene, case.backend, ref.problem)
     return Training(U[:, keep], [{"load_factor": float(lams[k])} for k in keep], be,
                     outputs=_outputs(scene, ref.problem), info={**info, "reference_status": ref.status})
 
@@ -144,7 +144,7 @@ def _positions(scene, case, spec, info):
             failed.append(f"position {s:g}: {ref.message}")
             continue
         U, lams = reference_states(ref)
-        be = make_backend(case.backend, ref.problem)
+        be = scene_backend(scene, case.backend, ref.problem)
         groups[float(s)] = Training(U, [{"load_factor": float(x)} for x in lams], be)
         cols.append(U)
         params += [{"position": float(s), "load_factor": float(x)} for x in lams]
@@ -173,7 +173,7 @@ def _trajectory(scene, case, spec, info):
         params += [{"time": float(t), "load_factor": float(hist(t))} for t in ref.steps]
         ids += [k] * n
     system = dynamics_system(scene, case.backend)
-    backend = make_backend(case.backend, scene.to_problem()) if scene.is_fe else None
+    backend = scene_backend(scene, case.backend) if scene.is_fe else None
     return Training(np.hstack(cols), params, backend, free_dofs=np.asarray(system.free),
                     velocities=np.hstack(vels), trajectories=np.array(ids), system=system,
                     history=scene.history, dt=float(scene.analysis["dt"]),
@@ -183,7 +183,7 @@ def _trajectory(scene, case, spec, info):
 def _operators(scene, case, spec, info):
     if scene.is_fe:
         pb = scene.to_problem()
-        return Training(backend=make_backend(case.backend, pb), outputs=_outputs(scene, pb), info=info)
+        return Training(backend=scene_backend(scene, case.backend, pb), outputs=_outputs(scene, pb), info=info)
     if scene.analysis["type"] == "dynamic":
         return Training(system=dynamics_system(scene), info=info)
     return Training(system=assemble_line_model(scene.line_model()), info=info)

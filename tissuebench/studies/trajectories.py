@@ -18,10 +18,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..cases import load as load_scene
-from ..refsolvers import make_backend
 from ..refsolvers.dynamics import SecondOrderSystem, integrate
 from ..refsolvers.line_models import assemble_line_model
 from ..reference.line import line_monitor_fn
+from ..reference.formulation import scene_backend
 from ..reference.plan import plan_for
 from ..rom.base import Training
 
@@ -61,7 +61,7 @@ def scene_system(case, resolution: str = "ci", variant: str | None = None, backe
         raise ValueError(f"{scene.name}: not a dynamic scene (analysis {plan.analysis!r})")
     if scene.is_fe:
         pb = scene.to_problem()
-        be = make_backend(backend, pb)
+        be = scene_backend(scene, backend, pb)
         system = SecondOrderSystem.from_backend(be, scene.history, lumped=plan.mass == "lumped",
                                                 linear=plan.linear)
         return SceneSystem(scene, system, scene.history, be, lambda u: scene.evaluate_monitors(pb, u), 3)

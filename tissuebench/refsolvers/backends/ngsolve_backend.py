@@ -46,7 +46,7 @@ from ..problem import BodyForce, FollowerPressure, SurfaceTraction
 from ..quadrature import default_order, facet_rule, mass_order, volume_rule
 from ..solver_base import idle_core
 from ..sparse_direct import NgsolveSparseSolver
-from .base import Backend, check_cells
+from .base import Backend, check_cells, lump_mass
 
 TET_TO_NG = np.array([1, 0, 2, 3])  # netgen vertex k of a tet = VTK vertex TET_TO_NG[k]
 _VOL_ET = {"tetra": ngs.ET.TET, "hexahedron": ngs.ET.HEX}
@@ -495,9 +495,7 @@ class NgsolveBackend(Backend):
         return _CsrTransfer(self._Tcols, self._Tvals)(a.Assemble().mat)
 
     def mass(self, lumped=False):
-        if lumped:
-            return sp.diags(np.asarray(self._mass.sum(axis=1)).ravel(), format="csr")
-        return self._mass.copy()
+        return lump_mass(self._mass, self.problem.element) if lumped else self._mass.copy()
 
     def make_linear_solver(self, name="auto", **options):
         """``"direct"`` and ``"auto"``: NGSolve's sparse Cholesky/UMFPACK (:class:`NgsolveSparseSolver`,

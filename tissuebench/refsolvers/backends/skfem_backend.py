@@ -17,7 +17,7 @@ from ..materials import Material
 from ..mesh import facet_nodes
 from ..quadrature import default_order, facet_rule, mass_order, volume_rule
 from ..problem import BodyForce, FollowerPressure, SurfaceTraction
-from .base import Backend, CellKernel, check_cells, material_on_cells
+from .base import Backend, CellKernel, check_cells, lump_mass, material_on_cells
 
 # skfem's local vertex order of MeshHex1 expressed in VTK hexahedron order
 _VTK_TO_SKFEM_HEX = [0, 4, 3, 1, 7, 5, 2, 6]
@@ -247,9 +247,7 @@ class SkfemBackend(Backend):
         Me = self.problem.density * np.einsum("eq,eqa,eqb->eab", k.dx, k.value, k.value)
         Me = np.einsum("eab,ik->eaibk", Me, np.eye(3)).reshape(len(Me), k.dofs.shape[1], -1)
         M = self.pattern.assemble(Me)
-        if lumped:
-            return sp.diags(np.asarray(M.sum(axis=1)).ravel()).tocsr()
-        return M
+        return lump_mass(M, self.problem.element) if lumped else M
 
     # ------------------------------------------------------------------ loads
     def _volume_load(self):

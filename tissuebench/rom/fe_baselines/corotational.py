@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...reference.formulation import formulation_of
 from ...refsolvers.backends import make_backend
 from ...refsolvers.corotational import Corotational, small_strain_moduli
 from ..base import Applies, RomMethod, Training, register
@@ -74,6 +75,15 @@ class CorotationalFe(RomMethod):
         newton_options(self.name, rtol, max_iterations, min_increment, linear_solver, 0)  # checks the values
         self.rtol, self.max_iterations, self.min_increment = rtol, max_iterations, min_increment
         self.linear_solver, self.integrator = linear_solver, integrator
+
+    @classmethod
+    def note(cls, scene) -> str:
+        """Where the reference does not lock (average nodal pressure tetrahedra), corotated P1 does:
+        what a practitioner's corotational tetrahedra give, stated before any work."""
+        if getattr(scene, "is_fe", False) and formulation_of(scene).name == "anp":
+            return ("corotated linear tetrahedra without nodal averaging: they lock where the reference (average "
+                    "nodal pressure) does not, as a practitioner's corotational P1 would")
+        return super().note(scene)
 
     def build(self, training: Training):
         scene = scene_of(training, self.name)

@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 
+from ...reference.formulation import formulation_of
 from ..base import Applies, RomMethod, Training, check_choice, register
 from .cubature import bgbc_cubature, cell_centroids, full_cubature, rbf_cubature
 from .handles import furthest_point_sampling, resolve_count
@@ -96,6 +97,18 @@ class Wsc(RomMethod):
     nested = ()
     training_kinds = ("operators", "trajectory")
     applies = Applies()  # the default, declared: any finite-element scene
+
+    @classmethod
+    def why_not(cls, scene, options=None) -> str:
+        """Besides :attr:`applies`: the cubature samples cell energies and forces, which the average
+        nodal pressure formulation of a nearly incompressible scene's reference does not have."""
+        why = super().why_not(scene, options)
+        if why or not getattr(scene, "is_fe", False):
+            return why
+        if formulation_of(scene).name == "anp":
+            return ("the reference uses average nodal pressure tetrahedra (nearly incompressible: P1 locks), whose "
+                    "energy does not split into cell energies for the cubature to sample")
+        return ""
 
     def __init__(self, handles=0.03, support=2.0, cubature="bgbc", cubature_elements=0.0625,
                  cubature_support=2.0, nnls_tol=0.05, integrator="backward_euler", alpha=-0.05,
