@@ -55,6 +55,10 @@ class _ParametricModel(OnlineModel):
     def envelope(self) -> dict:
         return {k: (float(a), float(b)) for k, a, b in zip(self.keys, self._lo, self._hi)}
 
+    def step_parameters(self) -> tuple:
+        """The keys of the training's parameters: the step looks them all up."""
+        return tuple(self.keys) + super().step_parameters()
+
     def _scaled(self, mu):
         """(scaled parameters (d,), inside the envelope, the parameters read): one float per key,
         no copy of ``mu`` (:func:`~.online.parameter`)."""
