@@ -273,10 +273,11 @@ class Scene:
             raise ValueError(f"{self.name}: a finite-element scene; use to_problem()")
         return assembly.line_model(self)
 
-    def evaluate_monitors(self, problem, u, f_int=None) -> dict:
+    def evaluate_monitors(self, problem, u, reactions=None) -> dict:
         """Values of the ``[[monitor]]`` quantities for displacement ``u`` (full dof vector)
-        of ``problem`` (from :meth:`to_problem`); reactions need the internal force ``f_int``."""
-        return evaluate_monitors(self, problem, u, f_int)
+        of ``problem`` (from :meth:`to_problem`); the reaction monitors need ``reactions``, the
+        (n_dof,) forces of the supports (``problem.support_reactions(f_int, f_ext)``)."""
+        return evaluate_monitors(self, problem, u, reactions)
 
 
 # =============================================================================== loading
