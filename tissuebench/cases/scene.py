@@ -43,7 +43,8 @@ Schema (see the README of the catalogue, and any scene file, for examples)
 ``[parameters]`` parameters a study may evaluate the scene at (``position``: a point load
                  moved along a line), see :mod:`.parameters` and :meth:`Scene.at`
 ``[variants.X]`` overrides: material/model/analysis/mesh replace, dirichlet/load/monitor
-                 append, paper/case/parameters merge
+                 append, paper/case/parameters merge; ``histories = { <load name> = {history} }``
+                 replaces the history of the named loads (a dynamic variant of a static scene)
 
 Regions (node selectors evaluated on coordinates; exactly one primary key):
 ``plane = "x"`` + value [+ tol]; ``box = [[lo], [hi]]``; ``nearest = [x, y, z]`` [+ count];
@@ -53,7 +54,9 @@ Regions (node selectors evaluated on coordinates; exactly one primary key):
 
 Histories (load factor versus time, or pseudo-time = load factor in statics):
 constant; ramp (t0, t1); step (t0); sine (amplitude, frequency, phase);
-ramp_hold_release (t_ramp, t_hold, t_release); tabulated (t, values).
+ramp_hold_release (t_ramp, t_hold, t_release); tabulated (t, values). Every load of a scene
+follows the same one (one load factor drives them all): loads with different histories are
+refused when the scene loads.
 
 The validation of each part lives in :mod:`.schema` (primitives), :mod:`.regions`,
 :mod:`.histories`, :mod:`.monitors` and :mod:`.sections`; :mod:`.assembly` turns a
@@ -78,7 +81,7 @@ from . import assembly
 from .assembly import LineModel
 from .builder_params import MeshFileNotFound, check_builder_params
 from .cutting import check_cut
-from .histories import DEFAULT_HISTORY, History
+from .histories import History, shared_history
 from .monitors import check_monitor, evaluate_monitors
 from .parameters import apply_mu, check_parameters_table
 from .regions import MeshGeometry, compile_region
@@ -133,6 +136,7 @@ class Scene:
         """This scene with ``loads`` (validated as in a scene file) and other non-mesh ``fields``
         replaced, ``mu`` recorded (it enters :meth:`content_hash`). The mesh is shared, not rebuilt."""
         loads = [check_load(f"load[{i}]", ld, self.model) for i, ld in enumerate(loads)]
+        shared_history(loads)
         new = dataclasses.replace(self, mu={**self.mu, **dict(mu)}, loads=loads, **fields)
         if "built" in self.__dict__:  # cached_property: reuse the mesh already built
             new.__dict__["built"] = self.__dict__["built"]
@@ -236,16 +240,9 @@ class Scene:
 
     @property
     def history(self) -> History:
-        """The load history shared by all loads (and the scaled Dirichlet values)."""
-        specs = [ld["history"] for ld in self.loads]
-        if not specs:
-            return History(dict(DEFAULT_HISTORY))
-        if any(s != specs[0] for s in specs):
-            raise ValueError(f"{self.name}: loads have different histories; use load_histories()")
-        return History(specs[0])
-
-    def load_histories(self) -> list[History]:
-        return [History(ld["history"]) for ld in self.loads]
+        """The load history shared by all loads (and the scaled Dirichlet values): one per scene,
+        checked when it loads (:func:`~.histories.shared_history`)."""
+        return History(shared_history(self.loads))
 
     # ------------------------------------------------------------------ models
     def make_material(self):
@@ -461,6 +458,7 @@ def load(name_or_path, resolution: str = "ci", variant: str | None = None) -> Sc
     else:
         model_params = check_model("model", _require_table(raw, "model", path), model)
     dirichlet, loads, monitors = _check_entries(raw, model, path)
+    shared_history(loads)  # refused here, so that every command refuses it alike
     analysis = check_analysis("analysis", raw["analysis"])
     return Scene(name=case["name"], path=path, resolution=resolution, variant=variant, variants=all_variants,
                  case=case, units=units, mesh_spec=mesh, material=material, model_params=model_params,
