@@ -110,6 +110,7 @@ class _NearestModel(_ParametricModel):
         self._S = S
         self._D = np.empty_like(self._X)  # squared differences to the stored parameters
         self._d2 = np.empty(len(self._X))
+        self._ones = np.ones(self._X.shape[1])  # their row sums as one matrix-vector product
 
     @property
     def n_reduced(self) -> int:
@@ -117,12 +118,13 @@ class _NearestModel(_ParametricModel):
 
     def _nearest(self, x) -> int:
         """Index of the stored parameters nearest to ``x``: ``argmin sum((X - x)^2)`` on
-        preallocated arrays (the first of equals, as ``np.argmin``)."""
+        preallocated arrays (the first of equals, as ``np.argmin``); the row sums as a product with
+        ones (half the time of ``np.sum(axis=1)`` at these sizes)."""
         D = np.subtract(self._X, x, out=self._D)
         np.square(D, out=D)
         if D.shape[1] == 1:
             return int(D[:, 0].argmin())
-        return int(np.sum(D, axis=1, out=self._d2).argmin())
+        return int(np.dot(D, self._ones, out=self._d2).argmin())
 
     def step(self, mu) -> StepResult:
         x, inside = self._scaled(mu)
