@@ -79,3 +79,11 @@ def test_a_trajectory_model_reads_the_time_a_static_one_does_not():
     static = _model("pod_linear", {"n_modes": 3}, "path")
     with pytest.raises(ValueError, match=r"mu\['time'\]"):
         static.step({"time": 0.1, "load_factor": 0.3})
+
+
+def test_a_first_step_that_raises_leaves_the_next_one_checked():
+    model = _model("pod_linear", {"n_modes": 3}, "path")
+    with pytest.raises(ValueError, match="is not a finite number"):
+        model.step({"load_factor": float("nan")})
+    with pytest.raises(ValueError, match=r"mu\['E'\]"):
+        model.step({"load_factor": 0.3, "E": 6000.0})

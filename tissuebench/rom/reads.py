@@ -109,7 +109,11 @@ class _FirstStep:
             object.__delattr__(model, "step")
         else:
             object.__setattr__(model, "step", self.own)
-        return model.step(mu)
+        try:
+            return model.step(mu)
+        except BaseException:
+            arm(model)  # a first step that raised (a NaN, a missing key) leaves the next one checked
+            raise
 
 
 def arm(model, mu0=None) -> None:
