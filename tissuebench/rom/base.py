@@ -24,7 +24,8 @@ PGD, skinning-cubature, direct time integrators, baselines), so the sweep harnes
 
 A step reads the parameters its method declares (:meth:`RomMethod.reads`, ``Applies.parameters``)
 and those of :meth:`OnlineModel.step_parameters`; a ``mu`` with any other key (``E``, ``nu``,
-``load_scale``, a misspelt one) is refused at ``start(mu0)`` and at the first step of a run,
+``load_scale``, a misspelt one) is refused at ``start(mu0)`` and at the first step after the
+build or a ``start`` given no ``mu0``,
 naming the key, the method and the keys it reads (:mod:`.reads`: installed here for every
 method, checked once per run, nothing added to later steps).
 
@@ -296,8 +297,8 @@ class OnlineModel(ABC):
         """Size of the reduced state ``q``."""
 
     def __init_subclass__(cls, **kwargs):
-        # every model refuses a parameter it does not read (:mod:`.reads`): a start checks mu0 and
-        # the run's first step, a sliced variant reads what its parent reads
+        # every model refuses a parameter it does not read (:mod:`.reads`): a start checks mu0 (or,
+        # given none, the run's first step), a sliced variant reads what its parent reads
         super().__init_subclass__(**kwargs)
         for name, wrap in (("start", _checking_start), ("variant", _inheriting_variant)):
             own = cls.__dict__.get(name)
@@ -310,8 +311,8 @@ class OnlineModel(ABC):
         ``state0`` (``{"u": (n_dof,), "v": (n_dof,)}``, default rest) and prepares for ``dt``.
 
         Statics: nothing. Not timed by the latency protocol. Every model's ``start`` (this one
-        or an override) refuses a ``mu0`` holding a parameter the model does not read, and has
-        the run's first step checked so (:mod:`.reads`).
+        or an override) refuses a ``mu0`` holding a parameter the model does not read; given no
+        ``mu0``, it has the run's first step checked so (:mod:`.reads`).
         """
         reads.arm(self, mu0)
 

@@ -17,12 +17,15 @@ its own for it):
   ``cut_length``, the keys of a baseline's training parameters). A model sliced by ``variant``
   inherits its parent's (:func:`inherit`).
 * ``start(mu0)`` refuses a ``mu0`` holding another key, and so does the first step after the
-  build or after a ``start``: a ValueError naming the key, the method and the keys it reads
-  (:func:`refuse_unread`).
+  build or after a ``start`` given no ``mu0``: a ValueError naming the key, the method and the
+  keys it reads (:func:`refuse_unread`).
 
-Only the first step of a run is checked: the check is an instance attribute ``step`` that puts
-the model's own step back before it steps, so every later step is the class's, with nothing
-added to the haptic path (a step is timed in microseconds). The attributes are set and deleted
+No later step is checked: the check of a step is an instance attribute ``step`` that puts the
+model's own step back before it steps, so every later step is the class's, with nothing added
+to the haptic path (a step is timed in microseconds). A run that announces its parameters
+(``start(mu0)``, as the harness always does) is checked at its start and leaves its steps
+alone: the latency protocol restarts its sequence untimed between timed passes, and a checked
+first step of every pass would be timed. The attributes are set and deleted
 as attributes, never through the instance's ``__dict__``, which would make CPython trade its
 inline attribute values for a dict and every attribute read of a step slower.
 """
@@ -117,11 +120,12 @@ class _FirstStep:
 
 
 def arm(model, mu0=None) -> None:
-    """Refuse ``mu0`` (when given) holding a key ``model`` does not read, and check its next step."""
+    """Refuse ``mu0`` holding a key ``model`` does not read; without ``mu0``, check its next step."""
     if getattr(model, _DECLARED, None) is None:
         return
     if mu0 is not None:
         refuse_unread(model, mu0, "start")
+        return
     own = model.step
     if isinstance(own, _FirstStep):
         return

@@ -9,9 +9,10 @@ trajectory (the practitioner baselines returned the training's load history at l
 0.75 with status ok until the ci gate saw it).
 
 The same holds through the Python API (issue 44: ``model.step({"load_factor": 0.3, "E": 6000})``
-returned the state at 0.3, status ok): the model built on the base case is started and given, at
-its first step, the base step's parameters plus one more, a misspelt key or a scene parameter
-(:func:`api_parameters_problems`); it must refuse it naming it, flag it, or answer differently.
+returned the state at 0.3, status ok): the model built on the base case is started and stepped
+with the base step's parameters plus one more, a misspelt key or a scene parameter
+(:func:`api_parameters_problems`); it must refuse it naming it (at ``start`` or at the step),
+flag it, or answer differently.
 """
 from __future__ import annotations
 
@@ -174,21 +175,23 @@ def _trajectory_load_scale(ctx, base_kind: str) -> list:
 
 
 def _first_step(model, ev, history):
-    """``(start, mu)``: a zero-argument callable starting a run of ``model`` through evaluation ``ev``
-    as the harness does, and the parameters of its first step."""
+    """``(start, mu)``: ``start(extra)`` starts a run of ``model`` through evaluation ``ev`` as the
+    harness does (its first parameters with the ``extra`` ones), and the parameters of its first
+    step."""
     if ev.kind == "trajectory":
         p0 = ev.points[0]
         t = p0.mu["time"] + ev.dt
-        return (lambda: model.start(p0.mu, ev.state0, ev.dt)), {"time": t, "load_factor": float(history(t))}
+        return (lambda extra: model.start({**p0.mu, **extra}, ev.state0, ev.dt)), \
+            {"time": t, "load_factor": float(history(t))}
     mu = dict(ev.points[0].mu)
-    return (lambda: model.start(mu)), mu
+    return (lambda extra: model.start({**mu, **extra})), mu
 
 
-def _answer(model, start, mu):
-    """The first step's result at ``mu`` and its field, or the exception it raised."""
-    start()
+def _answer(model, start, mu, extra):
+    """The first step's result at ``mu`` and ``extra`` and its field, or the exception raised."""
     try:
-        res = model.step(mu)
+        start(extra)
+        res = model.step({**mu, **extra})
     except (ValueError, TypeError) as exc:
         return exc, None
     return res, None if res.q is None else model.reconstruct(res)
@@ -202,7 +205,7 @@ def api_parameters_problems(cls, entry: dict, options: dict) -> list:
     scene = case_scene(case)
     model, ev, history = _built(cls, case, scene, options)
     start, mu0 = _first_step(model, ev, history)
-    base, base_field = _answer(model, start, mu0)
+    base, base_field = _answer(model, start, mu0, {})
     if isinstance(base, Exception):
         return [f"the first step of the base case at {mu0} raised {type(base).__name__}: {base}"]
     harness = {"load_factor", "time", "node", "cut_length"} | set(mu0)
@@ -210,7 +213,7 @@ def api_parameters_problems(cls, entry: dict, options: dict) -> list:
     problems = []
     for key in keys:
         value = _changed(scene, key)
-        res, field = _answer(model, start, {**mu0, key: value})
+        res, field = _answer(model, start, mu0, {key: value})
         if isinstance(res, Exception):
             if key not in str(res):
                 problems.append(f"{key} = {value!r} at a step: refused without naming it ({res})")
