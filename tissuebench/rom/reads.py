@@ -20,14 +20,14 @@ its own for it):
   build or after a ``start`` given no ``mu0``: a ValueError naming the key, the method and the
   keys it reads (:func:`refuse_unread`).
 
-No later step is checked: the check of a step is an instance attribute ``step`` that puts the
+No other step is checked: the check of a step is an instance attribute ``step`` that puts the
 model's own step back before it steps, so every later step is the class's, with nothing added
 to the haptic path (a step is timed in microseconds). A run that announces its parameters
 (``start(mu0)``, as the harness always does) is checked at its start and leaves its steps
-alone: the latency protocol restarts its sequence untimed between timed passes, and a checked
-first step of every pass would be timed. The attributes are set and deleted
-as attributes, never through the instance's ``__dict__``, which would make CPython trade its
-inline attribute values for a dict and every attribute read of a step slower.
+alone: the latency protocol restarts its sequence, untimed, between timed passes, and a checked
+first step of every pass would be timed. The attributes are set and deleted as attributes,
+never through the instance's ``__dict__`` (reading it makes CPython trade the instance's inline
+attribute values for a dict, and every attribute read of a step slower).
 """
 from __future__ import annotations
 
