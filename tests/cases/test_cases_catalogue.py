@@ -63,7 +63,7 @@ def test_fe_scene_builds_problem(scenes, key):
         total = sum(np.asarray(ld["value"]) for ld in s.loads if ld["type"] == "point")
         assert np.allclose(f.reshape(-1, 3).sum(axis=0), total)
     # monitors that need no solve evaluate on the undeformed state
-    vals = s.evaluate_monitors(pb, np.zeros(pb.ndof), f_int=np.zeros(pb.ndof))
+    vals = s.evaluate_monitors(pb, np.zeros(pb.ndof), reactions=np.zeros(pb.ndof))
     assert set(vals) == {m["name"] for m in s.monitors}
     if "volume_ratio" in vals:
         assert vals["volume_ratio"] == pytest.approx(1.0)

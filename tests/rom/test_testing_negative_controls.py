@@ -193,6 +193,31 @@ class IgnoresTheLoadFactor(Sound):
     model = _TopOnly
 
 
+class _ForgetsSuper(Sound):
+    """A plugin's base class keeping a registry of its own, whose ``__init_subclass__`` forgets
+    ``super()``: its subclasses' builds escape the contract's wrapping (tissuebench.rom.reads), so
+    their models check no parameter they are given."""
+
+    registry: dict = {}
+
+    def __init_subclass__(cls, **kwargs):
+        _ForgetsSuper.registry[cls.__name__] = cls
+
+
+class IgnoresAnUnknownParameter(_ForgetsSuper):
+    def build(self, training):
+        return self.model(training, self.name, self.gain)
+
+
+class _ClaimsToReadE(_Model):
+    def step_parameters(self):
+        return ("E",) + super().step_parameters()
+
+
+class DeclaresWhatItIgnores(Sound):
+    model = _ClaimsToReadE
+
+
 NEGATIVE = [
     ("options_are_constructor_keywords", NoDefault, "options ['gain'] have no default"),
     ("applies_is_declared_and_consistent", ParametersOfAnotherKind, "names training kind 'positions'"),
@@ -210,6 +235,10 @@ NEGATIVE = [
     ("failure_is_reported", FailureAsField, "reconstruct of a failed step returned a field"),
     ("harness_hooks_answer", DeclaresNestedItCannotSlice, "nested = ['gain'] but variant"),
     ("parameters_are_honoured", IgnoresTheLoadFactor, "load_scale = 0.5: the same result, every step ok"),
+    ("parameters_are_honoured", IgnoresAnUnknownParameter, "bogus_parameter = 1.5 at a step (Python API): accepted, "
+                                                           "the same answer, status ok"),
+    ("parameters_are_honoured", DeclaresWhatItIgnores, "at a step (Python API): declared as read (step_parameters), "
+                                                       "the same answer, status ok"),
 ]
 
 

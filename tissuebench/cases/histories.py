@@ -3,6 +3,11 @@
 In dynamics the argument is time; in statics it is the pseudo-time, equal to the
 load factor. Types: constant; ramp (t0, t1); step (t0); sine (amplitude, frequency,
 phase); ramp_hold_release (t_ramp, t_hold, t_release); tabulated (t, values).
+
+Every load of a scene follows one history (:func:`shared_history`): the reference and every
+reduced model drive all loads by one load factor (a static path scales them together, a
+trajectory model steps with ``history(t)``), so a scene whose loads differ (gravity held
+constant while a probe ramps) is refused when it loads, by every command alike.
 """
 from __future__ import annotations
 
@@ -12,7 +17,7 @@ import numpy as np
 
 from .schema import accepts, c_nonneg, c_num, c_numlist, c_pos, c_str, c_table, check_table, fail
 
-__all__ = ["DEFAULT_HISTORY", "History", "check_history", "check_history_values"]
+__all__ = ["DEFAULT_HISTORY", "History", "check_history", "check_history_values", "shared_history"]
 
 # a load without a history is ramped from 0 at t = 0 to full at t = 1
 DEFAULT_HISTORY = {"type": "ramp", "t1": 1.0}
@@ -37,6 +42,31 @@ HISTORY_DOC = {
     "tabulated": ("piecewise linear through the points (`t`, `values`)",
                   {"t": "strictly increasing times (at least 2)", "values": "the load factor at each time"}),
 }
+
+
+# the values a history table may leave out: two tables that differ only by them are one history
+_DEFAULTS = {"ramp": {"t0": 0.0}, "step": {"t0": 0.0}, "sine": {"amplitude": 1.0, "phase": 0.0},
+             "ramp_hold_release": {"t_hold": 0.0}}
+
+
+def _full(h: dict) -> dict:
+    return {**_DEFAULTS.get(h.get("type"), {}), **h}
+
+
+def shared_history(loads) -> dict:
+    """The history table every one of the validated ``loads`` follows (the default ramp without
+    loads); ValueError naming the first load whose history differs from ``load[0]``'s."""
+    if not loads:
+        return dict(DEFAULT_HISTORY)
+    first = loads[0]["history"]
+    for i, ld in enumerate(loads[1:], start=1):
+        if _full(ld["history"]) != _full(first):
+            names = [f" ({x['name']!r})" if "name" in x else "" for x in (loads[0], ld)]
+            raise ValueError(f"load[{i}].history = {ld['history']}{names[1]}: differs from load[0].history = {first}"
+                             f"{names[0]}; loads have different histories, and every load of a scene follows one "
+                             "(the reference and the reduced models drive all loads by one load factor): give them "
+                             "the same history, or model them in separate scenes")
+    return first
 
 
 @accepts("a history table (see Load histories)")

@@ -2,8 +2,12 @@
 
 Quantities: max_displacement; displacement and deformed_coordinate (at ``point``, one
 ``component`` or the norm); reaction_force, nominal_stress
-(reaction / ``area``) and moment (about ``axis`` through ``center``) on a ``region``,
-which need the internal force vector; volume_ratio (deformed / reference volume);
+(reaction / ``area``) and moment (about ``axis`` through ``center``) on a ``region``: the
+force the supports exert on the body at the region's fixed dofs, ``f_int - f_ext`` there
+(:meth:`~tissuebench.refsolvers.problem.Problem.support_reactions`: a load lumped onto a
+supported node is the support's to carry), so that in statics the reactions of every support
+and the applied load add up to zero whatever the load (point, traction, pressure, gravity);
+volume_ratio (deformed / reference volume);
 strain_energy (needs a backend, not evaluated here). Every value is multiplied by
 ``scale`` (e.g. 1e-3 for kPa).
 
@@ -29,11 +33,13 @@ from .probes import Probe, make_probe
 from .regions import check_region
 from .schema import AXES, c_bool, c_enum, c_frame, c_name, c_num, c_pos, c_str, c_vec3, check_table, require
 
-__all__ = ["MONITOR_QUANTITIES", "check_monitor", "evaluate_monitors", "linear_outputs", "resolve_monitors",
-           "unit_vector"]
+__all__ = ["MONITOR_QUANTITIES", "REACTION_QUANTITIES", "check_monitor", "evaluate_monitors", "linear_outputs",
+           "resolve_monitors", "unit_vector", "needs_reactions"]
 
 MONITOR_QUANTITIES = ("max_displacement", "displacement", "deformed_coordinate", "reaction_force",
                       "nominal_stress", "moment", "volume_ratio", "strain_energy")
+#: the quantities read from the support reactions
+REACTION_QUANTITIES = ("reaction_force", "nominal_stress", "moment")
 _MONITOR_NEEDS = {"displacement": ("point", "component"), "deformed_coordinate": ("point", "component"),
                   "reaction_force": ("region", "component"), "nominal_stress": ("region", "component", "area"),
                   "moment": ("region", "axis", "center")}
@@ -76,10 +82,16 @@ def unit_vector(v) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def evaluate_monitors(scene, problem, u, f_int=None) -> dict:
+def needs_reactions(scene) -> bool:
+    """Whether a monitor of ``scene`` reads the support reactions."""
+    return any(m["quantity"] in REACTION_QUANTITIES for m in scene.monitors)
+
+
+def evaluate_monitors(scene, problem, u, reactions=None) -> dict:
     """Values of the ``[[monitor]]`` quantities of ``scene`` for displacement ``u`` (full
-    dof vector) of ``problem`` (from ``scene.to_problem()``); reactions need the internal
-    force ``f_int``."""
+    dof vector) of ``problem`` (from ``scene.to_problem()``); the reaction monitors need
+    ``reactions``, the (n_dof,) forces the supports exert
+    (:meth:`~tissuebench.refsolvers.problem.Problem.support_reactions`)."""
     U = np.asarray(u, float).reshape(-1, 3)
     out = {}
     for m in scene.monitors:
@@ -88,8 +100,8 @@ def evaluate_monitors(scene, problem, u, f_int=None) -> dict:
             val = float(np.linalg.norm(U, axis=1).max())
         elif q in ("displacement", "deformed_coordinate"):
             val = _point_value(m, _probe(scene, m, problem), U)
-        elif q in ("reaction_force", "nominal_stress", "moment"):
-            val = _reaction(scene, m, problem.nodes, U, f_int)
+        elif q in REACTION_QUANTITIES:
+            val = _reaction(scene, m, problem.nodes, U, reactions)
         elif q == "volume_ratio":
             val = _volume_ratio(problem.mesh, U)
         else:
@@ -175,10 +187,10 @@ def _physical_point(m, mesh) -> np.ndarray:
     return lo + p * (hi - lo)
 
 
-def _reaction(scene, m, nodes, U, f_int):
-    if f_int is None:
-        raise ValueError(f"monitor {m['name']!r} needs f_int")
-    F = np.asarray(f_int, float).reshape(-1, 3)
+def _reaction(scene, m, nodes, U, reactions):
+    if reactions is None:
+        raise ValueError(f"monitor {m['name']!r} needs the support reactions")
+    F = np.asarray(reactions, float).reshape(-1, 3)
     idx = scene.select(m["name"], m["region"], nodes)
     if m["quantity"] == "moment":
         # about the axis through the deformed positions: the arm follows the body

@@ -45,7 +45,8 @@ Schema (see the README of the catalogue, and any scene file, for examples)
 ``[parameters]`` parameters a study may evaluate the scene at (``position``: a point load
                  moved along a line), see :mod:`.parameters` and :meth:`Scene.at`
 ``[variants.X]`` overrides: material/model/analysis/mesh replace, dirichlet/load/monitor
-                 append, paper/case/parameters merge
+                 append, paper/case/parameters merge; ``histories = { <load name> = {history} }``
+                 replaces the history of the named loads (a dynamic variant of a static scene)
 
 Regions (node selectors evaluated on coordinates; exactly one primary key):
 ``plane = "x"`` + value [+ tol]; ``box = [[lo], [hi]]``; ``nearest = [x, y, z]`` [+ count];
@@ -55,7 +56,9 @@ Regions (node selectors evaluated on coordinates; exactly one primary key):
 
 Histories (load factor versus time, or pseudo-time = load factor in statics):
 constant; ramp (t0, t1); step (t0); sine (amplitude, frequency, phase);
-ramp_hold_release (t_ramp, t_hold, t_release); tabulated (t, values).
+ramp_hold_release (t_ramp, t_hold, t_release); tabulated (t, values). Every load of a scene
+follows the same one (one load factor drives them all): loads with different histories are
+refused when the scene loads.
 
 The validation of each part lives in :mod:`.schema` (primitives), :mod:`.regions`,
 :mod:`.histories`, :mod:`.monitors` and :mod:`.sections`; :mod:`.assembly` turns a
@@ -80,7 +83,7 @@ from . import assembly
 from .assembly import LineModel
 from .builder_params import check_builder_params, require_regular_file
 from .cutting import check_cut
-from .histories import DEFAULT_HISTORY, History, check_history_values
+from .histories import History, check_history_values, shared_history
 from .monitors import check_monitor, evaluate_monitors
 from .parameters import apply_mu, check_parameters_table
 from .regions import MeshGeometry, compile_region
@@ -135,6 +138,7 @@ class Scene:
         """This scene with ``loads`` (validated as in a scene file) and other non-mesh ``fields``
         replaced, ``mu`` recorded (it enters :meth:`content_hash`). The mesh is shared, not rebuilt."""
         loads = [check_load(f"load[{i}]", ld, self.model) for i, ld in enumerate(loads)]
+        shared_history(loads)
         _check_histories(loads, fields.get("analysis", self.analysis))
         new = dataclasses.replace(self, mu={**self.mu, **dict(mu)}, loads=loads, **fields)
         if "built" in self.__dict__:  # cached_property: reuse the mesh already built
@@ -252,16 +256,9 @@ class Scene:
 
     @property
     def history(self) -> History:
-        """The load history shared by all loads (and the scaled Dirichlet values)."""
-        specs = [ld["history"] for ld in self.loads]
-        if not specs:
-            return History(dict(DEFAULT_HISTORY))
-        if any(s != specs[0] for s in specs):
-            raise ValueError(f"{self.name}: loads have different histories; use load_histories()")
-        return History(specs[0])
-
-    def load_histories(self) -> list[History]:
-        return [History(ld["history"]) for ld in self.loads]
+        """The load history shared by all loads (and the scaled Dirichlet values): one per scene,
+        checked when it loads (:func:`~.histories.shared_history`)."""
+        return History(shared_history(self.loads))
 
     # ------------------------------------------------------------------ models
     def make_material(self):
@@ -289,10 +286,11 @@ class Scene:
             raise ValueError(f"{self.name}: a finite-element scene; use to_problem()")
         return assembly.line_model(self)
 
-    def evaluate_monitors(self, problem, u, f_int=None) -> dict:
+    def evaluate_monitors(self, problem, u, reactions=None) -> dict:
         """Values of the ``[[monitor]]`` quantities for displacement ``u`` (full dof vector)
-        of ``problem`` (from :meth:`to_problem`); reactions need the internal force ``f_int``."""
-        return evaluate_monitors(self, problem, u, f_int)
+        of ``problem`` (from :meth:`to_problem`); the reaction monitors need ``reactions``, the
+        (n_dof,) forces of the supports (``problem.support_reactions(f_int, f_ext)``)."""
+        return evaluate_monitors(self, problem, u, reactions)
 
 
 # =============================================================================== loading
@@ -523,6 +521,7 @@ def load(name_or_path, resolution: str = "ci", variant: str | None = None) -> Sc
     else:
         model_params = check_model("model", _require_table(raw, "model", path), model)
     dirichlet, loads, monitors = _check_entries(raw, model, path)
+    shared_history(loads)  # refused here, so that every command refuses it alike
     analysis = check_analysis("analysis", raw["analysis"])
     _check_histories(loads, analysis)
     if model == "fe":

@@ -14,6 +14,7 @@ import time
 import numpy as np
 import pandas as pd
 
+from ..cases.monitors import needs_reactions
 from ..cases.scene import Scene, load
 from ..refsolvers.dynamics import SecondOrderSystem, integrate
 from ..refsolvers.mixed import static_run
@@ -100,10 +101,14 @@ def _fields(pb):
 
 
 def _monitor_fn(scene, pb, be):
-    needs_force = any(m["quantity"] in ("reaction_force", "nominal_stress", "moment") for m in scene.monitors)
+    """``monitors(u, load_factor)``: the scene's monitors of state ``u`` under the loads at
+    ``load_factor`` (the supports' reactions ``f_int - f_ext`` on the fixed dofs, when read)."""
+    if not needs_reactions(scene):
+        return lambda u, load_factor: scene.evaluate_monitors(pb, u)
 
-    def monitors(u):
-        return scene.evaluate_monitors(pb, u, be.internal_force(u) if needs_force else None)
+    def monitors(u, load_factor):
+        return scene.evaluate_monitors(pb, u, pb.support_reactions(be.internal_force(u),
+                                                                   be.external_force(u, load_factor)))
     return monitors
 
 
@@ -127,9 +132,8 @@ def _static(scene, plan, be, progress, linear_solver):
 def _mixed_static(scene, be, n_steps, target, progress):
     """The u-p Taylor-Hood run of ``refsolvers.mixed`` on the displacement backend's problem."""
     pb = be.problem
-    return static_run(pb, be, n_steps, target, lambda u, f: scene.evaluate_monitors(pb, u, f),
-                      needs_force=any(m["quantity"] in ("reaction_force", "nominal_stress", "moment")
-                                      for m in scene.monitors), progress=progress,
+    return static_run(pb, be, n_steps, target, lambda u, r: scene.evaluate_monitors(pb, u, r),
+                      needs_force=needs_reactions(scene), progress=progress,
                       bulk_modulus=formulation_of(scene).bulk_modulus)
 
 
@@ -152,7 +156,7 @@ def _linear_static(be, n_steps, target, monitors, progress):
         wall = time.perf_counter() - tic + (assembly_s if k == 1 else 0.0)
         states.append(u)
         rows.append({"step": k, "load_factor": lam, "newton_iterations": 1, "converged": True, "wall_s": wall,
-                     **monitors(u)})
+                     **monitors(u, lam)})
         if progress:
             progress(lam, target)
     return states, rows, "success", f"linear static solution at {n_steps} load factors up to {target:g}"
@@ -166,7 +170,7 @@ def _newton_static(be, n_steps, target, monitors, progress, linear_solver, to_di
     opts = NewtonOptions(n_increments=n_steps, max_increment=1.0 / n_steps, linear_solver=linear_solver,
                          min_increment=1.0 / n_steps if to_divergence else smallest)
     res = newton_solve(be, target, opts, progress=progress)
-    stored, rows = res.increment_rows(lambda u: (u, monitors(u)))
+    stored, rows = res.increment_rows(lambda u, lam: (u, monitors(u, lam)))
     states = [np.zeros(be.ndof)] + stored
     status, message = res.status, res.message
     if to_divergence and status == "stalled":
@@ -211,7 +215,8 @@ def _dynamic(scene, plan, be, progress, linear_solver):
     def observe(t, u):
         if progress:
             progress(t, t_end)
-        return monitors(u)
+        # the supports' reactions without the inertia of the supported dofs (zero with a lumped mass)
+        return monitors(u, float(scene.history(t)))
 
     name = a.get("integrator", "hht")
     res = integrate(system, None, None, dt, t_end, method=name, store_every=store_every, observe=observe,

@@ -196,8 +196,10 @@ def static_run(problem, backend, n_steps, target, monitors, needs_force=False, p
     target : float
         Final load factor.
     monitors : callable
-        ``monitors(u, f_int_u) -> dict`` of monitored scalars (``f_int_u`` is None unless
-        ``needs_force``), e.g. ``lambda u, f: scene.evaluate_monitors(problem, u, f)``.
+        ``monitors(u, reactions) -> dict`` of monitored scalars; ``reactions`` (None unless
+        ``needs_force``) are the forces of the supports, ``f_int - f_ext`` of the displacement
+        dofs on the fixed ones (:meth:`~.problem.Problem.support_reactions`), e.g.
+        ``lambda u, r: scene.evaluate_monitors(problem, u, r)``.
     progress : callable, optional
         ``progress(load_factor, target)``.
 
@@ -213,9 +215,12 @@ def static_run(problem, backend, n_steps, target, monitors, needs_force=False, p
     mb = MixedBackend(problem, backend, bulk_modulus, penalty_weight)
     res = newton_solve(mb, target, n_increments=n_steps, max_increment=1.0 / n_steps, progress=progress)
 
-    def on_converged(z):
+    def on_converged(z, load_factor):
         u = z[:mb.n_u].copy()
-        return u, monitors(u, mb.internal_force(z)[:mb.n_u] if needs_force else None)
+        if not needs_force:
+            return u, monitors(u, None)
+        f_ext = mb.displacement_backend.external_force(u, load_factor)
+        return u, monitors(u, problem.support_reactions(mb.internal_force(z)[:mb.n_u], f_ext))
     stored, rows = res.increment_rows(on_converged)
     states = [np.zeros(mb.n_u)] + stored
     nodes, cell_nodes = problem.layout

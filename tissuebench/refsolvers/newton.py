@@ -127,8 +127,8 @@ class StaticResult:
     def increment_rows(self, on_converged) -> tuple[list, list]:
         """``(stored, rows)``: one row per attempted increment (step, load factor, Newton
         iterations, converged, wall/assembly/solve time, final residual, message); for each
-        converged increment ``on_converged(state) -> (stored_state, {name: value})`` gives
-        what to store and the values added to its row (a scene's monitors)."""
+        converged increment ``on_converged(state, load_factor) -> (stored_state, {name: value})``
+        gives what to store and the values added to its row (a scene's monitors)."""
         stored, rows, states = [], [], iter(self.states)
         for inc in self.increments:
             row = {"step": len(rows) + 1, "load_factor": inc.load_factor, "newton_iterations": inc.iterations,
@@ -136,7 +136,7 @@ class StaticResult:
                    "solve_s": inc.solve_s,
                    "final_residual": inc.residual_norms[-1] if inc.residual_norms else np.nan, "message": inc.message}
             if inc.converged:
-                state, values = on_converged(next(states))
+                state, values = on_converged(next(states), inc.load_factor)
                 stored.append(state)
                 row.update(values)
             rows.append(row)

@@ -249,6 +249,16 @@ class Problem:
             out[pos] = d.motion_values(self.nodes, idx, load_factor)[won]
         return out
 
+    def support_reactions(self, f_int, f_ext) -> np.ndarray:
+        """The nodal forces the supports exert on the body, shape (ndof,): ``f_int - f_ext`` on the
+        fixed dofs (the external load lumped onto a supported node included: the support carries
+        it), zero on the free ones. In static equilibrium they balance the applied load: their sum
+        plus the sum of ``f_ext`` is zero."""
+        r = np.zeros(self.ndof)
+        fixed = self.fixed_dofs
+        r[fixed] = np.asarray(f_int, float)[fixed] - np.asarray(f_ext, float)[fixed]
+        return r
+
     def point_load_vector(self) -> np.ndarray:
         """Nodal point loads at load factor 1, shape (ndof,)."""
         f = np.zeros(self.ndof)

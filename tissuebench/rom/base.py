@@ -22,6 +22,13 @@ PGD, skinning-cubature, direct time integrators, baselines), so the sweep harnes
    arithmetic a haptic step cannot avoid at the model's sizes (:mod:`.online`); the latency
    protocol times it beside the step and reports ``efficiency = floor / haptic median``.
 
+A step reads the parameters its method declares (:meth:`RomMethod.reads`, ``Applies.parameters``)
+and those of :meth:`OnlineModel.step_parameters`; a ``mu`` with any other key (``E``, ``nu``,
+``load_scale``, a misspelt one) is refused at ``start(mu0)`` and at the first step after the
+build or a ``start`` given no ``mu0``,
+naming the key, the method and the keys it reads (:mod:`.reads`: installed here for every
+method, checked once per run, nothing added to later steps).
+
 ``OnlineModel.kind`` says how a model is driven: ``"map"`` (a static state at any ``mu``,
 in any order), ``"path"`` (a static load path followed in increasing load factor: warm
 starts, continuation) or ``"trajectory"`` (time stepping from ``state0``).
@@ -38,6 +45,7 @@ the options a method takes (a grid over another one is refused by name).
 """
 from __future__ import annotations
 
+import functools
 import inspect
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
@@ -45,6 +53,7 @@ from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 import numpy as np
 
+from . import reads
 from .registry import METHODS, make_method, method_class, register
 
 __all__ = ["Training", "StepResult", "DeferredStepResult", "OnlineModel", "RomMethod", "METHODS", "register",
@@ -287,13 +296,34 @@ class OnlineModel(ABC):
     def n_reduced(self) -> int:
         """Size of the reduced state ``q``."""
 
+    def __init_subclass__(cls, **kwargs):
+        # every model refuses a parameter it does not read (:mod:`.reads`): a start checks mu0 (or,
+        # given none, the run's first step), a sliced variant reads what its parent reads
+        super().__init_subclass__(**kwargs)
+        for name, wrap in (("start", _checking_start), ("variant", _inheriting_variant)):
+            own = cls.__dict__.get(name)
+            if callable(own) and not getattr(own, "_tb_reads", False):
+                setattr(cls, name, wrap(own))
+
     def start(self, mu0: Mapping[str, float] | None = None, state0: Mapping[str, np.ndarray] | None = None,
               dt: float | None = None) -> None:
         """Prepare a run: forget state kept between steps; a trajectory model projects
         ``state0`` (``{"u": (n_dof,), "v": (n_dof,)}``, default rest) and prepares for ``dt``.
 
-        Statics: nothing. Not timed by the latency protocol.
+        Statics: nothing. Not timed by the latency protocol. Every model's ``start`` (this one
+        or an override) refuses a ``mu0`` holding a parameter the model does not read; given no
+        ``mu0``, it has the run's first step checked so (:mod:`.reads`).
         """
+        reads.arm(self, mu0)
+
+    def step_parameters(self) -> tuple:
+        """The ``mu`` keys this model's step reads besides ``load_factor``, ``time`` (a model stepped
+        in time) and the scene parameters its method reads (:meth:`RomMethod.reads`); any other key
+        is refused (:mod:`.reads`). Default: what the harness's hooks imply, ``node`` for a model
+        with :meth:`contact_nodes`, ``node`` and ``cut_length`` for one with :meth:`incision_strip`.
+        A model whose step reads more says so here (calling ``super()``)."""
+        out = ("node",) if self.contact_nodes() is not None else ()
+        return out + (("node", "cut_length") if self.incision_strip() is not None else ())
 
     def reset(self) -> None:
         """Alias of :meth:`start` with no arguments (kept for existing callers)."""
@@ -435,6 +465,40 @@ class OnlineModel(ABC):
         return None
 
 
+def _checking_start(start):
+    """``start`` that first refuses a ``mu0`` the model does not read and has the next step checked."""
+    @functools.wraps(start)
+    def checked(self, *args, **kwargs):
+        reads.arm(self, args[0] if args else kwargs.get("mu0"))
+        return start(self, *args, **kwargs)
+    checked._tb_reads = True
+    return checked
+
+
+def _inheriting_variant(variant):
+    """``variant`` whose sliced model reads what this one reads."""
+    @functools.wraps(variant)
+    def inheriting(self, *args, **kwargs):
+        model = variant(self, *args, **kwargs)
+        if isinstance(model, OnlineModel) and model is not self:
+            reads.inherit(model, self)
+        return model
+    inheriting._tb_reads = True
+    return inheriting
+
+
+def _declaring_build(build):
+    """``build`` whose model refuses a parameter it does not read (:func:`.reads.declare`)."""
+    @functools.wraps(build)
+    def declaring(self, training, *args, **kwargs):
+        model = build(self, training, *args, **kwargs)
+        if isinstance(model, OnlineModel) and isinstance(training, Training):
+            reads.declare(model, type(self), training)
+        return model
+    declaring._tb_reads = True
+    return declaring
+
+
 class LinearReconstruction:
     """Mixin for models with ``u[free] = B q`` and prescribed values on the fixed dofs.
 
@@ -498,6 +562,14 @@ class RomMethod(ABC):
     training_kinds: ClassVar[tuple] = ("path",)
     applies: ClassVar[Applies] = Applies()
 
+    def __init_subclass__(cls, **kwargs):
+        # the model of every build refuses a parameter it does not read (:mod:`.reads`)
+        super().__init_subclass__(**kwargs)
+        build = cls.__dict__.get("build")
+        if callable(build) and not getattr(build, "__isabstractmethod__", False) and \
+                not getattr(build, "_tb_reads", False):
+            cls.build = _declaring_build(build)
+
     @classmethod
     def why_not(cls, scene, options: Mapping | None = None) -> str:
         """Why this method does not apply to ``scene`` (a validated :class:`~tissuebench.cases.scene.Scene`)
@@ -540,7 +612,8 @@ class RomMethod(ABC):
     @classmethod
     def reads(cls, scene, training_kind: str) -> tuple:
         """The scene parameters (``Scene.at`` keys) its step reads when trained as ``training_kind``
-        on ``scene``, besides the load factor and the time (default: ``applies.parameters``)."""
+        on ``scene``, besides the load factor and the time (default: ``applies.parameters``); a
+        built model refuses any key that neither this nor its ``step_parameters`` names."""
         return tuple(cls.applies.parameters.get(training_kind, ()))
 
     @classmethod

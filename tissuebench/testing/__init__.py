@@ -22,7 +22,9 @@ they run) are the rules the sweep relies on, each named, each saying what is wro
 ``outputs_agree_with_reconstruct``, ``steps_inside_are_ok``, ``floor_ops_runs``,
 ``step_is_deterministic``, ``extrapolation_is_flagged``, ``failure_is_reported``,
 ``harness_hooks_answer`` and ``parameters_are_honoured`` (every evaluation parameter,
-``load_scale`` included, changes the result, is flagged, or is refused when the spec loads).
+``load_scale`` included, changes the result, is flagged, or is refused when the spec loads; and
+through the Python API, a misspelt key or a scene parameter given at a step is refused naming
+it, flagged, or changes the answer).
 The shipped methods' contract test runs this battery (``tests/rom/test_rom_contract.py``).
 """
 from __future__ import annotations

@@ -396,7 +396,8 @@ def harness_hooks_answer(ctx: Context) -> None:
 
 def parameters_are_honoured(ctx: Context) -> None:
     """(:mod:`.parameters`) every scene parameter an evaluation may change changes the result, is
-    flagged, or is refused when the spec loads (``load_scale`` included)."""
+    flagged, or is refused when the spec loads (``load_scale`` included); given at a step through
+    the Python API, it or a misspelt key is refused naming it, flagged, or changes the answer."""
     from .parameters import check_parameters_honoured
 
     check_parameters_honoured(ctx)

@@ -7,6 +7,12 @@ The method runs on the first base case it applies to (:data:`~.cases.PARAMETER_B
 [[case]] asked for); a method that learns trajectories also at another ``load_scale`` on a
 trajectory (the practitioner baselines returned the training's load history at load_scale
 0.75 with status ok until the ci gate saw it).
+
+The same holds through the Python API (issue 44: ``model.step({"load_factor": 0.3, "E": 6000})``
+returned the state at 0.3, status ok): the model built on the base case is started and stepped
+with the base step's parameters plus one more, a misspelt key or a scene parameter
+(:func:`api_parameters_problems`); it must refuse it naming it (at ``start`` or at the step),
+flag it, or answer differently.
 """
 from __future__ import annotations
 
@@ -14,6 +20,7 @@ import numpy as np
 
 from ..cases.parameters import ANALYSIS_OVERRIDES
 from ..rom import make_method
+from ..rom.reads import reads_of
 from ..studies.applicability import evaluation_why_not, why_not
 from ..studies.case_entry import CaseEntry
 from ..studies.evaluation import NEEDS_MODEL, build_evaluation
@@ -23,10 +30,21 @@ from ..studies.training import build_training, case_scene
 from .cases import applies_to, entry_dict, parameter_base
 from .subject import CheckFailure, CheckSkipped, raised
 
-__all__ = ["check_parameters_honoured", "run_entry"]
+__all__ = ["check_parameters_honoured", "run_entry", "api_parameters_problems"]
 
 _TRAJECTORY_BASES = [{"name": "frame_2dof", "training": {"kind": "trajectory"}},
                      {"name": "wave_block", "variant": "linear", "training": {"kind": "trajectory"}}]
+
+
+def _built(cls, case: CaseEntry, scene, options: dict):
+    """``(model, evaluation, history)`` of ``cls`` built on ``case`` as a unit builds it."""
+    training = build_training(case, scene)
+    model = make_method(cls, **options).build(training)
+    if training.outputs:
+        model.attach_outputs(training.outputs)
+    ev = build_evaluation(case, scene, model if case.evaluation_kind in NEEDS_MODEL else None)
+    history = ev.history or training.history or (scene.history if ev.kind == "trajectory" else None)
+    return model, ev, history
 
 
 def run_entry(cls, entry: dict, options: dict):
@@ -38,12 +56,7 @@ def run_entry(cls, entry: dict, options: dict):
     if why:
         return None, ["refused: " + why]
     try:
-        training = build_training(case, scene)
-        model = make_method(cls, **options).build(training)
-        if training.outputs:
-            model.attach_outputs(training.outputs)
-        ev = build_evaluation(case, scene, model if case.evaluation_kind in NEEDS_MODEL else None)
-        history = ev.history or training.history or (scene.history if ev.kind == "trajectory" else None)
+        model, ev, history = _built(cls, case, scene, options)
         driven = drive(model, ev, history)
     except Exception as exc:  # noqa: BLE001 - a unit that raises is stored as failed: flagged
         return None, [f"failed: {raised(exc)}"]
@@ -135,6 +148,7 @@ def check_parameters_honoured(ctx) -> None:
         if not flagged and not (comparable and _differs(fields, base_fields)):
             problems.append(f"{key} = {value!r}: the same result, every step ok")
     problems += _trajectory_load_scale(ctx, evaluation["kind"])
+    problems += api_parameters_problems(cls, {**entry, "evaluation": evaluation}, options)
     if problems:
         raise CheckFailure(f"on case {entry['name']!r}: " + "; ".join(problems) + " (a parameter the model does not "
                            "represent must change its result, be flagged, or be refused: Applies.parameters)")
@@ -158,3 +172,55 @@ def _trajectory_load_scale(ctx, base_kind: str) -> list:
     if any(s not in ("ok", "initial") for s in statuses) or _differs(fields, base_fields):
         return []
     return [f"on trajectory case {table['name']!r}: load_scale 0.5 returned the training's answer, every step ok"]
+
+
+def _first_step(model, ev, history):
+    """``(start, mu)``: ``start(extra)`` starts a run of ``model`` through evaluation ``ev`` as the
+    harness does (its first parameters with the ``extra`` ones), and the parameters of its first
+    step."""
+    if ev.kind == "trajectory":
+        p0 = ev.points[0]
+        t = p0.mu["time"] + ev.dt
+        return (lambda extra: model.start({**p0.mu, **extra}, ev.state0, ev.dt)), \
+            {"time": t, "load_factor": float(history(t))}
+    mu = dict(ev.points[0].mu)
+    return (lambda extra: model.start({**mu, **extra})), mu
+
+
+def _answer(model, start, mu, extra):
+    """The first step's result at ``mu`` and ``extra`` and its field, or the exception raised."""
+    try:
+        start(extra)
+        res = model.step({**mu, **extra})
+    except (ValueError, TypeError) as exc:
+        return exc, None
+    return res, None if res.q is None else model.reconstruct(res)
+
+
+def api_parameters_problems(cls, entry: dict, options: dict) -> list:
+    """Through the Python API (module docstring): the model built on ``entry``, started, and given at
+    its first step the base step's parameters plus a misspelt key or a scene parameter (one at a
+    time); a key it neither refuses naming it, nor flags, nor answers differently is a problem."""
+    case = CaseEntry.from_dict(entry)
+    scene = case_scene(case)
+    model, ev, history = _built(cls, case, scene, options)
+    start, mu0 = _first_step(model, ev, history)
+    base, base_field = _answer(model, start, mu0, {})
+    if isinstance(base, Exception):
+        return [f"the first step of the base case at {mu0} raised {type(base).__name__}: {base}"]
+    harness = {"load_factor", "time", "node", "cut_length"} | set(mu0)
+    keys = ["bogus_parameter"] + [k for k in _scene_parameters(scene) if k not in harness]
+    problems = []
+    for key in keys:
+        value = _changed(scene, key)
+        res, field = _answer(model, start, mu0, {key: value})
+        if isinstance(res, Exception):
+            if key not in str(res):
+                problems.append(f"{key} = {value!r} at a step: refused without naming it ({res})")
+            continue
+        same = res.status == base.status and not _differs([field], [base_field])
+        if res.status == "ok" and same:
+            declared = reads_of(model)
+            how = "accepted" if declared is None or key not in declared else "declared as read (step_parameters)"
+            problems.append(f"{key} = {value!r} at a step (Python API): {how}, the same answer, status ok")
+    return problems

@@ -176,6 +176,10 @@ class FeModel(OnlineModel):
     def contact_nodes(self) -> np.ndarray | None:
         return self.accessible_nodes
 
+    def step_parameters(self) -> tuple:
+        """``node`` where the build found a single point load to move (the step moves it there)."""
+        return (("node",) if getattr(self, "_contact", None) is not None else ()) + super().step_parameters()
+
     @property
     def n_reduced(self) -> int:
         return len(self.fmap.free)

@@ -33,7 +33,7 @@ import numpy as np
 from ..base import Applies, OnlineModel, RomMethod, StepResult, Training, register
 from .enrichment import Enrichment, condense, enrichment_operators, to_cut_mesh
 from .linear import check_pgd_options
-from .online import locate
+from .online import LocatedContact, locate
 from .projections import make_projection
 from .strip import incision_strip
 from .training import family_from_training, scene_of, uncut_backend
@@ -42,7 +42,7 @@ from .vademecum import Vademecum, build_vademecum
 __all__ = ["CuttingModel", "PgdCutting"]
 
 
-class CuttingModel(OnlineModel):
+class CuttingModel(LocatedContact, OnlineModel):
     """Online coupled system (module docstring); ``q = [coefficients on the basis; d]``
     with the coefficients on X at s_p for prb (``beta ∘ S(s_p)``)."""
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..base import Applies, LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, register
-from .online import locate
+from .online import LocatedContact, locate
 from .projections import make_projection
 from .training import family_from_training
 from .vademecum import Vademecum, build_vademecum
@@ -83,7 +83,7 @@ class Pgd(RomMethod):
         return PgdModel(self.name, vad, self.projection, getattr(training.backend, "problem", None))
 
 
-class PgdModel(LinearReconstruction, OnlineModel):
+class PgdModel(LocatedContact, LinearReconstruction, OnlineModel):
     """Online vademecum; ``q`` = coefficients on :attr:`basis` (srb: K-orthonormal basis
     of span X; prb and vademecum: the modes X)."""
 

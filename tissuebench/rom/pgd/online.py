@@ -23,7 +23,7 @@ import numpy as np
 
 from ..online import parameter
 
-__all__ = ["Contact", "locate"]
+__all__ = ["Contact", "locate", "LocatedContact"]
 
 
 @dataclass
@@ -91,6 +91,14 @@ def _line_load(t: _Tables, s: float):
             rows.append(r)
             vals.append(v)
     return np.array(rows, dtype=np.int64), np.array(vals), None
+
+
+class LocatedContact:
+    """Mixin of the online models whose step places the contact with :func:`locate`: the step reads
+    ``position`` (and ``node`` on a surface, which the ``contact_nodes`` hook declares)."""
+
+    def step_parameters(self) -> tuple:
+        return ("position",) + super().step_parameters()
 
 
 def locate(vademecum, mu, who: str, need_S: bool):

@@ -22,7 +22,7 @@ from ..base import (POLYNOMIAL_MATERIALS, Applies, LinearReconstruction, OnlineM
                     Training, register)
 from ..polynomial import check_polynomial_problem, reduced_polynomial
 from .linear import check_pgd_options
-from .online import locate
+from .online import LocatedContact, locate
 from .training import family_from_training, scene_of, uncut_backend
 from .vademecum import build_vademecum
 
@@ -72,7 +72,7 @@ class PgdSvk(RomMethod):
         return PgdSvkModel(self.name, vad, Q, poly, be.problem, self.rtol, self.max_iterations, self.max_increments)
 
 
-class PgdSvkModel(LinearReconstruction, OnlineModel):
+class PgdSvkModel(LocatedContact, LinearReconstruction, OnlineModel):
     """Online reduced SVK Newton (module docstring); ``q`` = coefficients on ``basis`` (Q)."""
 
     kind = "map"
