@@ -16,8 +16,8 @@ import pandas as pd
 import pytest
 
 from tissuebench.studies.evaluation import Evaluation, EvaluationPoint
-from tissuebench.studies.metrics import (SEEN_RTOL, TOLERANCES, output_rows, pareto_front, point_rows, seen_points,
-                                         summarise_points, validity_radius)
+from tissuebench.studies.metrics import (SEEN_RTOL, TOLERANCES, ZERO_REFERENCE, output_rows, pareto_front, point_rows,
+                                         seen_points, summarise_points, validity_radius)
 from tissuebench.studies.timing import LatencyStats, latency_stats, max_displacement, relative_l2
 
 
@@ -83,12 +83,25 @@ def test_a_point_object_without_beyond_is_not_beyond():
     assert point_rows(ev, _driven([[1, 0, 0]]))[0]["beyond"] is False
 
 
-def test_a_zero_reference_gives_the_absolute_error():
+def test_a_zero_reference_is_measured_against_the_largest_reference_of_the_evaluation():
+    # point 0: ref 2 nodes (3, 4, 0), (0, 0, 12): |ref| = 13, largest node 12; point 1: ref zero,
+    # u = (0, 0, 0.3), (0, 0.4, 0): |u| = 0.5 -> 0.5 / 13 (l2 scale), largest node 0.4 -> 0.4 / 12 (its own scale)
+    ev = _evaluation([[3, 4, 0, 0, 0, 12], [0, 0, 0, 0, 0, 0]])
+    rows = point_rows(ev, _driven([[3, 4, 0, 0, 0, 12], [0, 0, 0.3, 0, 0.4, 0]]))
+    assert rows[1]["rel_l2"] == pytest.approx(0.5 / 13, rel=1e-14)
+    assert rows[1]["rel_max_displacement"] == pytest.approx(0.4 / 12, rel=1e-14)
+    assert rows[0]["rel_l2"] == 0.0 and rows[1]["message"] == ""
+    # not node-major (size 2): the largest component is the scale, |0 - 3| / 2 both ways
+    rows = point_rows(_evaluation([[2, 0], [0, 0]]), _driven([[2, 0], [0, -3]]))
+    assert rows[1]["rel_l2"] == pytest.approx(1.5) and rows[1]["rel_max_displacement"] == pytest.approx(1.5)
+
+
+def test_every_reference_zero_is_an_infinite_error_said_in_the_message():
     row, = point_rows(_evaluation([[0, 0, 0]]), _driven([[0, 3, 4]]))
-    assert row["rel_l2"] == pytest.approx(5.0, rel=1e-14)
-    assert row["rel_max_displacement"] == pytest.approx(5.0, rel=1e-14)
-    row, = point_rows(_evaluation([[0, 0]]), _driven([[0, -3]]))
-    assert row["rel_l2"] == pytest.approx(3.0) and row["rel_max_displacement"] == pytest.approx(3.0)
+    assert row["rel_l2"] == np.inf and row["rel_max_displacement"] == np.inf
+    assert row["message"] == ZERO_REFERENCE
+    row, = point_rows(_evaluation([[0, 0, 0]]), _driven([[0, 0, 0]], messages=["slow"]))
+    assert row["rel_l2"] == np.inf and row["message"] == "slow; " + ZERO_REFERENCE
 
 
 def test_a_failed_step_is_inf_and_a_point_without_reference_is_nan():
@@ -134,13 +147,17 @@ def test_row_fields_x_group_mu_beyond():
 
 
 def test_monitor_errors_relative_and_absolute_at_zero():
-    ev = _evaluation([[1, 0, 0], [1, 0, 0]], monitors=[{"force": 4.0, "zero": 0.0}, {"force": -2.0}])
-    out = output_rows(ev, _driven([[1, 0, 0]] * 2, outputs=[{"force": 5.0, "zero": -0.25, "other": 1.0},
-                                                            {"force": -1.0}]))
-    assert [(r["point"], r["monitor"]) for r in out] == [(0, "force"), (0, "zero"), (1, "force")]
+    ev = _evaluation([[1, 0, 0], [1, 0, 0]], monitors=[{"force": 4.0, "zero": 0.0, "rest": 0.0},
+                                                       {"force": -2.0, "zero": 0.0, "rest": -0.5}])
+    out = output_rows(ev, _driven([[1, 0, 0]] * 2, outputs=[{"force": 5.0, "zero": -0.25, "rest": -0.25, "other": 1.0},
+                                                            {"force": -1.0, "rest": -0.75}]))
+    assert [(r["point"], r["monitor"]) for r in out] == [(0, "force"), (0, "zero"), (0, "rest"), (1, "force"),
+                                                         (1, "rest")]
     assert out[0]["rel_error"] == pytest.approx(0.25) and out[0]["reference"] == 4.0 and out[0]["rom"] == 5.0
-    assert out[1]["rel_error"] == pytest.approx(0.25)  # the reference is 0: the absolute error
-    assert out[2]["rel_error"] == pytest.approx(0.5) and out[2]["x"] == 1.0
+    assert out[1]["rel_error"] == np.inf  # every reference of the monitor is 0: no relative error
+    assert out[2]["rel_error"] == pytest.approx(0.25 / 0.5)  # its reference is 0: against the monitor's largest
+    assert out[3]["rel_error"] == pytest.approx(0.5) and out[3]["x"] == 1.0
+    assert out[4]["rel_error"] == pytest.approx(0.5)
 
 
 # ---------------------------------------------------------------- seen points
@@ -351,7 +368,7 @@ def test_latency_stats_refuses_what_is_not_a_finite_sample(bad):
 def test_relative_l2_and_max_displacement_by_hand():
     assert relative_l2([3, 4, 1], [3, 4, 0]) == pytest.approx(0.2, rel=1e-14)
     assert relative_l2([[3, 4], [1, 0]], [[3, 4], [0, 0]]) == pytest.approx(0.2, rel=1e-14)  # flattened
-    assert relative_l2([0, 3, 4], [0, 0, 0]) == 5.0
+    assert relative_l2([0, 3, 4], [0, 0, 0]) == np.inf  # a zero field: no relative error
     assert relative_l2([0.3, 0.4, 0.1], [0.3, 0.4, 0.0]) == pytest.approx(0.2, rel=1e-14)  # |ref| < 1: relative
     with pytest.raises(ValueError, match=r"relative_l2: shapes differ: \(3,\) vs \(2,\)"):
         relative_l2([1, 2, 3], [1, 2])
