@@ -5,9 +5,11 @@ across runs (microsecond medians move 2-3x between identical runs on a shared ma
 no tolerance survives that, a measurement design does). asv's ``continuous`` and pyperf's
 worker processes are the models:
 
-* REF's package is exported from git (:func:`.ab_ref.export_ref`) into a scratch folder;
-  HEAD is the package this process runs (the working tree, uncommitted changes included).
-  Both use the same installed dependencies.
+* REF's packages of the project under test are exported from git (:mod:`.ab_project`) into
+  a scratch folder; HEAD is the code this process runs (the working tree, uncommitted changes
+  included). Both use the same installed dependencies; each worker reports where it imported
+  the project's packages from, and a unit whose package came from the other side's copy (an
+  import hook, a package REF lacks) is not timed there (:mod:`.ab_code`).
 * Each round starts one worker process per side (:mod:`.ab_probe`, always HEAD's timing
   loop); the two build every still-undecided unit with their side's code at the same time
   (no timing runs then). Then, unit by unit, their ``blocks`` blocks of haptic steps are
@@ -53,7 +55,8 @@ from pathlib import Path
 import pandas as pd
 
 from ..rom import make_method
-from .ab_ref import code_env, portable_spec_text
+from .ab_code import Code, as_code, code_env, foreign
+from .ab_ref import portable_spec_text
 from .case_entry import CaseEntry
 from .evaluation import NEEDS_MODEL, build_evaluation
 from .protocol import _start, _timing_sequence
@@ -134,18 +137,25 @@ def ab_units(results_dir, rows: pd.DataFrame, workdir=None) -> list[ABUnit]:
     return out
 
 
-class _Worker:
-    """One side's worker process of a round (:mod:`.ab_probe`), ``root`` first on its path."""
+def package_of(unit: ABUnit) -> str:
+    """The top-level package of the unit's method: its module's for "module:Class", else tissuebench."""
+    return unit.method.split(":")[0].split(".")[0] if ":" in unit.method else "tissuebench"
 
-    def __init__(self, side: str, root: Path, units: list[ABUnit], seed: int, scratch: Path, rnd: int,
+
+class _Worker:
+    """One side's worker process of a round (:mod:`.ab_probe`), the side's code (:class:`~.ab_code.Code`)
+    first on its path."""
+
+    def __init__(self, side: str, code: Code, units: list[ABUnit], seed: int, scratch: Path, rnd: int,
                  inject: dict | None):
-        self.side, self.root, tag = side, root, f"{side}{rnd}"
+        self.side, self.code, tag = side, code, f"{side}{rnd}"
         self.name = f"A/B {side} worker of round {rnd + 1}"
+        self.elsewhere: dict = {}  # package -> why this worker's copy of it is not the side's code
         job, self.err_path = scratch / f"{tag}.job.json", scratch / f"{tag}.stderr.txt"
-        job.write_text(json.dumps({"units": [asdict(u) for u in units], "seed": seed, "inject": inject or {}},
-                                  default=str))
+        job.write_text(json.dumps({"units": [asdict(u) for u in units], "seed": seed, "inject": inject or {},
+                                   "packages": sorted(code.packages)}, default=str))
         self._err = open(self.err_path, "w")  # a file, not a pipe: a chatty side cannot block on it
-        self.proc = subprocess.Popen([sys.executable, str(scratch / "ab_probe.py"), str(job)], env=code_env(root),
+        self.proc = subprocess.Popen([sys.executable, str(scratch / "ab_probe.py"), str(job)], env=code_env(code),
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._err, text=True,
                                      **child_options())
 
@@ -158,12 +168,16 @@ class _Worker:
         return json.loads(line)
 
     def ready(self) -> dict:
-        """The worker's build report, once every unit is built; checked to run ``root``'s code."""
+        """The worker's build report, once every unit is built; checked to run the side's code:
+        RuntimeError when its tissuebench is another's; the packages of the project it imported
+        from elsewhere are kept in ``elsewhere`` (their units cannot be timed on this side)."""
         out = self._read()
         loaded = out.get("tissuebench")
-        if out.get("error") or not loaded or Path(loaded).resolve().parents[1] != self.root.resolve():
+        files = {**(out.get("modules") or {}), "tissuebench": loaded}
+        self.elsewhere = foreign(files, self.code) if loaded else {}
+        if out.get("error") or not loaded or "tissuebench" in self.elsewhere:
             raise RuntimeError(f"{self.name}: {out.get('error') or ''} imported tissuebench from {loaded}, "
-                               f"not {self.root}")
+                               f"not {self.code.folder('tissuebench')}")
         return out
 
     def pin(self, cores: list[int]) -> None:
@@ -211,6 +225,9 @@ def _round(workers: dict, active: list[ABUnit], blocks: int, rnd: int, failures:
         for uid, res in w.ready()["units"].items():
             if res["status"] != "ok":
                 failures.setdefault(uid, {})[side] = res.get("message", "")
+        for u in active:
+            if package_of(u) in w.elsewhere:
+                failures.setdefault(u.uid, {})[side] = f"not the {side} side's code: {w.elsewhere[package_of(u)]}"
     cores = _cores(active, rnd)
     for w in workers.values():
         if cores:
@@ -234,11 +251,13 @@ def _round(workers: dict, active: list[ABUnit], blocks: int, rnd: int, failures:
     return pd.DataFrame(rows, columns=SAMPLE_COLUMNS)
 
 
-def run_ab(units: list[ABUnit], ref_root: Path, head_root: Path, decide, min_rounds: int = 3,
+def run_ab(units: list[ABUnit], ref_root: Code | Path, head_root: Code | Path, decide, min_rounds: int = 3,
            max_rounds: int = 8, blocks: int = 3, budget_s: float = 900.0, seed: int = 0,
            inject: dict | None = None, log=print, workdir=None) -> tuple[pd.DataFrame, dict]:
     """Rounds of one REF (side ``"ref"``) and one HEAD (``"head"``) worker process, their blocks
-    timed in turn (module docstring).
+    timed in turn (module docstring). ``ref_root``, ``head_root``: each side's code
+    (:class:`~.ab_code.Code`, or a folder holding that side's tissuebench package); a unit whose
+    method's package a side's worker imported from elsewhere than that side's code fails there.
 
     ``decide(samples) -> set of decided uids`` is called after each round from ``min_rounds``
     on. ``min_rounds`` rounds always run: the time budget ``budget_s`` [s] ends the A/B only
@@ -251,7 +270,7 @@ def run_ab(units: list[ABUnit], ref_root: Path, head_root: Path, decide, min_rou
     if min_rounds < 2 or max_rounds < min_rounds or blocks < 1:
         raise ValueError(f"A/B rounds: need 2 <= min_rounds ({min_rounds}) <= max_rounds ({max_rounds}), "
                          f"blocks ({blocks}) >= 1")
-    roots = {"ref": Path(ref_root), "head": Path(head_root)}
+    roots = {"ref": as_code(ref_root), "head": as_code(head_root)}
     frames, failures, active = [], {}, list(units)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="tissuebench-ab.", dir=workdir) as tmp:
