@@ -6,7 +6,6 @@ through the CLI: tests/studies/test_gate_own_repo.py (slow)."""
 from __future__ import annotations
 
 import importlib
-import json
 import sys
 from pathlib import Path
 
@@ -15,7 +14,7 @@ import pytest
 from tissuebench.reports.gate import HEAD_ROOT
 from tissuebench.studies.ab_code import Code, foreign
 from tissuebench.studies.ab_project import export_project, find_project, git_top
-from tissuebench.studies.ab_ref import _methods_of
+from tissuebench.studies.ab_ref import _methods_of, run_ref_sweep
 
 from _gate_repo import commit, git, init
 
@@ -164,8 +163,9 @@ def test_refs_processes_run_refs_plugin_or_leave_its_methods_out_saying_why(tmp_
     code, _ = export_project(project, base, tmp_path / "ref", HEAD_ROOT)
     assert _methods_of(code, {"tbp_r.m:R", "nearest"}) == {}
     lacking = Code((tmp_path / "empty", HEAD_ROOT), {**code.packages, "tbp_r": None})  # REF without the package
-    dropped = _methods_of(lacking, {"tbp_r.m:R", "nearest", "tbp_none:X"})
-    assert dropped == {"tbp_none:X": "unknown to REF's code", "tbp_r.m:R": (
-        f"not REF's code: tbp_r comes from {repo / 'src' / 'tbp_r' / '__init__.py'}, and this side has no package "
-        "tbp_r")}
-    assert json.dumps(dropped)  # plain data: the note REF's sweep logs
+    spec = '[[case]]\nname = "cornea_pinch"\n[[method]]\nname = "tbp_r.m:R"\n[[method]]\nname = "tbp_none:X"\n'
+    ran, why = run_ref_sweep(lacking, spec, "ci", ["cornea_pinch"], tmp_path / "ref-sweep", log=lambda m: None)
+    assert not ran and why == (
+        "REF cannot run any method of the spec: tbp_none:X (unknown to REF's code); tbp_r.m:R (not REF's code: tbp_r "
+        f"comes from {repo / 'src' / 'tbp_r' / '__init__.py'}, and this side has no package tbp_r)")
+    assert not (tmp_path / "ref-sweep").exists()  # nothing run

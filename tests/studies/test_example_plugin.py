@@ -8,28 +8,15 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
-import sys
-import sysconfig
 from pathlib import Path
 
 import pytest
 
 from tissuebench.studies.results import read_units
 
+from _venv import chained_venv as _venv
+
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "bring_your_own_method"
-
-
-def _venv(root: Path) -> Path:
-    """A fresh venv whose site-packages chain this interpreter's (tissuebench and its dependencies,
-    as installed here): ``venv --system-site-packages`` from inside a venv would reach the base
-    interpreter's instead."""
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(root)], check=True)
-    python = root / "bin" / "python"
-    purelib = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                             capture_output=True, text=True, check=True).stdout.strip()
-    Path(purelib, "_chain_tissuebench.pth").write_text(
-        f"import site; site.addsitedir({sysconfig.get_paths()['purelib']!r})\n")
-    return python
 
 
 def _run(python, *args, cwd):

@@ -168,6 +168,8 @@ def run_ref_sweep(ref: Code | Path, spec_text: str, resolution: str, case_ids: l
     text, dropped = _spec_for(ref, spec_text)
     note = ("methods REF cannot run with its own code, left to the baseline file: " + "; ".join(
         f"{name} ({why})" for name, why in dropped.items())) if dropped else ""
+    if dropped and not tomlkit.parse(text).get("method"):
+        return False, "REF cannot run any method of the spec: " + note.split(": ", 1)[1]
     spec = Path(f"{out}.toml")
     spec.write_text(text)
     cmd = [sys.executable, "-m", "tissuebench.cli", "sweep", str(spec), "--out", str(out), "--quiet",

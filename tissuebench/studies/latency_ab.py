@@ -55,6 +55,7 @@ from pathlib import Path
 import pandas as pd
 
 from ..rom import make_method
+from ..rom.plugins import PLUGINS
 from .ab_code import Code, as_code, code_env, foreign
 from .ab_ref import portable_spec_text
 from .case_entry import CaseEntry
@@ -111,6 +112,19 @@ class ABUnit:
     steps: int
     warmup: int
     blas_threads: int
+    package: str = "tissuebench"  # the top-level package of the method's class
+
+
+def _method_of(name: str, source: str) -> tuple[str, str]:
+    """``(what a worker builds, its top-level package)`` of a unit's method: a plugin loaded by
+    its entry point goes by its name, which each side's registry resolves through its own
+    entry points (the class may have moved between the two versions); one named by
+    "module:Class" by that; a shipped method by its name."""
+    if not source:
+        return name, "tissuebench"
+    plugin = PLUGINS.get(name)
+    by_name = plugin is not None and plugin.how == "entry point" and plugin.source == source
+    return (name if by_name else source), source.split(":")[0].split(".")[0]
 
 
 def ab_units(results_dir, rows: pd.DataFrame, workdir=None) -> list[ABUnit]:
@@ -131,15 +145,10 @@ def ab_units(results_dir, rows: pd.DataFrame, workdir=None) -> list[ABUnit]:
             raise ValueError(f"{results_dir}: unit {row['case']} {row['label']} is not in the sweep's spec "
                              f"(_sweep.json spec_text): the store and its spec disagree")
         p = u.protocol
-        # a method from another package goes by its "module:Class": either side's worker imports it
-        out.append(ABUnit(row["unit_key"], u.case.as_dict(), u.source or u.method, u.options, int(p["latency_steps"]),
-                          int(p["warmup"]), int(p.get("blas_threads") or 0)))
+        method, package = _method_of(u.method, u.source)
+        out.append(ABUnit(row["unit_key"], u.case.as_dict(), method, u.options, int(p["latency_steps"]),
+                          int(p["warmup"]), int(p.get("blas_threads") or 0), package))
     return out
-
-
-def package_of(unit: ABUnit) -> str:
-    """The top-level package of the unit's method: its module's for "module:Class", else tissuebench."""
-    return unit.method.split(":")[0].split(".")[0] if ":" in unit.method else "tissuebench"
 
 
 class _Worker:
@@ -226,8 +235,8 @@ def _round(workers: dict, active: list[ABUnit], blocks: int, rnd: int, failures:
             if res["status"] != "ok":
                 failures.setdefault(uid, {})[side] = res.get("message", "")
         for u in active:
-            if package_of(u) in w.elsewhere:
-                failures.setdefault(u.uid, {})[side] = f"not the {side} side's code: {w.elsewhere[package_of(u)]}"
+            if u.package in w.elsewhere:
+                failures.setdefault(u.uid, {})[side] = f"not the {side} side's code: {w.elsewhere[u.package]}"
     cores = _cores(active, rnd)
     for w in workers.values():
         if cores:
