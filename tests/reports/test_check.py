@@ -277,12 +277,13 @@ def _repo(root, files: dict, commits: int = 1):
     return root
 
 
-def test_a_ref_git_cannot_resolve_exits_2_even_with_a_baseline(gated, tmp_path, capsys):
+def test_a_ref_git_cannot_resolve_exits_2_even_with_a_baseline(gated, tmp_path, capsys, monkeypatch):
     """A mistyped REF once fell back to the baseline file and passed (exit 0): the fallback is the
     shallow clone's only."""
     _, out, baseline = gated
     repo = _repo(tmp_path / "repo", {"tissuebench/__init__.py": ""}, commits=2)
-    with pytest.raises(ValueError, match=rf"--against = 'HEAD~zz': not a commit of the repository {repo}"):
+    with pytest.raises(ValueError, match=rf"--against = 'HEAD~zz': not a commit of the repository {repo} .*; the "
+                                         r"project under test: given by --project \(--project PATH for another\)"):
         check(out, baseline, against="HEAD~zz", project=repo)
     (tmp_path / "plain").mkdir()
     with pytest.raises(ValueError, match=rf"--project = '{tmp_path / 'plain'}': not inside a git checkout"):
@@ -293,6 +294,11 @@ def test_a_ref_git_cannot_resolve_exits_2_even_with_a_baseline(gated, tmp_path, 
     captured = capsys.readouterr()
     assert "tissuebench: error: --against = 'HEAD~zz': " in captured.err and captured.err.count("\n") == 1
     assert "hold" not in captured.out
+    # no --project: the working directory's repository (the sweep runs tissuebench's methods only), named
+    monkeypatch.chdir(repo)
+    assert main(["check", str(out), "--baseline", str(baseline), "--against", "HEAD~zz"]) == 2
+    assert (f"not a commit of the repository {repo} (a branch, tag or commit that git rev-parse resolves there, e.g. "
+            "HEAD~1); the project under test: the working directory's repository") in capsys.readouterr().err
 
 
 def test_the_options_of_the_project_under_test_are_checked_naming_them(gated, tmp_path, capsys):

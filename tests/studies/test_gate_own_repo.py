@@ -108,8 +108,11 @@ def test_a_slower_step_of_the_users_package_is_flagged(user_repo):
     assert re.search(r"A/B slower cornea_pinch pod_polyreg .*: HEAD/REF \d", proc.stdout), proc.stdout
     assert "check: 1 regressions in 1 units (errors against" in proc.stdout
     assert not re.search(r"pod_polyreg\s+error\s+was", proc.stdout)
-    junit = ET.parse(repo / "out" / "tissuebench-gate" / "junit.xml").getroot()
+    junit = ET.parse(repo / "out" / "tissuebench-gate" / "_junit.xml").getroot()
     assert junit.get("failures") == "1" and "latency_ab" in ET.tostring(junit, encoding="unicode")
+    props = {p.get("name"): p.get("value") for p in junit.iter("property")}
+    assert props["project"].startswith(str(repo)) and props["ref"].startswith(f"{base} = {base[:12]} of {repo}")
+    assert props["head"].startswith(f"the working tree of {repo} at ")
 
 
 @pytest.mark.slow

@@ -6,7 +6,8 @@
 # 2. `tissuebench check --against` the merge base of HEAD and BASE: REF's code (the package at the
 #    merge base, exported from git; the same tissuebench) runs the same sweep, every unit's error
 #    must equal REF's, and every unit is timed A/B (both versions, in turn, on one core);
-# 3. writes JUnit ($OUT/junit.xml) beside the results and the A/B's samples ($OUT/_gate/).
+# 3. writes JUnit ($OUT/_junit.xml: the results store reads no file named _*); the A/B's samples,
+#    verdicts and plot are in $OUT/_gate/.
 #
 # BASE: the branch the change goes into (default origin/$GITHUB_BASE_REF in a pull request, else
 # origin/main); on that branch itself (merge base = HEAD) the previous commit. Needs the history:
@@ -39,4 +40,4 @@ $tb sweep "$spec" --out "$out" --quiet || status=$?
 if [ "$status" -gt 1 ]; then  # 1: a unit failed, stored: the check judges it against REF's run
     exit "$status"
 fi
-$tb check "$out" --against "$ref" --latency-floor-s "${LATENCY_FLOOR_S:-0}" --junit "$out/junit.xml"
+$tb check "$out" --against "$ref" --latency-floor-s "${LATENCY_FLOOR_S:-0}" --junit "$out/_junit.xml"
