@@ -117,18 +117,8 @@ def check(results_dir, baseline=None, against: str | None = None, require: str |
         out.notes.append(f"--against {against}: {why}: falling back to the baseline file {baseline}, as for "
                          "any shallow clone (fetch the history, e.g. git fetch --unshallow, to compare with REF)")
     if sha is not None:
-        log(f"project under test: {out.project}")
-        with ref_scratch(log) as tmp:
-            ref_code, held = export_project(proj, sha, tmp / "code", HEAD_ROOT)
-            out.sides = [f"REF  {against} = {sha[:12]} of {proj.repo}: {held}",
-                         f"HEAD {describe_head(proj, HEAD_ROOT)}"]
-            for line in out.sides:
-                log(line)
-            broken = ref_import_error(ref_code)
-            if broken:
-                raise ValueError(f"--against {against}: REF's code ({sha[:12]}) {broken}; REF cannot run the sweep")
-            _against_ref(out, results_dir, rows, ok_rows, units, defaults, baseline, proj.repo, sha, against,
-                         (ref_code, head_code(proj, HEAD_ROOT)), tmp, ab or ABSettings(), log)
+        _with_ref(out, proj, sha, against, (results_dir, rows, ok_rows), units, defaults, baseline, ab or ABSettings(),
+                  log)
     elif units:
         checks.errors_against_baseline(out, rows, units, defaults)
         checks.latency_from_file(out, rows, units, defaults, "" if against else "no --against: ")
@@ -154,6 +144,22 @@ def _resolve(proj, against: str) -> tuple[str | None, str]:
         return resolve_ref(proj.repo, against)
     except ValueError as exc:
         raise ValueError(f"{exc}; the project under test: {proj.how} (--project PATH for another)") from None
+
+
+def _with_ref(out, proj, sha: str, against: str, results, units, defaults, baseline, settings, log) -> None:
+    """REF's packages exported into a scratch folder (what each side runs said in ``out.sides``),
+    checked to import, then the errors and the A/B against REF (:func:`_against_ref`)."""
+    log(f"project under test: {out.project}")
+    with ref_scratch(log) as tmp:
+        ref_code, held = export_project(proj, sha, tmp / "code", HEAD_ROOT)
+        out.sides = [f"REF  {against} = {sha[:12]} of {proj.repo}: {held}", f"HEAD {describe_head(proj, HEAD_ROOT)}"]
+        for line in out.sides:
+            log(line)
+        broken = ref_import_error(ref_code)
+        if broken:
+            raise ValueError(f"--against {against}: REF's code ({sha[:12]}) {broken}; REF cannot run the sweep")
+        _against_ref(out, *results, units, defaults, baseline, proj.repo, sha, against,
+                     (ref_code, head_code(proj, HEAD_ROOT)), tmp, settings, log)
 
 
 def _against_ref(out, results_dir, rows, ok_rows, units, defaults, baseline, repo, sha, against, sides, tmp,
