@@ -11,8 +11,8 @@
 ``tissuebench cache ls|clear [--cache URL]`` the reference-run cache
 ``tissuebench report RESULTS [--out report.html] [--require "rate>=500Hz, error<=2%"] [--case C]``
                                             self-contained HTML: which method for which scene
-``tissuebench check RESULTS --baseline FILE [--update-baseline] [--junit OUT.xml]``
-                                            regression gate on error and latency ratios
+``tissuebench check RESULTS [--baseline FILE] [--against REF] [--project PATH] [--junit OUT.xml]``
+                                            regression gate: errors exactly, latency A/B
 ``tissuebench verify [RESULTS] [--resolution ci|paper] [--backend B] [--cases C,D]``
                                             external anchors (Cook, Land et al.); written to
                                             RESULTS/_anchors.parquet for the report; with
@@ -352,15 +352,44 @@ def _report(args) -> int:
     return 0
 
 
+CHECK_HELP = """\
+Errors are gated exactly: against REF's own run of the same sweep with --against REF, else
+against the baseline file. Latency is gated by the A/B of --against REF only (REF's code and
+this code timed in turn on one core): a unit is slower when its ratio's interval lies above
+sqrt(latency_tolerance) and its step grew by at least latency_floor_s. The baseline file's
+latency ratios (no --against, or a shallow clone) are printed for information, never gated:
+they move 2-3x between runs of identical code for microsecond steps.
+
+REF is found in the repository of the project under test: --project PATH, else the repository
+of the sweep's plugin methods' package, else the working directory's (said in the output). Its
+packages are exported at REF and come first on the path of REF's processes; tissuebench and
+every other package are the same on both sides.
+
+latency_floor_s [s] (default 1e-5: 10 us, 1 % of a 1 kHz haptic step) is the least increase
+of the step that counts as slower: a 1.5x slowdown of a 6 us step adds 3 us and passes it. For
+a microsecond ROM give --latency-floor-s 0 (the ratio alone decides) or the least increase
+that matters, e.g. 1e-6; a baseline file sets it in [defaults] or per [[unit]] (a unit's own
+value wins over the command). A unit the floor held is said in the verdict line."""
+
+
 def _check_parser(sub):
     chk = sub.add_parser("check", help="fail on a regression in error or latency (A/B against a git ref) or on a "
-                                       "requirement no unit meets")
+                                       "requirement no unit meets", description=CHECK_HELP,
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
     chk.add_argument("results", type=Path, help="a sweep's results folder")
     chk.add_argument("--baseline", type=Path, default=None, help="baseline TOML: errors gated exactly (e.g. "
-                     "baselines/ci.toml); latency too when there is no --against")
-    chk.add_argument("--against", default=None, metavar="REF", help="git ref (e.g. HEAD~1): every unit re-timed "
-                     "with REF's code and this code, their processes timed in turn on one core (A/B); in a shallow "
+                     "baselines/ci.toml) when there is no --against, and declared error changes with it; its "
+                     "latency ratios are shown for information only")
+    chk.add_argument("--against", default=None, metavar="REF", help="git ref (e.g. HEAD~1, the merge base) of the "
+                     "project under test: REF's code runs the same sweep (errors) and every unit is re-timed with "
+                     "REF's code and this code, their processes timed in turn on one core (A/B); in a shallow "
                      "clone that lacks REF, falls back to --baseline (any other REF git cannot resolve: exit 2)")
+    chk.add_argument("--project", type=Path, default=None, metavar="PATH", help="with --against: a path in the git "
+                     "repository of the code under test (default: the repository of the sweep's plugin methods, "
+                     "else the working directory's)")
+    chk.add_argument("--latency-floor-s", type=float, default=None, metavar="SECONDS", help="A/B: the least step "
+                     "increase that counts as slower (default: the baseline's latency_floor_s, else 1e-5); 0 for a "
+                     "microsecond ROM")
     chk.add_argument("--require", default=None, help='e.g. "rate>=500Hz, error<=2%%": every case needs a unit that '
                      "meets it (p99 rule of the report)")
     chk.add_argument("--update-baseline", action="store_true", help="rewrite the baseline from the results")
@@ -404,7 +433,8 @@ def _check(args) -> int:
         print(f"baseline {args.baseline}: {n} units written from {args.results}")
         return 0
     result = check(args.results, args.baseline, args.against, args.require, _ab_settings(args),
-                   log=lambda m: print(m, file=sys.stderr, flush=True))
+                   log=lambda m: print(m, file=sys.stderr, flush=True), project=args.project,
+                   latency_floor_s=args.latency_floor_s)
     _print_check(result, args)
     if args.junit:
         try:
@@ -415,18 +445,28 @@ def _check(args) -> int:
 
 
 def _print_check(result, args) -> None:
+    if result.project:
+        print(f"project under test: {result.project}")
+    for line in result.sides:
+        print(line)
     for note in result.notes:
         print(f"note: {note}")
-    for key in result.new_units:
+    for key in result.new_units if args.baseline is not None else ():  # without a baseline, every unit is new
         print(f"note: {' '.join(key)} is not in the baseline" + (" and failed (--update-baseline leaves failed "
               "units out)" if key in result.new_failed else " (run --update-baseline to add it)"))
     for key, v in sorted(result.ab.items(), key=lambda kv: -kv[1].ratio):
         print(f"A/B {v.verdict:6s} {key[0]} {key[1]} {key[2]}: {v.text()}")
     errors = {"ref": f"errors against {args.against}", "baseline": f"errors against {args.baseline}",
               "none": "no error check"}[result.errors_against]
-    latency = {"ab": f"latency A/B against {args.against}", "file": f"latency against {args.baseline}",
-               "none": "no latency check"}[result.latency_mode]
+    latency = {"ab": f"latency A/B against {args.against}", "file": "latency not gated (no REF: the baseline's "
+               "ratios noted for information)", "none": "no latency check"}[result.latency_mode]
     what = f"{errors}, {latency}" + (f", requirement {args.require!r}" if args.require else "")
+    held = result.held_by_floor
+    if held:
+        floors = sorted({result.ab[k].floor_s for k in held})
+        what += (f"; {len(held)} unit{'s' if len(held) > 1 else ''} slower by ratio but held by the latency floor "
+                 f"({', '.join(f'{f * 1e6:g} us' for f in floors)}: {', '.join(k[1] for k in held)}; "
+                 "--latency-floor-s 0 gates microsecond steps)")
     units = len([k for k in result.per_unit if k[1] != "*"])
     if result.ok:
         print(f"check: {units} units hold ({what})")

@@ -152,7 +152,7 @@ def test_refs_sweep_keeps_the_plugin_methods_refs_code_resolves(installed):
     (installed.root / "tb_direct3.py").write_text(toy_source("direct_toy3"))
     text = "\n".join(f'[[method]]\nname = "{n}"' for n in ("toy_plug", "tb_direct3:Toy", "nearest", "tb_nope:X"))
     kept, dropped = _spec_for(Path(tissuebench.__file__).parents[1], text)
-    assert dropped == ["tb_nope:X"] and "toy_plug" in kept and "tb_direct3:Toy" in kept
+    assert dropped == {"tb_nope:X": "unknown to REF's code"} and "toy_plug" in kept and "tb_direct3:Toy" in kept
 
 
 def test_a_copy_of_tissuebench_first_on_the_path_still_finds_the_installed_plugins(installed, tmp_path):

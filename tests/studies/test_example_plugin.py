@@ -5,31 +5,20 @@ two catalogue scenes beside pod_interp and anm_pod, the report, and the package'
 tissuebench's contract checks."""
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
 import sys
-import sysconfig
 from pathlib import Path
 
 import pytest
 
 from tissuebench.studies.results import read_units
 
+from _venv import chained_venv as _venv
+
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "bring_your_own_method"
-
-
-def _venv(root: Path) -> Path:
-    """A fresh venv whose site-packages chain this interpreter's (tissuebench and its dependencies,
-    as installed here): ``venv --system-site-packages`` from inside a venv would reach the base
-    interpreter's instead."""
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(root)], check=True)
-    python = root / "bin" / "python"
-    purelib = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                             capture_output=True, text=True, check=True).stdout.strip()
-    Path(purelib, "_chain_tissuebench.pth").write_text(
-        f"import site; site.addsitedir({sysconfig.get_paths()['purelib']!r})\n")
-    return python
 
 
 def _run(python, *args, cwd):
@@ -60,3 +49,62 @@ def test_the_example_plugin_installed_listed_swept_reported_and_checked(tmp_path
     assert "tissuebench-podreg 0.1.0" in (work / "out" / "sweep" / "_report" / "report.html").read_text()
     checked = _run(python, "-m", "pytest", "-q", "-p", "no:cacheprovider", cwd=work)
     assert "failed" not in checked and " passed" in checked, checked[-2000:]
+
+
+# ------------------------------------------------------------------ issue 39: the example's CI recipe
+STUB = """import json, os, sys
+with open(os.environ["TB_CALLS"], "a") as fh:
+    fh.write(json.dumps(sys.argv[1:]) + "\\n")
+"""
+
+
+def test_the_ci_recipe_checks_against_the_merge_base_and_writes_junit(tmp_path):
+    """``ci/gate.sh``: sweep the spec, then ``check --against`` the merge base of HEAD and the base
+    branch (the previous commit on the base branch itself), the floor for a microsecond step, JUnit
+    beside the results; no merge base: exit 2 saying what to fetch. ``tissuebench`` stands in
+    (``$TISSUEBENCH``) to record its arguments."""
+    from _gate_repo import commit, git, init
+
+    repo = init(tmp_path / "repo")
+    shutil.copytree(EXAMPLE / "ci", repo / "ci")
+    base = commit(repo, {"spec.toml": "x"}, "base")
+    git(repo, "checkout", "-q", "-b", "feature")
+    head = commit(repo, {"a.txt": "1"}, "feature")
+    calls = tmp_path / "calls.jsonl"
+    (tmp_path / "stub.py").write_text(STUB)
+    env = {**os.environ, "TISSUEBENCH": f"{sys.executable} {tmp_path / 'stub.py'}", "TB_CALLS": str(calls)}
+
+    def gate(*args):
+        calls.unlink(missing_ok=True)
+        proc = subprocess.run(["bash", "ci/gate.sh", *args], cwd=repo, capture_output=True, text=True, env=env)
+        return proc, [json.loads(line) for line in calls.read_text().splitlines()] if calls.exists() else []
+
+    proc, said = gate("main")
+    assert proc.returncode == 0, proc.stderr
+    assert said == [["sweep", "spec.toml", "--out", "out/tissuebench-gate", "--quiet"],
+                    ["check", "out/tissuebench-gate", "--against", base, "--latency-floor-s", "0", "--junit",
+                     "out/tissuebench-gate/_junit.xml"]]
+    assert f"against {base[:7]} (merge base with main)" in proc.stdout
+    git(repo, "checkout", "-q", "main")
+    git(repo, "merge", "-q", "--ff-only", "feature")
+    proc, said = gate("main")  # on the base branch: its last commit against the previous one
+    assert said[1][3] == base and head == git(repo, "rev-parse", "HEAD")
+    env["LATENCY_FLOOR_S"], env["SPEC"] = "1e-6", "other.toml"
+    proc, said = gate("main")
+    assert said[0][1] == "other.toml" and said[1][5] == "1e-6"
+    proc, said = gate("origin/nowhere")
+    assert proc.returncode == 2 and said == [] and "gate: no merge base of HEAD and origin/nowhere" in proc.stderr
+
+
+def test_the_ci_workflow_checks_out_the_history_runs_the_recipe_and_keeps_the_junit():
+    import yaml
+
+    flow = yaml.safe_load((EXAMPLE / ".github" / "workflows" / "tissuebench-gate.yml").read_text())
+    steps = flow["jobs"]["gate"]["steps"]
+    checkout = next(s for s in steps if str(s.get("uses", "")).startswith("actions/checkout"))
+    assert checkout["with"]["fetch-depth"] == 0  # the merge base is in the history
+    runs = [s["run"] for s in steps if "run" in s]
+    assert any("pip install -e ." in r for r in runs) and any(r.startswith("bash ci/gate.sh") for r in runs)
+    upload = next(s for s in steps if str(s.get("uses", "")).startswith("actions/upload-artifact"))
+    assert upload["if"] == "always()" and "out/tissuebench-gate/_junit.xml" in upload["with"]["path"]
+    assert set(flow[True]) == {"pull_request", "push"}  # YAML reads the key `on` as True

@@ -12,11 +12,13 @@ Usage: ``python ab_probe.py JOB.json``, spoken to in JSON lines on stdin/stdout.
 
     {"units": [{"uid": "u0", "case": {...}, "method": "anm_pod", "options": {...},
                 "steps": 300, "warmup": 30, "blas_threads": 1}, ...],
-     "seed": 0, "inject": {"u0": 1.3} (optional, power tests only)}
+     "seed": 0, "inject": {"u0": 1.3} (optional, power tests only),
+     "packages": ["tissuebench", "podreg"] (the project's packages)}
 
 The worker first builds every unit through the side's code and answers
-``{"ready": true, "tissuebench": PATH, "units": {uid: {"status", "message"}}}`` (a unit whose
-build raises is reported with its message; the others go on). Then each command
+``{"ready": true, "tissuebench": PATH, "units": {uid: {"status", "message"}}, "modules": {name:
+PATH}}`` (a unit whose build raises is reported with its message; the others go on; ``modules``:
+the file of every module of ``packages`` it imported). Then each command
 ``{"time": uid}`` times one block of ``steps`` haptic steps (``step`` + ``outputs`` back to
 back, each timed with ``time.perf_counter``) and answers ``{"uid", "status", "message",
 "block": [s, ...], "copies": bool}``; ``{"cpus": [0]}`` pins every thread of the worker to
@@ -166,6 +168,10 @@ def serve(job, commands, reply):
             ready["units"][unit["uid"]] = {"status": "ok", "message": ""}
         except Exception as exc:  # one unit failing is data, the others go on
             ready["units"][unit["uid"]] = _failure(exc)
+    # where every module of the project's packages came from: the orchestrator checks it is the side's code
+    tops = set(job.get("packages") or ())
+    ready["modules"] = {n: getattr(m, "__file__", None) for n, m in list(sys.modules.items())
+                        if n.split(".")[0] in tops}
     reply(ready)
     for line in commands:
         cmd = json.loads(line)

@@ -1,16 +1,18 @@
 """REF, the code a change is compared with (``tissuebench check --against REF``): found in git,
 exported, and its own sweep run on this machine.
 
-REF's ``tissuebench`` package is exported with ``git archive`` into a scratch folder (no
-worktree bookkeeping left in the repository, any commit, branch or tag); it runs with the
-dependencies installed here, first on ``PYTHONPATH`` of its own processes. Its sweep of the
-same spec gives the errors HEAD's are compared with, exactly: same machine, same packages,
-same references, so identical code gives bit-identical errors and any change is the code's.
+REF's packages of the project under test (:mod:`.ab_project`: tissuebench's own when the project
+is tissuebench, :func:`export_ref`; a user's method package otherwise) are exported with ``git
+archive`` into a scratch folder (no worktree bookkeeping left in the repository, any commit,
+branch or tag); they run with the dependencies installed here, first on ``PYTHONPATH`` of REF's
+own processes (:class:`~.ab_code.Code`), which are checked to import them and not HEAD's copies.
+Its sweep of the same spec gives the errors HEAD's are compared with, exactly: same machine,
+same packages, same references, so identical code gives bit-identical errors and any change is
+the code's.
 """
 from __future__ import annotations
 
 import json
-import os
 import re
 import shutil
 import subprocess
@@ -21,6 +23,7 @@ from pathlib import Path
 import tomlkit
 
 from ..cases.scene import list_cases
+from .ab_code import MODULE_FILES, Code, as_code, code_env, foreign
 from .ref_scratch import child_options
 
 __all__ = ["check_ref_text", "resolve_ref", "export_ref", "ref_import_error", "portable_spec_text", "run_ref_sweep",
@@ -96,74 +99,84 @@ def file_at_ref(repo, sha: str, path) -> str | None:
     return shown.stdout if shown.returncode == 0 else ""
 
 
-def code_env(root: Path) -> dict:
-    """This process's environment with ``root`` (a folder holding a tissuebench package) first
-    on ``PYTHONPATH``: a child process then runs that code. ``PYTHONSAFEPATH=1`` (Python 3.11):
-    ``python -m`` and ``-c`` would put the working folder before ``PYTHONPATH``, and from a
-    checkout's root that is HEAD's package (REF's sweep ran HEAD's code there, CI's case)."""
-    return {**os.environ, "PYTHONSAFEPATH": "1", "PYTHONPATH": os.pathsep.join(
-        [str(root)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])}
-
-
 # run by REF's interpreter: which of the spec's method names (registry names, the installed plugins'
-# included, or "module:Class") REF's registry resolves
+# included, or "module:Class") REF's registry resolves, each with its class's module, and where the
+# modules of the project's packages (TOPS) came from
 _KNOWN = """import json, sys
 from tissuebench.rom import method_class
-known = []
+known = {}
 for name in json.loads(sys.argv[1]):
     try:
-        method_class(name)
-        known.append(name)
+        known[name] = method_class(name).__module__
     except Exception:
         pass
-print(json.dumps(known))
-"""
+TOPS = set(json.loads(sys.argv[2]))
+print(json.dumps({"known": known, "files": %s}))
+""" % MODULE_FILES
 
 
-def _methods_of(ref_root: Path, names) -> set | None:
-    """The method names of ``names`` REF's registry resolves (None when REF cannot say)."""
-    proc = subprocess.run([sys.executable, "-c", _KNOWN, json.dumps(sorted(names))], env=code_env(ref_root),
-                          capture_output=True, text=True, **child_options())
+def _methods_of(code: Code, names) -> dict | None:
+    """``{name: why REF cannot run it}`` for the method names of ``names`` REF's processes do not
+    resolve to REF's code: unknown there, or of a package of the project that those processes import
+    from elsewhere (HEAD's copy: REF has no such package, or an import hook served it); None when
+    REF cannot say."""
+    code = as_code(code)
+    proc = subprocess.run([sys.executable, "-c", _KNOWN, json.dumps(sorted(names)), json.dumps(sorted(code.packages))],
+                          env=code_env(code), capture_output=True, text=True, **child_options())
     try:
-        return set(json.loads(proc.stdout.strip().splitlines()[-1])) if proc.returncode == 0 else None
-    except (ValueError, IndexError):
+        said = json.loads(proc.stdout.strip().splitlines()[-1]) if proc.returncode == 0 else None
+        known, files = (said["known"], said["files"]) if said is not None else (None, None)
+    except (ValueError, IndexError, KeyError, TypeError):
         return None
+    if not isinstance(known, dict) or not isinstance(files, dict):
+        return None
+    elsewhere = foreign(files, code)
+    out = {}
+    for name in sorted(names):
+        top = str(known.get(name, "")).split(".")[0]
+        if name not in known:
+            out[name] = "unknown to REF's code"
+        elif top in elsewhere:
+            out[name] = f"not REF's code: {elsewhere[top]}"
+    return out
 
 
-def _spec_for(ref_root: Path, spec_text: str) -> tuple[str, list]:
-    """The spec without the ``[[method]]`` entries REF does not have (a method added since:
-    REF cannot run it, and would refuse the whole spec); the names left out."""
+def _spec_for(ref: Code | Path, spec_text: str) -> tuple[str, dict]:
+    """The spec without the ``[[method]]`` entries REF cannot run with its own code (a method added
+    since: REF would refuse the whole spec; or a package REF's processes would take from HEAD);
+    ``{name left out: why}``."""
     doc = tomlkit.parse(spec_text)
     if "method" not in doc:
-        return spec_text, []
-    known = _methods_of(ref_root, {str(m.get("name")) for m in doc["method"]})
-    if known is None:
-        return spec_text, []
-    dropped = sorted({m.get("name") for m in doc["method"] if m.get("name") not in known})
+        return spec_text, {}
+    dropped = _methods_of(as_code(ref), {str(m.get("name")) for m in doc["method"]})
     if not dropped:
-        return spec_text, []
+        return spec_text, {}
     kept = tomlkit.aot()
     for m in doc["method"]:
-        if m.get("name") in known:
+        if str(m.get("name")) not in dropped:
             kept.append(m)
     doc["method"] = kept
     return tomlkit.dumps(doc), dropped
 
 
-def run_ref_sweep(ref_root: Path, spec_text: str, resolution: str, case_ids: list, out: Path,
+def run_ref_sweep(ref: Code | Path, spec_text: str, resolution: str, case_ids: list, out: Path,
                   log=print) -> tuple[bool, str]:
-    """Run the sweep ``spec_text`` (only ``case_ids``) with REF's code into ``out``, its spec
-    written beside it (``out`` + ``.toml``); ``(True, note)`` when REF's sweep ran (failed units
-    included), else ``(False, why)``. REF's process dies with this one (:mod:`.ref_scratch`)."""
-    text, dropped = _spec_for(ref_root, spec_text)
-    note = f"methods REF does not have, left to the baseline file: {dropped}" if dropped else ""
+    """Run the sweep ``spec_text`` (only ``case_ids``) with REF's code (:class:`~.ab_code.Code`, or
+    a folder holding REF's tissuebench) into ``out``, its spec written beside it (``out`` +
+    ``.toml``); ``(True, note)`` when REF's sweep ran (failed units included), else ``(False,
+    why)``. REF's process dies with this one (:mod:`.ref_scratch`)."""
+    text, dropped = _spec_for(ref, spec_text)
+    note = ("methods REF cannot run with its own code, left to the baseline file: " + "; ".join(
+        f"{name} ({why})" for name, why in dropped.items())) if dropped else ""
+    if dropped and not tomlkit.parse(text).get("method"):
+        return False, "REF cannot run any method of the spec: " + note.split(": ", 1)[1]
     spec = Path(f"{out}.toml")
     spec.write_text(text)
     cmd = [sys.executable, "-m", "tissuebench.cli", "sweep", str(spec), "--out", str(out), "--quiet",
            "--resolution", resolution, "--cases", ",".join(case_ids)]
     log(f"REF sweep: {len(case_ids)} cases with REF's code" + (f" ({note})" if note else ""))
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, env=code_env(ref_root), capture_output=True, text=True, **child_options())
+    proc = subprocess.run(cmd, env=code_env(ref), capture_output=True, text=True, **child_options())
     log(f"REF sweep: {time.perf_counter() - t0:.0f} s")
     if proc.returncode not in (0, 1):
         tail = " | ".join((proc.stderr or proc.stdout).strip().splitlines()[-2:])
@@ -171,33 +184,41 @@ def run_ref_sweep(ref_root: Path, spec_text: str, resolution: str, case_ids: lis
     return True, note
 
 
-# what REF's sweep imports first (a REF that cannot import them cannot run the sweep at all), and
-# the file of every tissuebench module imported: an editable install's import hook hands out HEAD's
-# module for a name REF's package lacks
-_REF_IMPORTS = ("import json, sys, tissuebench, tissuebench.cli, tissuebench.rom, tissuebench.studies.sweep; "
-                "print(); print(json.dumps({n: getattr(m, '__file__', None) for n, m in sys.modules.items() "
-                "if n == 'tissuebench' or n.startswith('tissuebench.')}))")
+# what REF's sweep imports first (a REF that cannot import them cannot run the sweep at all), then the
+# project's other packages REF has (argv[1]), and the file of every module of the project's packages
+# imported (TOPS): an editable install's import hook hands out HEAD's module for a name REF's package lacks
+_REF_IMPORTS = """import importlib, json, sys
+import tissuebench, tissuebench.cli, tissuebench.rom, tissuebench.studies.sweep
+for name in json.loads(sys.argv[1]):
+    importlib.import_module(name)
+TOPS = set(json.loads(sys.argv[2]))
+print()
+print(json.dumps(%s))
+""" % MODULE_FILES
 
 
-def ref_import_error(ref_root: Path) -> str:
-    """``""`` when REF's code (``ref_root``) imports in REF's processes, else why not, to follow
-    "REF's code": "failed to import: " and the last line of the error (a SyntaxError, an
-    ImportError: REF cannot run anything, which is not a result to compare), or the module those
-    processes import from elsewhere than REF's package."""
-    proc = subprocess.run([sys.executable, "-c", _REF_IMPORTS], env=code_env(ref_root), capture_output=True,
-                          text=True, **child_options())
+def ref_import_error(ref: Code | Path) -> str:
+    """``""`` when REF's code (:class:`~.ab_code.Code`, or a folder holding REF's tissuebench)
+    imports in REF's processes, else why not, to follow "REF's code": "failed to import: " and
+    the last line of the error (a SyntaxError, an ImportError: REF cannot run anything, which is
+    not a result to compare), or the module those processes import from elsewhere than REF's
+    package (tissuebench, and each package of the project REF has)."""
+    code = as_code(ref)
+    others = sorted(n for n, folder in code.packages.items() if folder is not None and n != "tissuebench")
+    proc = subprocess.run([sys.executable, "-c", _REF_IMPORTS, json.dumps(others), json.dumps(sorted(code.packages))],
+                          env=code_env(code), capture_output=True, text=True, **child_options())
     if proc.returncode != 0:
         lines = [ln.strip() for ln in (proc.stderr or proc.stdout or "").splitlines() if ln.strip()]
         return "failed to import: " + (lines[-1][:400] if lines else f"the interpreter exited {proc.returncode}")
     try:
         files = json.loads(proc.stdout.strip().splitlines()[-1])
     except (ValueError, IndexError):
+        files = None
+    if not isinstance(files, dict):
         return f"did not say where it imports tissuebench from ({proc.stdout[-200:]!r})"
-    package = (Path(ref_root) / "tissuebench").resolve()
-    foreign = sorted(n for n, f in files.items() if f and package not in Path(f).resolve().parents)
-    if foreign:
-        return (f"is not what REF's processes import: {foreign[0]} comes from {files[foreign[0]]}, not from "
-                f"{package}" + (f" ({len(foreign) - 1} more modules likewise)" if len(foreign) > 1 else ""))
+    elsewhere = {top: why for top, why in foreign(files, code).items() if code.packages.get(top) is not None}
+    if elsewhere:
+        return "is not what REF's processes import: " + "; ".join(elsewhere.values())
     return ""
 
 

@@ -5,9 +5,11 @@ across runs (microsecond medians move 2-3x between identical runs on a shared ma
 no tolerance survives that, a measurement design does). asv's ``continuous`` and pyperf's
 worker processes are the models:
 
-* REF's package is exported from git (:func:`.ab_ref.export_ref`) into a scratch folder;
-  HEAD is the package this process runs (the working tree, uncommitted changes included).
-  Both use the same installed dependencies.
+* REF's packages of the project under test are exported from git (:mod:`.ab_project`) into
+  a scratch folder; HEAD is the code this process runs (the working tree, uncommitted changes
+  included). Both use the same installed dependencies; each worker reports where it imported
+  the project's packages from, and a unit whose package came from the other side's copy (an
+  import hook, a package REF lacks) is not timed there (:mod:`.ab_code`).
 * Each round starts one worker process per side (:mod:`.ab_probe`, always HEAD's timing
   loop); the two build every still-undecided unit with their side's code at the same time
   (no timing runs then). Then, unit by unit, their ``blocks`` blocks of haptic steps are
@@ -53,7 +55,9 @@ from pathlib import Path
 import pandas as pd
 
 from ..rom import make_method
-from .ab_ref import code_env, portable_spec_text
+from ..rom.plugins import PLUGINS
+from .ab_code import Code, as_code, code_env, foreign
+from .ab_ref import portable_spec_text
 from .case_entry import CaseEntry
 from .evaluation import NEEDS_MODEL, build_evaluation
 from .protocol import _start, _timing_sequence
@@ -108,6 +112,19 @@ class ABUnit:
     steps: int
     warmup: int
     blas_threads: int
+    package: str = "tissuebench"  # the top-level package of the method's class
+
+
+def _method_of(name: str, source: str) -> tuple[str, str]:
+    """``(what a worker builds, its top-level package)`` of a unit's method: a plugin loaded by
+    its entry point goes by its name, which each side's registry resolves through its own
+    entry points (the class may have moved between the two versions); one named by
+    "module:Class" by that; a shipped method by its name."""
+    if not source:
+        return name, "tissuebench"
+    plugin = PLUGINS.get(name)
+    by_name = plugin is not None and plugin.how == "entry point" and plugin.source == source
+    return (name if by_name else source), source.split(":")[0].split(".")[0]
 
 
 def ab_units(results_dir, rows: pd.DataFrame, workdir=None) -> list[ABUnit]:
@@ -128,24 +145,26 @@ def ab_units(results_dir, rows: pd.DataFrame, workdir=None) -> list[ABUnit]:
             raise ValueError(f"{results_dir}: unit {row['case']} {row['label']} is not in the sweep's spec "
                              f"(_sweep.json spec_text): the store and its spec disagree")
         p = u.protocol
-        # a method from another package goes by its "module:Class": either side's worker imports it
-        out.append(ABUnit(row["unit_key"], u.case.as_dict(), u.source or u.method, u.options, int(p["latency_steps"]),
-                          int(p["warmup"]), int(p.get("blas_threads") or 0)))
+        method, package = _method_of(u.method, u.source)
+        out.append(ABUnit(row["unit_key"], u.case.as_dict(), method, u.options, int(p["latency_steps"]),
+                          int(p["warmup"]), int(p.get("blas_threads") or 0), package))
     return out
 
 
 class _Worker:
-    """One side's worker process of a round (:mod:`.ab_probe`), ``root`` first on its path."""
+    """One side's worker process of a round (:mod:`.ab_probe`), the side's code (:class:`~.ab_code.Code`)
+    first on its path."""
 
-    def __init__(self, side: str, root: Path, units: list[ABUnit], seed: int, scratch: Path, rnd: int,
+    def __init__(self, side: str, code: Code, units: list[ABUnit], seed: int, scratch: Path, rnd: int,
                  inject: dict | None):
-        self.side, self.root, tag = side, root, f"{side}{rnd}"
+        self.side, self.code, tag = side, code, f"{side}{rnd}"
         self.name = f"A/B {side} worker of round {rnd + 1}"
+        self.elsewhere: dict = {}  # package -> why this worker's copy of it is not the side's code
         job, self.err_path = scratch / f"{tag}.job.json", scratch / f"{tag}.stderr.txt"
-        job.write_text(json.dumps({"units": [asdict(u) for u in units], "seed": seed, "inject": inject or {}},
-                                  default=str))
+        job.write_text(json.dumps({"units": [asdict(u) for u in units], "seed": seed, "inject": inject or {},
+                                   "packages": sorted(code.packages)}, default=str))
         self._err = open(self.err_path, "w")  # a file, not a pipe: a chatty side cannot block on it
-        self.proc = subprocess.Popen([sys.executable, str(scratch / "ab_probe.py"), str(job)], env=code_env(root),
+        self.proc = subprocess.Popen([sys.executable, str(scratch / "ab_probe.py"), str(job)], env=code_env(code),
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._err, text=True,
                                      **child_options())
 
@@ -158,12 +177,16 @@ class _Worker:
         return json.loads(line)
 
     def ready(self) -> dict:
-        """The worker's build report, once every unit is built; checked to run ``root``'s code."""
+        """The worker's build report, once every unit is built; checked to run the side's code:
+        RuntimeError when its tissuebench is another's; the packages of the project it imported
+        from elsewhere are kept in ``elsewhere`` (their units cannot be timed on this side)."""
         out = self._read()
         loaded = out.get("tissuebench")
-        if out.get("error") or not loaded or Path(loaded).resolve().parents[1] != self.root.resolve():
+        files = {**(out.get("modules") or {}), "tissuebench": loaded}
+        self.elsewhere = foreign(files, self.code) if loaded else {}
+        if out.get("error") or not loaded or "tissuebench" in self.elsewhere:
             raise RuntimeError(f"{self.name}: {out.get('error') or ''} imported tissuebench from {loaded}, "
-                               f"not {self.root}")
+                               f"not {self.code.folder('tissuebench')}")
         return out
 
     def pin(self, cores: list[int]) -> None:
@@ -211,6 +234,9 @@ def _round(workers: dict, active: list[ABUnit], blocks: int, rnd: int, failures:
         for uid, res in w.ready()["units"].items():
             if res["status"] != "ok":
                 failures.setdefault(uid, {})[side] = res.get("message", "")
+        for u in active:
+            if u.package in w.elsewhere:
+                failures.setdefault(u.uid, {})[side] = f"not the {side} side's code: {w.elsewhere[u.package]}"
     cores = _cores(active, rnd)
     for w in workers.values():
         if cores:
@@ -234,11 +260,13 @@ def _round(workers: dict, active: list[ABUnit], blocks: int, rnd: int, failures:
     return pd.DataFrame(rows, columns=SAMPLE_COLUMNS)
 
 
-def run_ab(units: list[ABUnit], ref_root: Path, head_root: Path, decide, min_rounds: int = 3,
+def run_ab(units: list[ABUnit], ref_root: Code | Path, head_root: Code | Path, decide, min_rounds: int = 3,
            max_rounds: int = 8, blocks: int = 3, budget_s: float = 900.0, seed: int = 0,
            inject: dict | None = None, log=print, workdir=None) -> tuple[pd.DataFrame, dict]:
     """Rounds of one REF (side ``"ref"``) and one HEAD (``"head"``) worker process, their blocks
-    timed in turn (module docstring).
+    timed in turn (module docstring). ``ref_root``, ``head_root``: each side's code
+    (:class:`~.ab_code.Code`, or a folder holding that side's tissuebench package); a unit whose
+    method's package a side's worker imported from elsewhere than that side's code fails there.
 
     ``decide(samples) -> set of decided uids`` is called after each round from ``min_rounds``
     on. ``min_rounds`` rounds always run: the time budget ``budget_s`` [s] ends the A/B only
@@ -251,7 +279,7 @@ def run_ab(units: list[ABUnit], ref_root: Path, head_root: Path, decide, min_rou
     if min_rounds < 2 or max_rounds < min_rounds or blocks < 1:
         raise ValueError(f"A/B rounds: need 2 <= min_rounds ({min_rounds}) <= max_rounds ({max_rounds}), "
                          f"blocks ({blocks}) >= 1")
-    roots = {"ref": Path(ref_root), "head": Path(head_root)}
+    roots = {"ref": as_code(ref_root), "head": as_code(head_root)}
     frames, failures, active = [], {}, list(units)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="tissuebench-ab.", dir=workdir) as tmp:

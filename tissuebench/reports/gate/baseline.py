@@ -7,7 +7,7 @@
     error_atol = 1e-9
     latency_tolerance = 1.3         # the slowdown the A/B must catch (--against REF)
     latency_floor_s = 1e-5          # A/B: the least step increase [s] that counts (1 % of 1 kHz)
-    file_latency_tolerance = 1.3    # file mode (no REF): the ratio's allowed growth across runs
+    file_latency_tolerance = 1.3    # file mode (no REF): information only, never gated
     latency_floor = 0.0             # file mode: calibrations a baseline ratio is raised to first
 
     [[unit]]
@@ -19,13 +19,17 @@
     latency_per_reference = 0.0004  # haptic median / the reference's step (in the report)
     flagged_steps = 0               # failed + extrapolated + beyond validity + not reached
 
+Latency is gated by the A/B only (``--against REF``); the file's latency ratios are printed
+for information, never a regression (:mod:`tissuebench.reports.gate`). :data:`DEFAULT_NOTES`
+are the comments a new file's ``[defaults]`` is written with: what each key is, its default,
+and how to set ``latency_floor_s`` for a microsecond ROM.
+
 Every value is checked (type, range, finite, duplicates) and a bad one raises
 :class:`BaselineError` naming the key and the value: ``inf`` and ``nan`` are refused everywhere
-(an infinite error or tolerance would make every comparison hold).
-
-:func:`update_baseline` rewrites the units from a results folder with tomlkit (comments,
-defaults and per-unit overrides kept) through a temporary file renamed into place: a kill at
-any moment leaves the old file or the new one, never a torn one.
+(an infinite error or tolerance would make every comparison hold). :func:`update_baseline`
+rewrites the units from a results folder with tomlkit (comments, defaults and per-unit
+overrides kept) through a temporary file renamed into place: a kill at any moment leaves the
+old file or the new one, never a torn one.
 """
 from __future__ import annotations
 
@@ -37,10 +41,24 @@ import tomlkit
 
 from ...studies.atomic_files import output_file, write_text
 
-__all__ = ["DEFAULTS", "UNIT_KEYS", "BaselineError", "load_baseline", "unit_identity", "update_baseline"]
+__all__ = ["DEFAULTS", "DEFAULT_NOTES", "UNIT_KEYS", "BaselineError", "load_baseline", "unit_identity",
+           "update_baseline"]
 
 DEFAULTS = {"error_rtol": 1e-3, "error_atol": 1e-9, "latency_tolerance": 1.3, "file_latency_tolerance": 1.3,
             "latency_floor": 0.0, "latency_floor_s": 1e-5}
+#: the comment of each key of a new baseline's [defaults] (a [[unit]] may override any of them)
+DEFAULT_NOTES = {
+    "error_rtol": "errors must equal REF's (or this file's) within max(error_rtol * error, error_atol)",
+    "error_atol": "the absolute part: errors at round-off level",
+    "latency_tolerance": "A/B (--against REF): the slowdown to catch; slower when the ratio's interval is above "
+                         "sqrt(latency_tolerance)",
+    "latency_floor_s": "A/B: the least step increase [s] that counts as slower (default 1e-5, 1 % of a 1 kHz step); "
+                       "a microsecond ROM: 0 (the ratio alone decides) or the least increase that matters, e.g. 1e-6; "
+                       "check --latency-floor-s overrides this default",
+    "file_latency_tolerance": "no REF (no --against, a shallow clone): latency ratios shown for information only, "
+                              "never gated (they move 2-3x between runs of identical code)",
+    "latency_floor": "no REF: calibrations a baseline ratio is raised to before the information above",
+}
 # the tolerance keys of older baselines, still read (ignored: the reference ratio is not gated)
 _RETIRED = {"reference_latency_tolerance"}
 UNIT_KEYS = {"case": str, "method": str, "options": str, "error": float, "latency_per_calibration": float,
@@ -179,7 +197,9 @@ def update_baseline(rows: dict, baseline) -> int:
     if "defaults" not in doc:
         doc["defaults"] = tomlkit.table()
         for k, v in DEFAULTS.items():
-            doc["defaults"][k] = v
+            item = tomlkit.item(v)
+            item.comment(DEFAULT_NOTES[k])
+            doc["defaults"][k] = item
     old = {}
     for t in doc.get("unit", []):
         try:

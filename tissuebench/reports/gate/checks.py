@@ -113,26 +113,29 @@ def errors_against_ref(out, rows: dict, ref_rows: dict, units: list, defaults: d
 
 
 def latency_from_file(out, rows: dict, units: list, defaults: dict, why: str) -> None:
-    """File mode: the haptic median per calibration against the baseline's, times the tolerance,
-    the baseline first raised to the floor."""
+    """File mode (no REF), for information only: the haptic median per calibration against the
+    baseline's, times ``file_latency_tolerance``, the baseline first raised to ``latency_floor``
+    calibrations. Never a regression: these ratios move 2-3x between runs of identical code for
+    microsecond steps (a gate of a 5-8 us step at x1.3 failed 5 of 9 runs of identical code);
+    latency is gated by the A/B (``--against REF``)."""
     out.latency_mode = "file"
-    out.notes.append(f"{why}latency gated against the baseline file's ratios (haptic median / calibration kernel, "
-                     f"tolerance x{defaults['file_latency_tolerance']:g}, floor {defaults['latency_floor']:g} "
-                     "calibrations): these move 2-3x between runs for microsecond steps; the A/B (--against REF) is "
-                     "the sensitive test")
+    above, seen = [], 0
     for u in units:
         key, row = u["_identity"], rows.get(u["_identity"])
         if row is None or row["unit_status"] != "ok":
             continue
+        seen += 1
         tol = tolerances(u, defaults)
         base = u["latency_per_calibration"]
-        raised = max(base, tol["latency_floor"])
-        limit = raised * tol["file_latency_tolerance"]
+        limit = max(base, tol["latency_floor"]) * tol["file_latency_tolerance"]
         now = unit_values(row)["latency_per_calibration"]
         if not now <= limit:
-            floor = f", floor {tol['latency_floor']:g} calibrations" if raised > base else ""
-            out.add(key, Finding(*key, "latency_per_calibration", base, now,
-                                 f"<= {limit:.4g}: x{tol['file_latency_tolerance']:g}{floor}"))
+            above.append(f"{' '.join(key)}: {base:.4g} -> {now:.4g} (limit {limit:.4g})")
+    shown = "; ".join(above[:5]) + (f"; {len(above) - 5} more" if len(above) > 5 else "")
+    out.notes.append(f"{why}latency not gated (the A/B of --against REF gates it): the baseline file's ratios "
+                     "(haptic median / calibration kernel) move 2-3x between runs of identical code for microsecond "
+                     f"steps. For information: {len(above)} of {seen} units above x"
+                     f"{defaults['file_latency_tolerance']:g} of the file's ratio" + (f" ({shown})" if above else ""))
 
 
 def latency_ab(out, results_dir, ok_rows: dict, units: list, defaults: dict, ref_root, head_root, against: str,

@@ -103,12 +103,19 @@ def _plot(table: pd.DataFrame, path: Path, against: str) -> None:
 
 
 def write_junit(result, path) -> None:
-    """One test case per unit checked (a failure per finding); atomic
+    """One test case per unit checked (a failure per finding), and with REF the project and each
+    side as properties (``project``, ``ref``, ``head``); atomic
     (:func:`~tissuebench.studies.atomic_files.replacing`). GateOutputError naming the path when
     it cannot be written, OutputPathError (a ValueError) when it is not a regular file."""
     cases = result.per_unit
     suite = ET.Element("testsuite", name="tissuebench.check", tests=str(len(cases) + len(result.new_units)),
                        failures=str(sum(1 for f in cases.values() if f)))
+    said = ([("project", result.project)] if result.project else []) + [(line.split(" ", 1)[0].lower(), line.split(
+        " ", 1)[1].strip()) for line in result.sides]
+    if said:  # with REF: the repository, and what each side ran (commit, package versions)
+        props = ET.SubElement(suite, "properties")
+        for name, value in said:
+            ET.SubElement(props, "property", name=name, value=value)
     for (case, method, options), found in cases.items():
         tc = ET.SubElement(suite, "testcase", classname=f"{case}.{method}", name=options)
         for f in found:

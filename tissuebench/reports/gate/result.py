@@ -40,7 +40,8 @@ class ABSettings:
 class CheckResult:
     """Every unit checked (``per_unit``: identity -> its findings), the regressions, the units
     the baseline does not know, notes (what was compared with what, and what could not be),
-    how latency was gated (``ab``, ``file`` or ``none``) and the A/B verdicts."""
+    how latency was checked (``ab``, ``file`` or ``none``), the A/B verdicts, and with REF the
+    project under test and what each side ran."""
 
     compared: int = 0
     regressions: list = field(default_factory=list)
@@ -48,9 +49,16 @@ class CheckResult:
     new_failed: set = field(default_factory=set)  # the new units that failed (--update-baseline leaves them out)
     per_unit: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
-    latency_mode: str = "none"
+    latency_mode: str = "none"  # ab | file (information only, never a regression) | none
     errors_against: str = "none"  # ref | baseline | none
     ab: dict = field(default_factory=dict)
+    project: str = ""  # with --against: the repository REF is found in, and why that one
+    sides: list = field(default_factory=list)  # with REF: what each side runs (repository, commit, package versions)
+
+    @property
+    def held_by_floor(self) -> list:
+        """The units whose A/B ratio says slower while their step grew by less than the floor."""
+        return sorted(k for k, v in self.ab.items() if v.held_by_floor)
 
     @property
     def ok(self) -> bool:

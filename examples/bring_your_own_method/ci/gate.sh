@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# The regression gate of this package's repository, for CI (.github/workflows/tissuebench-gate.yml)
+# or by hand:  bash ci/gate.sh [BASE]
+#
+# 1. sweeps the package's spec with this checkout's code (tissuebench sweep);
+# 2. `tissuebench check --against` the merge base of HEAD and BASE: REF's code (the package at the
+#    merge base, exported from git; the same tissuebench) runs the same sweep, every unit's error
+#    must equal REF's, and every unit is timed A/B (both versions, in turn, on one core);
+# 3. writes JUnit ($OUT/_junit.xml: the results store reads no file named _*); the A/B's samples,
+#    verdicts and plot are in $OUT/_gate/.
+#
+# BASE: the branch the change goes into (default origin/$GITHUB_BASE_REF in a pull request, else
+# origin/main); on that branch itself (merge base = HEAD) the previous commit. Needs the history:
+# a clone of depth 1 has no merge base (actions/checkout: fetch-depth: 0).
+# Environment: SPEC (default spec.toml), OUT (default out/tissuebench-gate), LATENCY_FLOOR_S (default
+# 0: this package's step takes microseconds, and tissuebench's default floor, 10 us, would let
+# a 1.5x slowdown of a 6 us step pass; give the least increase that matters to you, in seconds),
+# TISSUEBENCH (default: tissuebench, the command).
+# Exit: 0 every unit holds, 1 a regression (error, failed unit, slower step), 2 bad input or no REF.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+spec=${SPEC:-spec.toml}
+out=${OUT:-out/tissuebench-gate}
+tb=${TISSUEBENCH:-tissuebench}
+base=${1:-${GITHUB_BASE_REF:+origin/$GITHUB_BASE_REF}}
+base=${base:-origin/main}
+
+if ! ref=$(git merge-base HEAD "$base"); then
+    echo "gate: no merge base of HEAD and $base: fetch it (git fetch origin), and the history (fetch-depth: 0)" >&2
+    exit 2
+fi
+if [ "$ref" = "$(git rev-parse HEAD)" ]; then
+    ref=$(git rev-parse HEAD~1)  # on the base branch itself: gate the last commit
+fi
+echo "gate: $spec at $(git rev-parse --short HEAD) against $(git rev-parse --short "$ref") (merge base with $base)"
+
+rm -rf "$out"
+status=0
+$tb sweep "$spec" --out "$out" --quiet || status=$?
+if [ "$status" -gt 1 ]; then  # 1: a unit failed, stored: the check judges it against REF's run
+    exit "$status"
+fi
+$tb check "$out" --against "$ref" --latency-floor-s "${LATENCY_FLOOR_S:-0}" --junit "$out/_junit.xml"
