@@ -4,6 +4,7 @@ from .base import (METHODS, MODEL_KINDS, STEP_STATUSES, LinearReconstruction, On
 from . import (anm, anm_interp, anm_pod, baselines, interpolation, pgd, pgd_direct, pod,  # noqa: F401  (registers
                subspace_interp, wsc)
 from . import fe_baselines  # noqa: F401,E402  (registers linear_fe, corotational_fe, coarse_fe)
+from . import galerkin  # noqa: F401,E402  (registers pod_galerkin)
 
 __all__ = ["METHODS", "MODEL_KINDS", "STEP_STATUSES", "LinearReconstruction", "OnlineModel", "RomMethod",
            "StepResult", "Training", "check_parameters", "make_method", "method_class", "register"]
