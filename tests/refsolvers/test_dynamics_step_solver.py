@@ -141,3 +141,16 @@ def test_a_dense_newton_matrix_is_solved_by_lapack_and_a_singular_one_refused():
 def test_an_unknown_newton_tangent_is_refused_naming_it():
     with pytest.raises(ValueError, match="newton_tangent.*'sometimes'"):
         newton_options("HHT", {"newton_tangent": "sometimes"})
+
+
+def test_a_secant_update_meets_the_secant_condition_on_dense_factors_only():
+    rng = np.random.default_rng(6)
+    J = np.diag([2.0, 3.0, 5.0]) + 0.1 * rng.standard_normal((3, 3))
+    s = StepSolver("auto")
+    s.solve_cached("newton", lambda: J, np.ones(3))
+    du, dr = rng.standard_normal(3), rng.standard_normal(3)
+    assert s.dense and s.secant_update(du, dr)
+    np.testing.assert_allclose(s.solve_cached("newton", lambda: J, dr), du, rtol=1e-12)  # J_new du = dr
+    sparse = StepSolver("direct")
+    sparse.solve_cached("newton", lambda: sp.csr_matrix(J), np.ones(3))
+    assert not sparse.dense and not sparse.secant_update(du, dr)

@@ -14,19 +14,23 @@ few unknowns) is factorised by LAPACK: SuperLU's sparse setup would cost more th
 When the Jacobian is formed (``tangent``, :data:`NEWTON_TANGENTS`): at every iteration (Newton),
 or kept factorised across iterations and steps and formed again only when an iteration reduces
 the residual by less than :data:`REFRESH_RATIO` (modified Newton; an iteration of a kept matrix
-that does not reduce it is discarded and done again with a fresh one). ``"auto"`` keeps it from
+that does not reduce it is discarded and done again with a fresh one). A kept dense matrix
+(a reduced model's, refactorised in microseconds) is moreover corrected by Broyden's secant
+update after every iteration, and formed again only below a contraction of
+``REFRESH_RATIO_SECANT``: on the neo-Hookean liver's 20-mode ECSW model (119 elements) its
+reduced tangent was formed twice in 200 steps (2.2 iterations a step), against 11 times
+without the updates. ``"auto"`` keeps it from
 :data:`REUSE_MIN_DOFS` unknowns on, where forming and factorising ``J`` costs many residuals: on
 the neo-Hookean liver (7911 free dofs, HHT, dt 5 ms) a tangent assembly took 0.33 s and its
 factorisation 0.30 s against 0.06 s for a residual.
 """
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse as sp
+from scipy.linalg import lapack
 
 from ..linear_solvers import DirectSolver, LinearSolverError, NgsolveSparseSolver
 from ..sparse_direct import NGSOLVE_MIN_DOFS
@@ -37,8 +41,9 @@ STEP_SOLVERS = ("auto", "direct", "cholesky")
 # NGSOLVE_MIN_DOFS (sparse_direct): from this many free dofs on, "auto" takes NGSolve
 #: when the Newton matrix is formed: "iteration" (Newton), "reuse" (modified Newton), "auto" (module docstring)
 NEWTON_TANGENTS = ("auto", "iteration", "reuse")
-#: modified Newton forms the matrix again after an iteration that reduced the residual by less than this
-REFRESH_RATIO = 0.05
+#: modified Newton forms the matrix again after an iteration that reduced the residual by less than this;
+#: a dense matrix (a reduced model's) follows the iterates by Broyden updates in between, and pays later
+REFRESH_RATIO, REFRESH_RATIO_SECANT = 0.05, 0.2
 #: "auto" keeps the Newton matrix (modified Newton) from this many unknowns on
 REUSE_MIN_DOFS = NGSOLVE_MIN_DOFS
 
@@ -102,7 +107,7 @@ class StepSolver:
 
     def __init__(self, choice: str = "auto"):
         self.choice, self.name, self._solver = choice, None, None
-        self.key, self._apply = None, None
+        self.key, self._apply, self._dense = None, None, None
 
     def _for(self, n):
         if self._solver is None:
@@ -121,8 +126,9 @@ class StepSolver:
         """Solve ``build() x = rhs``, refactorising only when ``key`` changed (or after :meth:`refresh`)."""
         if self._apply is None or key != self.key:
             J = build()
+            self._dense = None
             if isinstance(J, np.ndarray):
-                self._apply = _dense_factor(J)
+                self._apply, self._dense = _dense_factor(J), np.array(J, dtype=float)
             else:
                 J = sp.csr_matrix(J)
                 solver = self._for(J.shape[0])
@@ -137,20 +143,36 @@ class StepSolver:
     def has_factors(self) -> bool:
         return self._apply is not None
 
+    @property
+    def dense(self) -> bool:
+        """The kept factors are a dense matrix's (:meth:`secant_update` applies)."""
+        return self._dense is not None
+
     def refresh(self):
         """Forget the kept factors: the next :meth:`solve_cached` factorises again."""
-        self._apply, self.key = None, None
+        self._apply, self.key, self._dense = None, None, None
+
+    def secant_update(self, du, dr) -> bool:
+        """Broyden's update of a kept *dense* matrix, ``J += (dr - J du) du^T / (du . du)`` (the
+        secant condition ``J du = dr`` of the last iteration), refactorised; False, nothing done,
+        for sparse factors (or a zero ``du``)."""
+        dd = float(du @ du)
+        if self._dense is None or not dd > 0:
+            return False
+        J = self._dense + np.outer(dr - self._dense @ du, du / dd)
+        self._apply, self._dense = _dense_factor(J), J
+        return True
 
 
 def _dense_factor(J):
-    """``b -> J^-1 b`` by LAPACK's LU of a dense J; LinearSolverError if J is singular."""
-    with warnings.catch_warnings():  # a singular J is reported below, as a LinearSolverError
-        warnings.simplefilter("ignore", sla.LinAlgWarning)
-        lu, piv = sla.lu_factor(np.asarray(J, float), check_finite=False)
+    """``b -> J^-1 b`` by LAPACK's LU (getrf / getrs called directly: SciPy's ``lu_solve`` wrapper
+    costs 9 us a call against 1 us, at a reduced model's 20 unknowns); LinearSolverError if J is
+    singular."""
+    lu, piv, info = lapack.dgetrf(np.asarray(J, float))
     d = np.abs(np.diag(lu))
-    if not np.all(np.isfinite(lu)) or d.min(initial=np.inf) <= 1e-14 * d.max(initial=0.0):
+    if info != 0 or not np.all(np.isfinite(lu)) or d.min(initial=np.inf) <= 1e-14 * d.max(initial=0.0):
         raise LinearSolverError("dense LU: singular matrix")
-    return lambda b: sla.lu_solve((lu, piv), b, check_finite=False)
+    return lambda b: lapack.dgetrs(lu, piv, b)[0]
 
 
 def newton(u, residual, jacobian, r_ref, opts: NewtonOptions, linear=False, solver=None):
@@ -226,11 +248,14 @@ def _modified(u, r, norms, tol, residual, jacobian, opts: NewtonOptions, solver:
             continue
         if not finite:
             return u, StepReport(False, it, f"non-finite residual in Newton iteration {it}", norms)
+        dr = r_new - r
         u, r = u_new, r_new
         norms.append(n_new)
         if n_new <= tol or np.linalg.norm(du) <= opts.utol * max(np.linalg.norm(u), 1e-300):
             return u, StepReport(True, it, "", norms)
-        refresh = n_new > REFRESH_RATIO * norms[-2]
+        refresh = n_new > (REFRESH_RATIO_SECANT if solver.dense else REFRESH_RATIO) * norms[-2]
+        if not refresh:  # a kept dense matrix (a reduced model's) follows the iterates by secant updates
+            solver.secant_update(du, dr)
     return u, StepReport(False, opts.max_iter,
                          f"modified Newton did not converge in {opts.max_iter} iterations "
                          f"(||r|| = {norms[-1]:.3e} N, tolerance {tol:.3e} N)", norms)

@@ -8,15 +8,17 @@ elements with non-negative weights that reproduce it::
     min ||A w - b||  s.t. w >= 0,    A = [g_e(q_s)]_(s, e),  b = [sum_e g_e(q_s)]_s
 
 (the rows of each state scaled by ``1 / |b_s|``, so that small motions count as much as large
-ones), keeping the smallest number of elements whose relative residual ``|A w - b| / |b|`` is at
-most ``tol``. Non-negative weights keep the reduced force the gradient of a positive weighted
-energy (energy conservation and the symmetry of the tangent, the method's name).
+ones), stopped as soon as the relative residual ``|A w - b| / |b|`` is at most ``tol``.
+Non-negative weights keep the reduced force the gradient of a positive weighted energy (energy
+conservation and the symmetry of the tangent, the method's name).
 
-The NNLS is SciPy's Lawson-Hanson, as the skinning-cubature's fit (:mod:`..wsc.nnls`, whose
-:func:`~..wsc.nnls.refit_heaviest` this module shares): the full solution first, then the
-smallest count of its heaviest elements, refitted, that meets ``tol`` (by bisection on the
-count). Every fourth training state is held out of the fit; the rule's force error on them is
-reported.
+The fit is the Lawson-Hanson active-set NNLS stopped at the tolerance, as ECSW's papers do
+(:func:`greedy_nnls`): an element enters when its column has the largest correlation with the
+residual, and the weights of the elements in are refitted by SciPy's NNLS (as the skinning
+cubature's fit, :mod:`..wsc.nnls`), elements whose weight drops to zero leaving. Solving the
+full NNLS first (SciPy, to its exact fit with one element per row) took 69 s CPU on the
+neo-Hookean liver (600 rows, 10995 elements) to keep 141 of its 600 elements. Every fourth
+training state is held out of the fit; the rule's force error on them is reported.
 """
 from __future__ import annotations
 
@@ -27,10 +29,9 @@ from scipy.optimize import nnls
 
 from ..wsc.cubature import cell_centroids
 from ..wsc.handles import furthest_point_sampling
-from ..wsc.nnls import refit_heaviest
 from .forces import ReducedForces
 
-__all__ = ["ecsw_rule", "MAX_ENTRIES"]
+__all__ = ["ecsw_rule", "greedy_nnls", "MAX_ENTRIES"]
 
 #: the largest NNLS matrix (rows x candidate elements) formed; past it the candidates are a
 #: furthest-point sample of the element centroids
@@ -39,13 +40,28 @@ MAX_ENTRIES = 3e7
 
 def _contributions(full: ReducedForces, q, uc):
     """``(G (r, m), b (r,))``: the element contributions to the reduced force and their sum."""
-    _, fe = full.kernel.energies_and_forces(full.local(q, uc))
-    G = np.einsum("eir,ei->re", full.V_loc, fe)
+    G = full.contributions(q, uc).T
     return G, G.sum(axis=1)
 
 
-def _residual(A, b, cols, w):
-    return float(np.linalg.norm(A[:, cols] @ w - b) / max(np.linalg.norm(b), 1e-300))
+def greedy_nnls(A, b, tol: float, max_elements: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(columns, weights > 0, relative residual)``: the active-set NNLS stopped once
+    ``|A w - b| <= tol |b|`` (module docstring), at most ``max_elements`` columns."""
+    bn = max(float(np.linalg.norm(b)), 1e-300)
+    cols, w, r = np.zeros(0, dtype=np.int64), np.zeros(0), b.copy()
+    for _ in range(3 * max_elements):  # an element leaves only when its weight drops to zero: no cycling
+        if np.linalg.norm(r) <= tol * bn or len(cols) >= max_elements:
+            break
+        g = A.T @ r
+        g[cols] = -np.inf
+        j = int(np.argmax(g))
+        if not g[j] > 0:  # no column decreases the residual: the NNLS optimum
+            break
+        cols = np.append(cols, j)
+        w, _ = nnls(A[:, cols], b, maxiter=50 * len(cols))
+        cols, w = cols[w > 0], w[w > 0]
+        r = b - A[:, cols] @ w
+    return cols, w, float(np.linalg.norm(r) / bn)
 
 
 def ecsw_rule(full: ReducedForces, states, tol: float, points=None, cells=None, seed: int = 0):
@@ -69,8 +85,8 @@ def ecsw_rule(full: ReducedForces, states, tol: float, points=None, cells=None, 
     Raises
     ------
     ValueError
-        Fewer than two training states with a force, or a full NNLS solution whose residual
-        exceeds ``tol`` (the basis and the states cannot be fitted that closely).
+        Fewer than two training states with a force, or a fit that cannot reach ``tol`` (the
+        NNLS optimum, or one element per row of the fit, leaves a larger residual).
     """
     tic = time.perf_counter()
     data = [_contributions(full, q, uc) for q, uc in states]
@@ -88,29 +104,16 @@ def ecsw_rule(full: ReducedForces, states, tol: float, points=None, cells=None, 
                                                seed).indices)
     A = np.vstack([data[k][0][:, cand] / norms[k] for k in train])
     b = np.concatenate([data[k][1] / norms[k] for k in train])
-    w_full, _ = nnls(A, b, maxiter=20 * len(cand))
-    nnz = int(np.sum(w_full > 0))
-    res_full = _residual(A, b, np.flatnonzero(w_full > 0), w_full[w_full > 0])
-    if not res_full <= tol:
-        raise ValueError(f"pod_galerkin hyper='ecsw': the NNLS fit over {len(cand)} elements leaves a relative "
-                         f"residual {res_full:.3g} > ecsw_tol = {tol:g}; raise ecsw_tol")
-    lo, hi = 1, nnz  # the count meeting tol: bisection (hi always meets it)
-    best = refit_heaviest(A, b, w_full, hi)
-    while lo < hi:
-        mid = (lo + hi) // 2
-        cols, w = refit_heaviest(A, b, w_full, mid)
-        if len(cols) and _residual(A, b, cols, w) <= tol:
-            hi, best = mid, (cols, w)
-        else:
-            lo = mid + 1
-    cols, w = best
+    cols, w, residual = greedy_nnls(A, b, tol, min(len(cand), A.shape[0]))
+    if not residual <= tol:
+        raise ValueError(f"pod_galerkin hyper='ecsw': the NNLS fit over {len(cand)} elements stops at a relative "
+                         f"residual {residual:.3g} > ecsw_tol = {tol:g} ({len(cols)} elements); raise ecsw_tol")
     errors = []
     for k in held:
         G, bs = data[k]
         errors.append(float(np.linalg.norm(G[:, cand[cols]] @ w - bs) / norms[k]))
     info = {"elements": int(len(cols)), "candidates": int(len(cand)), "training_states": len(train),
-            "heldout_states": len(held), "train_residual": _residual(A, b, cols, w),
-            "full_nnls_elements": nnz, "full_nnls_residual": res_full,
+            "heldout_states": len(held), "train_residual": residual,
             "heldout_force_error": max(errors) if errors else float("nan"), "tol": float(tol),
             "offline_s": time.perf_counter() - tic}
     return cand[cols], w, info

@@ -69,6 +69,9 @@ class PodGalerkin(RomMethod):
         Relative residual tolerance of the reduced Newton iteration.
     max_iterations : int
         Newton iterations per (sub)step.
+    newton_tangent : {"reuse", "iteration"}
+        The reduced tangent kept across iterations and steps, formed again on a poor contraction
+        (modified Newton), or formed at every iteration (:mod:`~tissuebench.refsolvers.dynamics.step_newton`).
     """
 
     name = "pod_galerkin"
@@ -77,10 +80,12 @@ class PodGalerkin(RomMethod):
     training_kinds = ("trajectory",)
     applies = Applies(dead_loads=True)
 
-    def __init__(self, n_modes=None, energy=0.9999, inner="euclidean", velocities=True, hyper="ecsw",
-                 ecsw_tol=1e-3, deim_modes=None, hyper_states=60, integrator=None, rtol=1e-8, max_iterations=20):
+    def __init__(self, n_modes=None, energy=0.99999, inner="euclidean", velocities=False, hyper="ecsw",
+                 ecsw_tol=5e-3, deim_modes=None, hyper_states=60, integrator=None, rtol=1e-6, max_iterations=20,
+                 newton_tangent="reuse"):
         for name, value, valid in (("inner", inner, _INNER), ("hyper", hyper, HYPER),
-                                   ("velocities", velocities, (True, False))):
+                                   ("velocities", velocities, (True, False)),
+                                   ("newton_tangent", newton_tangent, ("reuse", "iteration"))):
             check_choice("pod_galerkin option", name, value, valid)
         if integrator is not None:
             check_choice("pod_galerkin option", "integrator", integrator, IMPLICIT)
@@ -90,8 +95,8 @@ class PodGalerkin(RomMethod):
                             velocities=bool(velocities), hyper=hyper, ecsw_tol=_number("ecsw_tol", ecsw_tol, 0),
                             deim_modes=_number("deim_modes", deim_modes, 0, True, True),
                             hyper_states=_number("hyper_states", hyper_states, 1, True), integrator=integrator,
-                            rtol=_number("rtol", rtol, 0), max_iterations=_number("max_iterations", max_iterations,
-                                                                                 0, True))
+                            rtol=_number("rtol", rtol, 0), newton_tangent=newton_tangent,
+                            max_iterations=_number("max_iterations", max_iterations, 0, True))
 
     # ------------------------------------------------------------------ offline
     def build(self, training: Training) -> GalerkinModel:
@@ -167,4 +172,5 @@ class PodGalerkin(RomMethod):
         if not make_integrator(name).implicit:
             name, opts = "hht", {}
         opts = {k: v for k, v in opts.items() if not k.startswith("newton_") and k != "linear_solver"}
-        return name, {**opts, "newton_rtol": o["rtol"], "newton_max_iter": o["max_iterations"]}
+        return name, {**opts, "newton_rtol": o["rtol"], "newton_max_iter": o["max_iterations"],
+                      "newton_tangent": o["newton_tangent"]}

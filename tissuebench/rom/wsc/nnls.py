@@ -30,7 +30,7 @@ from .cubature import Cubature
 from .handles import furthest_point_sampling
 from .subspace import MassProjector
 
-__all__ = ["nnls_cubature", "element_contributions", "refit_heaviest"]
+__all__ = ["nnls_cubature", "element_contributions"]
 
 
 def element_contributions(sub, kernel, cell_nodes, q) -> sp.csr_matrix:
@@ -44,16 +44,6 @@ def element_contributions(sub, kernel, cell_nodes, q) -> sp.csr_matrix:
     vals = (phi.data[:, None] * fe[phi.row]).ravel()
     G = sp.csr_matrix((vals, (rows, np.repeat(e, 3))), shape=(sub.n_q, m))
     return sp.csr_matrix(sub.T.T @ G)
-
-
-def refit_heaviest(A, b, w, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """The ``count`` heaviest columns of a non-negative solution ``w`` of ``A w ~ b``, their
-    weights refitted by NNLS on those columns alone: ``(columns, weights)``, heaviest first,
-    the columns whose refitted weight is zero dropped."""
-    keep = np.flatnonzero(w > 0)
-    keep = keep[np.argsort(w[keep])[::-1][:count]]
-    w_keep, _ = nnls(A[:, keep], b, maxiter=20 * max(len(keep), 1))
-    return keep[w_keep > 0], w_keep[w_keep > 0]
 
 
 def nnls_cubature(sub, backend, training, budget, centroids, tol=0.05, seed=0, candidates=2.0,
@@ -102,9 +92,11 @@ def nnls_cubature(sub, backend, training, budget, centroids, tol=0.05, seed=0, c
     w, _ = nnls(A, b, maxiter=20 * n_cand)
     keep = np.flatnonzero(w > 0)
     if len(keep) > budget:  # keep the heaviest, refit
-        keep, w_keep = refit_heaviest(A, b, w, budget)
+        keep = keep[np.argsort(w[keep])[::-1][:budget]]
+        w_keep, _ = nnls(A[:, keep], b, maxiter=20 * len(keep))
         w = np.zeros_like(w)
         w[keep] = w_keep
+        keep = keep[w_keep > 0]
     if not len(keep):
         raise ValueError("wsc cubature='nnls': the fit selected no element (all-zero weights)")
     train_err = float(np.linalg.norm(A[:, keep] @ w[keep] - b) / max(np.linalg.norm(b), 1e-300))
