@@ -12,7 +12,7 @@ holds ``q`` (``u_free = V q``; the prescribed dofs at the step's load factor), s
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg as sla
+from scipy.linalg import lapack
 
 from ...refsolvers.dynamics import make_integrator
 from ..base import LinearReconstruction, OnlineModel, StepResult, check_parameters
@@ -122,21 +122,30 @@ class GalerkinModel(LinearReconstruction, OnlineModel):
         return StepResult(integ.u.copy(), status, message, {"iterations": rep.iterations}, mu=out)
 
     def floor_ops(self):
-        """One reduced Newton iteration on the sampled elements: the reduced force and tangent at
-        the current state, the Newton matrix ``c M_r + K_r`` solved, and the outputs' product."""
+        """One reduced Newton iteration on the sampled elements: the reduced force at the current
+        state, a solve with the Newton matrix ``c M_r + K_r`` and the outputs' product. Modified
+        Newton (``newton_tangent = "reuse"``) keeps the matrix factorised, so it is factorised here,
+        once; with ``"iteration"`` the iteration forms the tangent and factorises it too."""
         sys = self.system
         names, _, C_r, _ = getattr(self, "_outputs", ((), None, None, None))
+        every = self.integrator_options.get("newton_tangent") == "iteration"
         state = {}
 
+        def matrix(q, uc):
+            return lapack.dgetrf(state["c"] * sys.M_ff + sys.forces.tangent(q, uc))
+
         def floor():
-            if "c" not in state:
+            if not state:
                 integ = self._integ
                 dt = integ.dt if integ is not None else self._pending[2]
                 state["c"] = 4.0 / (dt * dt)  # the trapezoidal rule's mass factor (the order of HHT's)
                 state["q"] = integ.u.copy() if integ is not None else np.zeros(self.n_reduced)
                 state["uc"] = integ.uc.copy() if integ is not None and sys.has_prescribed else None
-            f, K = sys.forces.force_and_tangent(state["q"], state["uc"])
-            q = sla.solve(state["c"] * sys.M_ff + K, f, check_finite=False)
+                state["lu"] = matrix(state["q"], state["uc"])[:2]
+            q, uc = state["q"], state["uc"]
+            f = sys.forces.force(q, uc)
+            lu, piv = matrix(q, uc)[:2] if every else state["lu"]
+            dq = lapack.dgetrs(lu, piv, f)[0]
             if C_r is not None:
-                np.dot(C_r, q)
+                np.dot(C_r, dq)
         return floor
