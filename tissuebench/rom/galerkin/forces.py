@@ -68,9 +68,8 @@ class ReducedForces:
         n = m * q
         V4 = basis_full[self.dofs].reshape(m, a, 3, r)
         # mode gradients at the points, (n, 3 i, 3 J, r): G[p, i, J, r] = sum_a V[e, a, i, r] g[e, q, a, J]
-        G = np.einsum("eair,eqaJ->eqiJr", V4, kernel.grad).reshape(n, 3, 3, r)
-        self._G = np.ascontiguousarray(G)
-        self._G9 = self._G.reshape(n * 9, r)
+        G = np.einsum("eair,eqaJ->eqiJr", V4, kernel.grad)
+        self._G9 = np.ascontiguousarray(G.reshape(n * 9, r))  # one array: views of it are not counted twice
         self._wp = np.repeat(self.weights, q) * kernel.dx.reshape(-1)  # point weights [volume]
         self._fixed = np.asarray(fixed, dtype=np.int64)
         self._lift = self._lift_map(self._fixed, kernel.grad) if len(self._fixed) else None
@@ -141,10 +140,11 @@ class ReducedForces:
         n, r, w = len(F), self.r, self._wp
         P = np.matmul(F, S)
         f = (P * w[:, None, None]).reshape(-1) @ self._G9
-        FtG = np.matmul(F.transpose(0, 2, 1), self._G.reshape(n, 3, 3 * r)).reshape(n, 9, r)  # F^T G_r
+        G = self._G9.reshape(n, 3, 3, r)
+        FtG = np.matmul(F.transpose(0, 2, 1), G.reshape(n, 3, 3 * r)).reshape(n, 9, r)  # F^T G_r
         BG = (FtG.take(_IJ, axis=1) + FtG.take(_JI, axis=1)) * _HALF[None, :, None]  # (n, 6, r): dE of mode r
         K = (BG * w[:, None, None]).reshape(-1, r).T @ np.matmul(D, BG).reshape(-1, r)
-        SG = np.matmul(S[:, None], self._G) * w[:, None, None, None]  # (n, i, J, s) = sum_L S[J, L] G[i, L, s]
+        SG = np.matmul(S[:, None], G) * w[:, None, None, None]  # (n, i, J, s) = sum_L S[J, L] G[i, L, s]
         K += self._G9.T @ SG.reshape(-1, r)
         return f, K
 
