@@ -90,3 +90,31 @@ def test_weights_scale_the_element_sums_and_contributions_add_up():
     assert np.abs(weighted.force(q) - expected).max() <= 1e-13 * np.abs(expected).max()
     assert np.abs(weighted.contributions(q) - np.array([s.force(q) for s in single])).max() <= \
         1e-13 * np.abs(expected).max()
+
+
+@pytest.mark.parametrize("element", ["P1", "P2"])
+def test_deim_rows_are_the_assembled_force_and_tangent_at_the_sampled_dofs(element):
+    """With the identity as its force 'basis' on the sampled dofs, DEIM's force and tangent are
+    rows of the assembled ``f_int`` and ``K_t V``: the points' stresses mapped onto the dofs."""
+    from tissuebench.rom.galerkin.deim import DeimForces, _select
+
+    pb = _problem(element, material_set()["neo_hookean"], prescribed=True)
+    be = make_backend("skfem", pb)
+    free, fixed = pb.free_dofs, np.sort(pb.fixed_dofs)
+    rng = np.random.default_rng(7)
+    V = np.zeros((pb.ndof, 4))
+    V[free] = 0.01 * rng.standard_normal((len(free), 4))
+    sampled = free[[0, 5, len(free) // 2, len(free) - 1]]
+    dofs = be.element_dofs()
+    cells = np.flatnonzero(np.isin(dofs, sampled).any(axis=1))
+    deim = element_forces(be, cells, np.ones(len(cells)), V, fixed, cls=DeimForces)
+    deim.bind(_select(deim, dofs[cells], sampled), np.eye(len(sampled)), {})
+    q = rng.standard_normal(4)
+    uc = np.asarray(pb.prescribed_values(0.5), float)[np.argsort(pb.fixed_dofs)]
+    u = V @ q
+    u[fixed] = uc
+    f, K = deim.force_and_tangent(q, uc)
+    f_ref, K_ref = be.internal_force(u)[sampled], (be.tangent(u) @ V)[sampled]
+    assert np.abs(f - f_ref).max() <= 1e-12 * np.abs(f_ref).max()
+    assert np.abs(deim.force(q, uc) - f_ref).max() <= 1e-12 * np.abs(f_ref).max()
+    assert np.abs(K - K_ref).max() <= 1e-12 * np.abs(K_ref).max()

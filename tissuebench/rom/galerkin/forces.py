@@ -26,8 +26,6 @@ checks both against the assembled operators).
 """
 from __future__ import annotations
 
-from functools import cached_property
-
 import numpy as np
 import scipy.sparse as sp
 
@@ -147,21 +145,6 @@ class ReducedForces:
         SG = np.matmul(S[:, None], G) * w[:, None, None, None]  # (n, i, J, s) = sum_L S[J, L] G[i, L, s]
         K += self._G9.T @ SG.reshape(-1, r)
         return f, K
-
-    # ------------------------------------------------------------------ element vectors (DEIM)
-    @cached_property
-    def V_loc(self) -> np.ndarray:
-        """The basis rows of the elements' dofs, (m, n_loc, r)."""
-        return np.ascontiguousarray(self._basis_full[self.dofs])
-
-    def local(self, q, uc=None) -> np.ndarray:
-        """Element displacements (m, n_loc) at reduced coordinates q (r,) and prescribed values uc."""
-        u = (self.V_loc.reshape(-1, self.r) @ q).reshape(self.m, self.n_loc)
-        if self._lift is not None and uc is not None:
-            u_full = np.zeros(self._basis_full.shape[0])
-            u_full[self._fixed] = uc
-            u += u_full[self.dofs]
-        return u
 
 
 class LinearForces:
