@@ -108,18 +108,25 @@ def test_the_spec_of_a_static_scene(tmp_path):
     assert "[parameters.position]" in why["podi"]
 
 
-@pytest.mark.parametrize("case, variant, held", [
-    ("liver_dynamic", None, {"kind": "trajectory", "load_scale": 0.75}),
-    ("cube_tension_twist", "tension_dynamic", {"kind": "trajectory", "t_end": 1.5, "from_time": 1.005}),
+@pytest.mark.parametrize("case, variant, held, runs", [
+    ("liver_dynamic", None, {"kind": "trajectory", "load_scale": 0.75}, [{"load_scale": 0.5}]),
+    ("liver_dynamic", "neo_hookean", {"kind": "trajectory", "load_scale": 0.75}, [{"load_scale": 0.5}]),
+    ("cube_tension_twist", "tension_dynamic", {"kind": "trajectory", "t_end": 1.5, "from_time": 1.005}, None),
 ])
-def test_the_spec_of_a_dynamic_scene_is_held_out(case, variant, held):
-    """Another amplitude, or (a support prescribes a displacement load_scale would not scale) a
-    window after the training's horizon."""
+def test_the_spec_of_a_dynamic_scene_is_held_out(case, variant, held, runs):
+    """Another amplitude, between the two the training runs cover (issue 42), or (a support
+    prescribes a displacement load_scale would not scale) a window after the training's horizon;
+    POD-Galerkin among the methods offered (issue 42)."""
     text, _ = scene_spec_text(load(case, variant=variant), case, variant)
     raw = tomllib.loads(text)
     assert all(c["evaluation"] == pytest.approx(held) for c in raw["case"])
+    trajectory = next(c for c in raw["case"] if c["id"] == "trajectory")
+    assert trajectory["training"].get("runs") == runs
     methods = {m["name"]: m["cases"] for m in raw["method"]}
-    assert set(methods) >= {"wsc", "nearest", "linear_fe"} and methods["linear_fe"] == ["trajectory"]
+    assert set(methods) >= {"wsc", "nearest", "linear_fe", "pod_galerkin"} and methods["linear_fe"] == ["trajectory"]
+    assert methods["pod_galerkin"] == ["trajectory"]
+    grid = next(m["grid"] for m in raw["method"] if m["name"] == "pod_galerkin")
+    assert set(grid["hyper"]) == {"ecsw", "none"}
 
 
 def test_the_baselines_join_the_contact_nodes_only_beside_a_vademecum():

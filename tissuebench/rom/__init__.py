@@ -6,6 +6,7 @@ from .base import (METHODS, MODEL_KINDS, STEP_STATUSES, Applies, LinearReconstru
 from . import (anm, anm_interp, anm_pod, baselines, interpolation, pgd, pgd_direct, pod,  # noqa: F401  (registers
                subspace_interp, wsc)
 from . import fe_baselines  # noqa: F401,E402  (registers linear_fe, corotational_fe, coarse_fe)
+from . import galerkin  # noqa: F401,E402  (registers pod_galerkin)
 from .plugins import load_entry_points  # noqa: E402
 
 # the installed plugins join at the first read, after every shipped method: a clash names the shipped one

@@ -10,6 +10,12 @@
   it is ``inf``: a model matching a zero field is never "0 % error" (issue 37);
 * the relative RMSE over a history (the wsc paper's):
   ``sqrt(sum_k ||u_rom,k - u_ref,k||^2 / sum_k ||u_ref,k||^2)``;
+* beside it, what a user feels of a motion (issue 42: a relative error over a window of small
+  motion makes a harmless phase error look like a failure): the peak-normalised error
+  ``max_k ||u_rom,k - u_ref,k|| / max_k ||u_ref,k||`` (``peak_rel_l2``: the worst step's error
+  against the largest displacement of the run), and the absolute error in the scene's length
+  unit, the largest nodal displacement error ``max_k max_node |u_rom - u_ref|``
+  (``max_abs_error``; :data:`ABSOLUTE_ERROR_METRICS`);
 * the validity radius: the largest abscissa (load factor, distance to the nearest stored
   position, time) up to which every error stays within a tolerance (1 %, 5 %);
 * the Pareto front per scene: units not beaten in both haptic latency and error.
@@ -22,11 +28,20 @@ import pandas as pd
 from .timing import max_displacement
 
 __all__ = ["point_rows", "output_rows", "summarise_points", "validity_radius", "pareto_front", "TOLERANCES",
-           "seen_points", "SEEN_RTOL"]
+           "seen_points", "SEEN_RTOL", "ABSOLUTE_ERROR_METRICS", "nodal_error"]
 
 TOLERANCES = (0.01, 0.05)
 #: a reference field within this relative distance of a training snapshot is the snapshot
 SEEN_RTOL = 1e-6
+#: the error columns in the scene's length unit (``[units] length``), not relative: the others are
+ABSOLUTE_ERROR_METRICS = ("max_abs_error",)
+
+
+def nodal_error(u, ref) -> float:
+    """Largest nodal error magnitude of node-major fields (3 components per node when the size
+    allows it, else per dof) [the fields' length unit]."""
+    e = np.asarray(u, float) - np.asarray(ref, float)
+    return float(np.linalg.norm(e.reshape(-1, 3), axis=1).max() if e.size % 3 == 0 else np.abs(e).max())
 
 
 def seen_points(evaluation, snapshots) -> list[bool]:
@@ -148,12 +163,17 @@ def summarise_points(points: pd.DataFrame, outputs: pd.DataFrame, evaluation, fi
     # there counts (its rel_l2 is inf), so a unit that fails on its own range is never "accurate"
     inside = ~points.loc[has_ref, "status"].isin(["extrapolation", "beyond_validity"]).to_numpy()
     num = den = 0.0
+    peak_err = peak_ref = abs_err = 0.0
     for p, u, use in zip(evaluation.points, fields, has_ref.to_numpy()):
         if not use:
             continue
         with np.errstate(over="ignore", invalid="ignore"):  # a blown-up step counts as inf, said once
-            num += np.inf if u is None or not np.all(np.isfinite(u)) else float(np.sum((u - p.reference) ** 2))
+            failed = u is None or not np.all(np.isfinite(u))
+            e2 = np.inf if failed else float(np.sum((u - p.reference) ** 2))
+        num += e2
         den += float(np.sum(p.reference ** 2))
+        peak_err, peak_ref = max(peak_err, np.sqrt(e2)), max(peak_ref, float(np.linalg.norm(p.reference)))
+        abs_err = max(abs_err, np.inf if failed else nodal_error(u, p.reference))
     counts = points["status"].value_counts()
     n_seen = int((points["seen"] & has_ref).sum()) if "seen" in points else 0
     row = {"n_points": int(len(points)), "n_reference_points": int(has_ref.sum()),
@@ -163,6 +183,8 @@ def summarise_points(points: pd.DataFrame, outputs: pd.DataFrame, evaluation, fi
            "mean_rel_l2": float(rel.mean()) if rel.size else np.nan,
            "max_rel_l2_in_envelope": float(rel[inside].max()) if inside.any() else np.nan,
            "rmse_rel": float(np.sqrt(num / den)) if den > 0 else (np.inf if has_ref.any() else np.nan),
+           "peak_rel_l2": float(peak_err / peak_ref) if peak_ref > 0 else (np.inf if has_ref.any() else np.nan),
+           "max_abs_error": float(abs_err) if has_ref.any() else np.nan,
            "max_monitor_rel_error": float(outputs["rel_error"].max()) if len(outputs) else np.nan,
            "x_name": evaluation.x_name}
     for status in ("ok", "extrapolation", "beyond_validity", "failed", "not_reached"):

@@ -41,6 +41,9 @@ UNIT_COLUMNS = {
     "n_ok": _I, "n_extrapolation": _I, "n_beyond_validity": _I, "n_failed": _I, "n_not_reached": _I,
     # errors (relative; inf where a step failed against a reference)
     "max_rel_l2": _F, "mean_rel_l2": _F, "max_rel_l2_in_envelope": _F, "rmse_rel": _F, "max_monitor_rel_error": _F,
+    # what a user feels of a motion (studies/metrics.py): the worst step's error over the run's peak
+    # displacement, and the largest nodal error in the scene's length unit (length_unit)
+    "peak_rel_l2": _F, "max_abs_error": _F, "length_unit": _S,
     "x_name": _S, "validity_1pct": _F, "validity_5pct": _F,
     # the abscissa in the scene's units: x = 1 is x_scale x_unit (load factor 1: the net force, in N ...);
     # reference_limit: where the reference continued past the path stopped converging (evaluation beyond)

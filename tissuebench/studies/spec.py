@@ -68,7 +68,8 @@ from .units import DEFAULT_PROTOCOL, WorkUnit, options_text, unit_key
 __all__ = ["PRESETS_DIR", "ERROR_METRICS", "SweepSpec", "load_spec", "list_presets", "expand_units", "check_pair"]
 
 PRESETS_DIR = Path(__file__).resolve().parent / "presets"
-ERROR_METRICS = ("max_rel_l2", "mean_rel_l2", "rmse_rel", "max_rel_l2_in_envelope", "max_monitor_rel_error")
+ERROR_METRICS = ("max_rel_l2", "mean_rel_l2", "rmse_rel", "max_rel_l2_in_envelope", "max_monitor_rel_error",
+                 "peak_rel_l2", "max_abs_error")
 _TOP = {"sweep", "protocol", "case", "method"}
 _SWEEP = {"name", "description", "resolution", "error_metric"}
 _NAME = re.compile(r"[^/\\\x00-\x1f\x7f]{1,100}")  # a spec name is part of a folder name: no separator

@@ -237,6 +237,7 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
             "floor_s": lat["floor"].median, "efficiency": lat["floor"].median / h.median,
             "offline_s": offline, "build_peak_bytes": int(peak), "model_bytes": _nbytes(model),
             "scene_hash": scene.content_hash(), "kind": model.kind,  # the built model's (a baseline's varies)
+            "length_unit": (getattr(scene, "units", None) or {}).get("length", ""),
             **{k: evaluation.info.get(k) for k in ("reference_status", "reference_message",
                                                      "reference_energy_growth", "reference_limit", "x_scale",
                                                      "x_unit")}, **energy,
