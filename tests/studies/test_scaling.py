@@ -168,7 +168,11 @@ def test_scaling_preset_at_ci(tmp_path):
     for group, grp in table.groupby("scaling_group"):
         assert grp["n_sizes"].max() == 4 and (grp["n_dof_max"] / grp["n_dof_min"]).max() >= 10, group
         ref = grp[grp["method"] == "reference"]
-        assert len(ref) == 1 and ref["exponent"].iloc[0] > 0.8, (group, ref["exponent"].iloc[0])
+        # a static step assembles and factorises (>= linear); the dynamic reference keeps its factorised
+        # matrix across steps (modified Newton, issue 42): a residual and back-substitutions per step,
+        # whose fixed costs flatten the growth at ci sizes (measured 0.64), still clearly growing
+        low = 0.5 if group == "cube-dynamic" else 0.8
+        assert len(ref) == 1 and ref["exponent"].iloc[0] > low, (group, ref["exponent"].iloc[0])
     step = table[table["quantity"] == "haptic_median_s"].set_index(["scaling_group", "label"])["exponent"]
     for key in [("cube-static", "pod_linear n_modes=3"), ("cube-static", "pod_interp interpolation=linear n_modes=3"),
                 ("cube-static", "nearest")]:
