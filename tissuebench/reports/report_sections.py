@@ -132,8 +132,10 @@ def offline_table(name: str, units: pd.DataFrame) -> dict:
 
 
 def validity_text(r) -> str:
-    """``valid to 1.2 N at 1 % / 2.3 N at 5 %``: the validity radii in the scene's units (the abscissa
-    times ``x_scale`` ``x_unit``: load factor 1 is the scene's net force ...), "" where unknown."""
+    """``valid to 1.2 N at 1 % / 2.3 N at 5 % (training range)``: the validity radii in the scene's
+    units (the abscissa times ``x_scale`` ``x_unit``: load factor 1 is the scene's net force ...) and
+    what they read (``validity_range``: the training range only, or extrapolation asked), "" where
+    unknown."""
     scale, unit = getattr(r, "x_scale", np.nan), getattr(r, "x_unit", "")
     if not isinstance(unit, str) or not unit or not np.isfinite(scale) or getattr(r, "unit_status", "ok") != "ok":
         return ""
@@ -142,22 +144,32 @@ def validity_text(r) -> str:
     over = [f"{p} %" for v, p in radii if v <= 0]
     text = "; ".join((["valid to " + " / ".join(valid)] if valid else [])
                      + ([f"over {' and '.join(over)} from the first point"] if over else []))
+    within = getattr(r, "validity_range", "")
+    if text and within in RANGE_WORDS:
+        text += f" ({RANGE_WORDS[within]})"
     limit = getattr(r, "reference_limit", np.nan)
-    if text and np.isfinite(limit) and max(r.validity_1pct, r.validity_5pct) >= limit * (1 - 1e-9):
+    if text and within != "training" and np.isfinite(limit) and max(r.validity_1pct, r.validity_5pct) >= limit * (
+            1 - 1e-9):
         text += f" (the reference itself stops converging at {number(limit * scale)} {unit})"
     return text
 
 
+#: what a unit's validity radius reads (its ``validity_range``, :func:`~tissuebench.studies.metrics.claimed_range`)
+RANGE_WORDS = {"training": "training range only: the steps past it are extrapolation, not counted; "
+                           "evaluation.extrapolation = true counts them",
+               "extrapolation": "extrapolation asked: the steps past the training range are counted"}
+
+
 def radius_table(name: str, units: pd.DataFrame) -> dict:
     units = units.assign(**{c: units[c] if c in units else np.nan for c in ("x_scale", "reference_limit")},
-                         x_unit=units["x_unit"] if "x_unit" in units else "")
+                         **{c: units[c] if c in units else "" for c in ("x_unit", "validity_range")})
     rows = [[r.label, number(r.validity_1pct) if r.unit_status == "ok" else "-",
              number(r.validity_5pct) if r.unit_status == "ok" else "-", r.x_name, validity_text(r)]
             for r in units.itertuples()]
     return Table(name, ["unit", "validity radius, error <= 1 %", "validity radius, error <= 5 %", "abscissa",
                         "in the scene's units"],
                  rows, units[["case", "label", "unit_key", "x_name", "validity_1pct", "validity_5pct", "x_scale",
-                              "x_unit", "reference_limit"]])
+                              "x_unit", "reference_limit", "validity_range"]])
 
 
 def paper_table(name: str, rows: pd.DataFrame) -> dict:

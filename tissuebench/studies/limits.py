@@ -29,7 +29,7 @@ LIMITS = {
     # training
     "every": 10_000, "repeat": 100, "positions": 1_000, "load_steps": 10_000, "runs": 100,
     # evaluation
-    "held_out": 1_000, "beyond": 100, "mus": 1_000, "steps_per_length": 10_000, "count": 10_000,
+    "held_out": 1_000, "beyond": 100, "refine": 64, "mus": 1_000, "steps_per_length": 10_000, "count": 10_000,
     "trajectory_steps": 1_000_000,  # t_end / dt of a trajectory evaluation
 }
 MAX_UNITS = 10_000
@@ -140,6 +140,19 @@ def check_path_evaluation(path, evaluation: dict, scene, training: dict | None =
                   "training = { kind = \"path\", every = 2 } (or more)")
     if "beyond" in evaluation:
         _numbers(f"{path}.beyond", evaluation["beyond"], "beyond", lo=0, positive=True)
+    if "refine" in evaluation:  # parts of a training interval: 1 keeps the path's states only
+        check_count(f"{path}.refine", evaluation["refine"], "refine")
+    from .path_range import DEFAULT_REFINE, range_scenes  # here: path_range reads training, which reads this
+
+    t = training or {}
+    refine = evaluation.get("refine", DEFAULT_REFINE)
+    try:  # the finer paths are scenes at other load steps: within the scene's limits
+        range_scenes(scene, t.get("every", 1) if t.get("kind") == "path" else 1, refine)
+    except ValueError as exc:
+        _fail(f"{path}.refine", refine, f"the finer reference path between the training states: {exc}")
+    if "extrapolation" in evaluation and not isinstance(evaluation["extrapolation"], bool):
+        _fail(f"{path}.extrapolation", evaluation["extrapolation"], "expected true or false (true: the validity "
+              "radius counts the points past the training range)")
 
 
 def check_positions_evaluation(path, evaluation: dict, scene, training: dict | None = None) -> None:
