@@ -12,6 +12,7 @@ from ..cases import load
 from ..reference.backend_comparison import RTOL
 from .extremes import ENERGY_DRIFT_TOL
 from .format import hz, nbytes, number, percent, seconds
+from ..studies.timing import TAIL_SAMPLES
 from .recommend import rank_units
 
 __all__ = ["Table", "scene_of", "scene_info", "recommendation", "ranking_table", "extremes_table_view",
@@ -45,7 +46,8 @@ def recommendation(units: pd.DataFrame, requirement, error_metric: str) -> dict:
     """The ranked units and the sentence(s) of the recommendation for one case."""
     ranked = rank_units(units, requirement, error_metric)
     meets = ranked[ranked["meets"]]
-    items = [f"{r.label}: p99 {seconds(r.p99_s)} ({hz(r.rate_hz)}), median {seconds(r.haptic_median_s)}, "
+    items = [f"{r.label}: p99 {seconds(r.p99_s)} ({hz(r.rate_hz)}; {p99_samples(r)}), median "
+             f"{seconds(r.haptic_median_s)}, "
              f"error {percent(r.error)}, margin {r.margin:.3g}x" + _seen_note(r)
              + (f"; {v}" if (v := validity_text(r)) else "") for r in meets.itertuples()]
     measurable = ranked[ranked["measurable"]]
@@ -65,6 +67,17 @@ def recommendation(units: pd.DataFrame, requirement, error_metric: str) -> dict:
     return {"verdict": verdict, "lines": items, "meets": len(meets), "ranked": ranked, "excluded": excluded}
 
 
+def p99_samples(r) -> str:
+    """``"2000 steps, 20 beyond the p99"``: the samples a unit's p99 rests on (``p99_n``,
+    ``p99_tail`` of :func:`~.recommend.rank_units`), with a warning when fewer than
+    :data:`~tissuebench.studies.timing.TAIL_SAMPLES` decide it; ``"-"`` when unknown."""
+    n, tail = getattr(r, "p99_n", np.nan), getattr(r, "p99_tail", np.nan)
+    if not np.isfinite(n):
+        return "-"
+    text = f"{int(n)} steps, {int(tail)} beyond the p99"
+    return text + (f": it rests on fewer than {TAIL_SAMPLES}" if tail < TAIL_SAMPLES else "")
+
+
 def _seen_note(r) -> str:
     """The share of a unit's evaluation points it was trained on, when there is one."""
     n_seen, n = getattr(r, "n_seen", 0), getattr(r, "n_reference_points", 0)
@@ -81,14 +94,17 @@ def ranking_table(name: str, ranked: pd.DataFrame) -> dict:
     for r, f, e, k, n in zip(ranked.itertuples(), floor, eff, n_seen, n_ref):
         meets = {"text": "seen", "cls": "seen"} if r.seen else \
             {"text": "meets" if r.meets else "no", "cls": "pass" if r.meets else "fail"}
-        cells = [r.label, meets, number(r.margin, 3), seconds(r.p99_s), hz(r.rate_hz), seconds(r.haptic_median_s),
+        cells = [r.label, meets, number(r.margin, 3), seconds(r.p99_s), p99_samples(r), hz(r.rate_hz),
+                 seconds(r.haptic_median_s),
                  seconds(f), number(e, 2), percent(r.error), f"{int(k)} / {int(n)}" if k >= 0 and n >= 0 else "",
                  r.misses]
         # a unit evaluated on its training data: greyed, with the reason (recommend.SEEN_REASON)
         rows.append([c if isinstance(c, dict) else {"text": c, "cls": "seen"} for c in cells] if r.seen else cells)
-    cols = ["unit", "meets", "margin", "haptic p99", "rate on p99", "haptic median", "arithmetic floor",
+    cols = ["unit", "meets", "margin", "haptic p99", "timed steps behind the p99", "rate on p99", "haptic median",
+            "arithmetic floor",
             "efficiency (floor / median)", "error", "points seen in training", "misses by"]
-    keep = ["case", "label", "options", "unit_key", "meets", "seen", "margin", "p99_s", "rate_hz", "haptic_median_s",
+    keep = ["case", "label", "options", "unit_key", "meets", "seen", "margin", "p99_s", "p99_n", "p99_tail",
+            "rate_hz", "haptic_median_s",
             "error", "misses"] + [c for c in ranked.columns if c.startswith("headroom_")]
     return Table(name, cols, rows, ranked[keep].assign(floor_s=floor, efficiency=eff, n_seen=n_seen))
 

@@ -25,7 +25,7 @@ __all__ = ["LIMITS", "MAX_UNITS", "MAX_OPTION_INT", "check_count", "check_protoc
 LIMITS = {
     # protocol
     "latency_steps": 100_000, "warmup": 100_000, "blas_threads": 256, "reference_samples": 1_000,
-    "seed": 2 ** 32 - 1,
+    "seed": 2 ** 32 - 1, "latency_budget_s": 86_400,
     # training
     "every": 10_000, "repeat": 100, "positions": 1_000, "load_steps": 10_000, "runs": 100,
     # evaluation
@@ -52,6 +52,11 @@ def check_count(path, value, name, lo=1):
 
 def check_protocol(path, protocol: dict) -> None:
     for k, v in protocol.items():
+        if k == "latency_budget_s":  # seconds: any positive number
+            if not is_num(v) or not 0 < v <= LIMITS[k]:
+                _fail(f"{path}.{k}", v, f"expected a number of seconds > 0 and at most {LIMITS[k]} "
+                      f"(LIMITS[{k!r}])")
+            continue
         check_count(f"{path}.{k}", v, k, _PROTOCOL_MIN[k])
 
 
