@@ -192,7 +192,8 @@ def test_report_writes_page_and_every_table_data(store, tmp_path):
     assert links and links == {p.name for p in folder.glob("*.csv")}
     pareto = pd.read_csv(next(folder.glob("pareto_*.csv")))
     assert len(pareto) == 5 and pareto["pareto"].sum() == 4  # "slow" is dominated, "broken" not drawn
-    assert "1 of 6 units meet it" in page and "fast_rough n_modes=4: p99 1.5 ms (667 Hz)" in page
+    assert "1 of 6 units meet it" in page and \
+        "fast_rough n_modes=4: p99 1.5 ms (667 Hz; 200 steps, 2 beyond the p99: it rests on fewer than 20)" in page
     assert "haptic rate &gt;= 500 Hz on the p99 step" in page and "max_rel_l2" in page
     # every unit's arithmetic floor and efficiency beside its haptic median
     ranking = pd.read_csv(next(folder.glob("ranking_*.csv")))

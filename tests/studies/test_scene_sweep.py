@@ -62,9 +62,9 @@ def test_the_reference_is_continued_past_the_path(tmp_path):
     past = [q.x for q in ev.points if q.reference is not None and q.beyond]
     assert past == pytest.approx([1.5, 2.0]) and ev.info["reference_limit"] == pytest.approx(2.0)
     # the range the training claims (issue 44): the held-out state, the quarter points of the
-    # training interval [0, 1] and near rest (1/8, 1/16 of it), from the finer reference runs
+    # training interval [0, 1] and near rest (1/8, 1/16, 1/64, 1/1024 of it), from the finer reference runs
     within = [q.x for q in ev.points if q.reference is not None and not q.beyond]
-    assert within == pytest.approx([1 / 16, 1 / 8, 0.25, 0.5, 0.75])
+    assert within == pytest.approx([1 / 1024, 1 / 64, 1 / 16, 1 / 8, 0.25, 0.5, 0.75])
     assert ev.info["x_scale"] == pytest.approx(0.1) and ev.info["x_unit"] == "N"
     # the continued run's first states are the path's: one reference
     path = load(scene.path)

@@ -36,6 +36,7 @@ import pandas as pd
 
 from ..studies.timing import TAIL_SAMPLES, p99_tail
 from .format import hz as _hz, percent as _percent, seconds as _seconds, times as _times
+from .wording import metric_words
 
 __all__ = ["DEFAULT_REQUIREMENT", "Clause", "Requirement", "parse_requirement", "rank_units", "LATENCY_STATISTIC",
            "SEEN_REASON", "tail_note"]
@@ -69,7 +70,7 @@ class Clause:
                    f"{_seconds(1.0 / self.value)})"
         if self.quantity == "latency":
             return f"haptic step p99 {self.op} {_seconds(self.value)}"
-        return f"error ({error_metric}) {self.op} {_percent(self.value)}"
+        return f"error ({metric_words(error_metric)}, {error_metric}) {self.op} {_percent(self.value)}"
 
 
 @dataclass(frozen=True)

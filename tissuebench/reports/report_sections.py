@@ -15,7 +15,8 @@ from .format import hz, nbytes, number, percent, seconds
 from ..studies.timing import TAIL_SAMPLES
 from .recommend import rank_units
 
-__all__ = ["Table", "scene_of", "scene_info", "recommendation", "ranking_table", "extremes_table_view",
+__all__ = ["Table", "scene_of", "scene_info", "recommendation", "one_line", "p99_samples", "ranking_table",
+           "extremes_table_view",
            "offline_table", "radius_table", "paper_table", "anchors_table", "backends_table",
            "provenance_rows", "calibration", "plugin_methods"]
 
@@ -65,6 +66,14 @@ def recommendation(units: pd.DataFrame, requirement, error_metric: str) -> dict:
         f"Not considered: {len(seen)} unit(s) evaluated only on their training data (seen; shown greyed in the "
         f"table): {', '.join(seen['label'].head(6))}" + (" ..." if len(seen) > 6 else "") + ".")
     return {"verdict": verdict, "lines": items, "meets": len(meets), "ranked": ranked, "excluded": excluded}
+
+
+def one_line(rec: dict) -> str:
+    """A case's recommendation (:func:`recommendation`) in one line: the unit that meets the
+    requirement with the largest margin, or the verdict naming the closest and what it misses by."""
+    if rec["meets"]:
+        return f"{rec['meets']} of {len(rec['ranked'])} units meet it; recommended: {rec['lines'][0]}"
+    return rec["verdict"]
 
 
 def p99_samples(r) -> str:

@@ -6,10 +6,10 @@ The case entry's ``evaluation`` table has a ``kind`` (default: the training's):
                 true`` keeps only the states the training left out: every other state with
                 ``training.every = 2``), and the range the training claims at load factors the
                 path has no state at (:mod:`.path_range`: the quarter points and the middle of
-                every training interval, and near rest 1/8 and 1/16 of the first training
-                state, from the path solved with a finer increment; ``refine = r`` cuts the
-                interval into ``r``, default 4; ``refine = 1``: the path's states only), driven in
-                increasing order. ``beyond = [1.5, 2]``
+                every training interval, and near rest 1/8, 1/16, 1/64 and 1/1024 of the first
+                training state, from the path solved with a finer increment and short runs
+                from rest; ``refine = r`` cuts the interval into ``r``, default 4; ``refine =
+                1``: the path's states only), driven in increasing order. ``beyond = [1.5, 2]``
                 measures past the path, up to those multiples of its top: the reference is
                 continued with the path's increment (:func:`~.path_range.beyond_scene`: at most
                 ``BEYOND_MAX_INCREMENTS`` times the path's increments past it, halved at most
