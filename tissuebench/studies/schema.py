@@ -45,6 +45,10 @@ UNIT_COLUMNS = {
     # displacement, and the largest nodal error in the scene's length unit (length_unit)
     "peak_rel_l2": _F, "max_abs_error": _F, "length_unit": _S,
     "x_name": _S, "validity_1pct": _F, "validity_5pct": _F,
+    # what the validity radii read (studies/metrics.claimed_range): "training" (a path's training
+    # range: no point past its top, none the model flags), "extrapolation" (asked: every point),
+    # "" (a kind without a training range along its abscissa, or a store written before issue 44)
+    "validity_range": _S,
     # the abscissa in the scene's units: x = 1 is x_scale x_unit (load factor 1: the net force, in N ...);
     # reference_limit: where the reference continued past the path stopped converging (evaluation beyond)
     "x_scale": _F, "x_unit": _S, "reference_limit": _F, "n_beyond_reference": _I,
