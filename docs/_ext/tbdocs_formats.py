@@ -217,6 +217,14 @@ def _integrator_options() -> list:
 
 
 # ------------------------------------------------------------------------------------------ spec
+def _protocol_accepts(key: str) -> str:
+    """What ``check_protocol`` accepts for a protocol key: a count, or seconds for the budget."""
+    from tissuebench.studies import limits
+    if key in limits._PROTOCOL_MIN:
+        return f"an integer from {limits._PROTOCOL_MIN[key]} to {limits.LIMITS[key]}"
+    return f"a number of seconds > 0, at most {limits.LIMITS[key]}"
+
+
 def spec_format() -> str:
     """The Markdown of the sweep-spec reference page."""
     from tissuebench.choices import RESOLUTIONS
@@ -248,8 +256,8 @@ def spec_format() -> str:
     out += ["(spec-protocol)=\n## `[protocol]`\n",
             "Optional; a `[[method]]`'s `protocol` overrides it for that method.\n",
             table(("key", "default", "accepts", "what"),
-                  [(f"`{k}`", f"`{v}`", f"an integer from {limits._PROTOCOL_MIN[k]} to {limits.LIMITS[k]}",
-                    units.PROTOCOL_DOC[k]) for k, v in units.DEFAULT_PROTOCOL.items()])]
+                  [(f"`{k}`", f"`{v}`", _protocol_accepts(k), units.PROTOCOL_DOC[k])
+                   for k, v in units.DEFAULT_PROTOCOL.items()])]
     described("case", spec._CASE, spec.CASE_DOC)
     order = ["name", "id", "variant", "backend", "resolution", "training", "evaluation", "mu", "mesh",
              "paper_points", "scaling_group"]

@@ -4,8 +4,6 @@ must (issue 41)."""
 from __future__ import annotations
 
 import errno
-import math
-import os
 import re
 from pathlib import Path
 
@@ -13,6 +11,8 @@ import pytest
 import tomlkit
 
 from tissuebench.reports.gate import baseline as bl
+from tissuebench.studies import atomic_files
+from tissuebench.studies.atomic_files import OutputPathError
 from tissuebench.reports.gate.baseline import DEFAULTS, BaselineError, load_baseline, unit_identity, update_baseline
 
 UNIT = ('case = "cube"\nmethod = "pod"\noptions = \'{"n":2,"a":1}\'\nerror = 0.01\n'
@@ -82,19 +82,25 @@ def test_flagged_steps_is_a_non_negative_integer(tmp_path):
         "flagged_steps"] == 3
 
 
-@pytest.mark.parametrize("key", sorted(k for k in DEFAULTS if k != "error_atol"))
+FINITE = "must be a finite number (a non-finite baseline value or tolerance gates nothing)"
+
+
+@pytest.mark.parametrize("key", sorted(DEFAULTS))
 def test_an_infinite_tolerance_is_refused(tmp_path, key):
-    _refused(tmp_path, f"[defaults]\n{key} = inf\n[[unit]]\n{UNIT}", f"{{p}}: defaults.{key} = inf: must be finite")
+    # an infinite tolerance would make every comparison hold (issue 37): error_atol included
+    _refused(tmp_path, f"[defaults]\n{key} = inf\n[[unit]]\n{UNIT}", f"{{p}}: defaults.{key} = inf: {FINITE}")
 
 
-def test_an_infinite_atol_and_an_infinite_error_are_read(tmp_path):
-    p = _write(tmp_path, f"[defaults]\nerror_atol = inf\n[[unit]]\n{UNIT}".replace("error = 0.01", "error = inf"))
-    defaults, units = load_baseline(p)
-    assert defaults["error_atol"] == math.inf and units[0]["error"] == math.inf
+@pytest.mark.parametrize("key", ["error", "latency_per_calibration", "latency_per_reference"])
+def test_an_infinite_unit_value_is_refused(tmp_path, key):
+    text = f"[[unit]]\n{UNIT}".replace(f"\n{key} = ", f"\n{key} = inf #")
+    _refused(tmp_path, text, f"{{p}}: unit[0].{key} = inf: {FINITE}")
+    assert load_baseline(_write(tmp_path, f"[[unit]]\n{UNIT}".replace(f"\n{key} = ", f"\n{key} = 1e308 #"),
+                                "big.toml"))[1][0][key] == 1e308
 
 
 @pytest.mark.parametrize("value, why", [("true", "expected a number"), ('"1"', "expected a number"),
-                                        ("nan", "expected a number"), ("-inf", "expected a number")])
+                                        ("nan", FINITE), ("-inf", FINITE)])
 def test_a_default_that_is_not_a_number(tmp_path, value, why):
     shown = {"true": "True", '"1"': "'1'", "nan": "nan", "-inf": "-inf"}[value]
     _refused(tmp_path, f"[defaults]\nerror_rtol = {value}\n[[unit]]\n{UNIT}",
@@ -206,8 +212,9 @@ def test_update_that_cannot_write_names_the_file(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("")
     target = blocker / "b.toml"
-    with pytest.raises(BaselineError, match="^" + re.escape(f"baseline {target}: cannot be written: "
-                                                            f"{os.strerror(errno.EEXIST)}") + "$"):
+    # a parent that is a file: refused as an output path before any write, naming the option and the file
+    with pytest.raises(OutputPathError, match="^" + re.escape(f"--baseline {target}: '{blocker}' is not a folder")
+                       + "$"):
         update_baseline({("a", "b", "{}"): ROW}, target)
 
 
@@ -220,7 +227,7 @@ def test_the_rewrite_goes_through_a_hidden_temporary_beside_the_file(tmp_path, m
         moves.append((Path(src), Path(dst)))
         raise PermissionError(errno.EACCES, "denied")
 
-    monkeypatch.setattr(bl.os, "replace", refuse)
+    monkeypatch.setattr(atomic_files.os, "replace", refuse)
     with pytest.raises(BaselineError, match="^" + re.escape(f"baseline {p}: cannot be written: denied") + "$"):
         update_baseline({("a", "b", "{}"): ROW}, p)
     (src, dst), = moves
@@ -234,7 +241,7 @@ def test_an_interrupted_rewrite_leaves_the_old_file_and_no_temporary(tmp_path, m
     def interrupt(fd):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(bl.os, "fsync", interrupt)
+    monkeypatch.setattr(atomic_files.os, "fsync", interrupt)
     with pytest.raises(KeyboardInterrupt):
         update_baseline({("a", "b", "{}"): ROW}, p)
     assert sorted(tmp_path.iterdir()) == [p] and p.read_text() == "# old\n"

@@ -191,7 +191,14 @@ def test_errors_against_ref_uses_the_baseline_unit_tolerance_and_refuses_nothing
 
 
 # ---------------------------------------------------------------- latency, file mode
-def test_file_latency_at_its_limit_on_both_sides():
+def _file_note(why, above, seen, tol, shown=""):
+    return (f"{why}latency not gated (the A/B of --against REF gates it): the baseline file's ratios (haptic median "
+            "/ calibration kernel) move 2-3x between runs of identical code for microsecond steps. For information: "
+            f"{above} of {seen} units above x{tol:g} of the file's ratio" + (f" ({shown})" if shown else ""))
+
+
+def test_file_latency_at_its_limit_on_both_sides_is_information_only():
+    # issue 39: file-mode latency never fails identical code; what is above the limit is said, not gated
     base = 0.5
     units = [_unit(KEY, calib=base), _unit(KEY2, calib=base), _unit(("c", "m", "{}"), calib=base),
              _unit(("d", "m", "{}"), calib=base)]
@@ -201,13 +208,9 @@ def test_file_latency_at_its_limit_on_both_sides():
     units = units[3:] + units[:3]  # the unit without a row first
     out = CheckResult()
     checks.latency_from_file(out, rows, units, DEFAULTS, "why: ")
-    assert out.latency_mode == "file"
-    assert out.regressions == [Finding(*KEY2, "latency_per_calibration", base, math.nextafter(limit, 2),
-                                       f"<= {limit:.4g}: x1.3")]
-    assert out.notes == ["why: latency gated against the baseline file's ratios (haptic median / calibration "
-                         "kernel, tolerance x1.3, floor 0 calibrations): these move 2-3x between runs for "
-                         "microsecond steps; the A/B (--against REF) is the sensitive test"]
-    assert set(out.per_unit) == {KEY2}
+    assert out.latency_mode == "file" and out.regressions == [] and out.per_unit == {}
+    now = math.nextafter(limit, 2)
+    assert out.notes == [_file_note("why: ", 1, 2, 1.3, f"cube pod {KEY2[2]}: 0.5 -> {now:.4g} (limit {limit:.4g})")]
 
 
 def test_file_latency_raises_a_small_baseline_to_the_floor_first():
@@ -215,18 +218,26 @@ def test_file_latency_raises_a_small_baseline_to_the_floor_first():
     units = [_unit(KEY, calib=0.01), _unit(KEY2, calib=0.5)]
     out = CheckResult()
     checks.latency_from_file(out, {KEY: _row(calib=0.2), KEY2: _row(calib=1.0)}, units, defaults, "")
-    assert out.regressions == []  # 0.2 <= max(0.01, 0.1) * 2; 1.0 <= 0.5 * 2
+    assert out.notes == [_file_note("", 0, 2, 2.0)]  # 0.2 <= max(0.01, 0.1) * 2; 1.0 <= 0.5 * 2
     checks.latency_from_file(out, {KEY: _row(calib=0.21), KEY2: _row(calib=1.01)}, units, defaults, "")
-    assert [(f.baseline, f.now, f.tolerance) for f in out.regressions] == [
-        (0.01, 0.21, "<= 0.2: x2, floor 0.1 calibrations"), (0.5, 1.01, "<= 1: x2")]
-    assert "tolerance x2, floor 0.1 calibrations" in out.notes[0]
+    assert out.notes[1] == _file_note("", 2, 2, 2.0, f"cube pod {KEY[2]}: 0.01 -> 0.21 (limit 0.2); "
+                                                     f"cube pod {KEY2[2]}: 0.5 -> 1.01 (limit 1)")
+    assert out.regressions == []
 
 
 def test_file_latency_with_a_unit_tolerance_and_a_nan_now():
     units = [_unit(KEY, calib=1.0, file_latency_tolerance=3.0), _unit(KEY2, calib=1.0)]
     out = CheckResult()
     checks.latency_from_file(out, {KEY: _row(calib=2.9), KEY2: _row(calib=math.nan)}, units, DEFAULTS, "")
-    assert [f.options for f in out.regressions] == [KEY2[2]]  # NaN is not <= the limit
+    assert out.notes == [_file_note("", 1, 2, 1.3, f"cube pod {KEY2[2]}: 1 -> nan (limit 1.3)")]  # NaN is not <=
+
+
+def test_file_latency_lists_five_units_then_counts():
+    keys = [("cube", "pod", f'{{"n":{i}}}') for i in range(7)]
+    out = CheckResult()
+    checks.latency_from_file(out, {k: _row(calib=9.0) for k in keys}, [_unit(k, calib=1.0) for k in keys],
+                             DEFAULTS, "")
+    assert out.notes[0].endswith("; 2 more)") and out.notes[0].count(" -> 9 ") == 5
 
 
 # ---------------------------------------------------------------- latency, A/B (samples given)
@@ -241,11 +252,12 @@ def test_latency_ab_turns_verdicts_and_failures_into_findings(monkeypatch):
     ok_rows = {KEY: _row(), KEY2: _row(), k3: _row(), ("d", "n", "{}"): _row()}
     seen = {}
 
-    def ab_units(results_dir, table):
+    def ab_units(results_dir, table, workdir=None):
         seen["table"], seen["dir"] = table, results_dir
         return [type("U", (), {"uid": f"u{i}"})() for i in range(len(table))]
 
-    def run_ab(ab, ref_root, head_root, decide, min_rounds, max_rounds, blocks, budget_s, inject=None, log=None):
+    def run_ab(ab, ref_root, head_root, decide, min_rounds, max_rounds, blocks, budget_s, inject=None, log=None,
+               workdir=None):
         seen["args"] = (ref_root, head_root, min_rounds, max_rounds, blocks, budget_s, inject)
         seen["ab"], seen["log"] = ab, log
         seen["decide"] = decide
@@ -279,7 +291,7 @@ def test_latency_ab_turns_verdicts_and_failures_into_findings(monkeypatch):
 
 
 def test_latency_ab_flags_a_slowdown_beyond_the_default_tolerance(monkeypatch):
-    monkeypatch.setattr(checks, "ab_units", lambda d, t: [type("U", (), {"uid": "u0"})()])
+    monkeypatch.setattr(checks, "ab_units", lambda d, t, w=None: [type("U", (), {"uid": "u0"})()])
     monkeypatch.setattr(checks, "run_ab", lambda *a, **k: (_samples("u0", 1e-3, 2e-3), {}))
     out = CheckResult()
     checks.latency_ab(out, "res", {KEY: _row()}, [_unit(KEY)], DEFAULTS, "R", "H", "main", ABSettings(), print)
@@ -295,7 +307,7 @@ def test_latency_ab_flags_a_slowdown_beyond_the_default_tolerance(monkeypatch):
 
 
 def test_latency_ab_that_compared_nothing_is_an_error(monkeypatch):
-    monkeypatch.setattr(checks, "ab_units", lambda d, t: [type("U", (), {"uid": "u0"})()])
+    monkeypatch.setattr(checks, "ab_units", lambda d, t, w=None: [type("U", (), {"uid": "u0"})()])
     monkeypatch.setattr(checks, "run_ab", lambda *a, **k: (_samples("u0", 1e-3, 1e-3).iloc[:0], {"u0": {"ref": "x"}}))
     with pytest.raises(ValueError, match=r"^--against v2: the A/B compared no unit \(v2's code could run none of "
                                          r"them\)$"):

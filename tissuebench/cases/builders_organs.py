@@ -141,8 +141,12 @@ def lv_ellipsoid(endo=(7.0, 17.0), epi=(10.0, 20.0), z_base=5.0, maxh=2.0) -> Bu
     epicardium likewise with ``epi``, base plane z = ``z_base``, apex at z = -r_l.
     """
     (a0, c0), (a1, c1) = (float(v) for v in endo), (float(v) for v in epi)
-    if not (0 < a0 < a1 and 0 < c0 < c1 and -c0 < z_base < c0):
-        raise ValueError(f"inconsistent LV dimensions: endo={endo}, epi={epi}, z_base={z_base}")
+    if not (0 < a0 < a1 and 0 < c0 < c1):
+        raise ValueError(f"mesh.params.endo = {list(endo)}, mesh.params.epi = {list(epi)}: inconsistent LV "
+                         "dimensions: need 0 < endo < epi, radius by radius (the endocardium inside the epicardium)")
+    if not -c0 < z_base < c0:
+        raise ValueError(f"mesh.params.z_base = {z_base}: the base plane must cut the endocardium: "
+                         f"-{c0:g} < z_base < {c0:g} (its long radius, mesh.params.endo[1])")
     mesh = _lv_mesh(a0, c0, a1, c1, float(z_base), float(maxh))
     exact = truncated_spheroid_volume(a1, c1, z_base) - truncated_spheroid_volume(a0, c0, z_base)
     return BuiltMesh(mesh, {"builder": "lv_ellipsoid", "maxh": maxh, "wall_volume_exact": exact})

@@ -101,7 +101,10 @@ STATIC_DOC = {
     "type": "`\"static\"`", "load_steps": "load increments from 0 to `max_load_factor`",
     "max_load_factor": "the last load factor (default 1)",
     "stop_at_divergence": "run until Newton stops converging; the last converged load factor is the measurement",
-    "formulation": "`\"displacement\"` (default) or `\"mixed\"` (incompressible u-p Taylor-Hood P2-P1)",
+    "formulation": "`\"displacement\"` (P1 or P2 displacement), `\"anp\"` (average nodal pressure tetrahedra: "
+                   "the default where P1 locks) or `\"mixed\"` (u-p Taylor-Hood P2-P1 with the bulk modulus)",
+    "incompressible": "with `formulation = \"mixed\"`: J = 1 imposed by the pressure field (the material's "
+                      "volumetric part unused); by default the mixed form keeps the material's bulk modulus",
     "max_cuts": "halvings of an increment Newton does not converge before the run stalls",
     "note": "documentation",
 }
@@ -111,6 +114,8 @@ DYNAMIC_DOC = {
     "integrator_options": "options of the integrator (`alpha` of HHT ...), checked by its constructor",
     "lumped": "a lumped mass matrix", "dt_sweep": "time steps of a study of the step size",
     "store_every": "keep every n-th step in the results", "note": "documentation",
+    "formulation": "`\"displacement\"` or `\"anp\"` (average nodal pressure tetrahedra: the default where P1 "
+                   "locks); `\"mixed\"` is static only",
 }
 _STATIC = {"type": c_str, "load_steps": c_int_range(1, MAX_LOAD_STEPS), "max_load_factor": c_pos,
            "stop_at_divergence": c_bool, "formulation": c_enum("displacement", "anp", "mixed"),

@@ -341,7 +341,11 @@ EVALUATION_KIND_DOCS = {
              {"every": "keep every k-th state", "held_out": "`true`: only the states a path training with "
               "`every = 2` (or more) left out",
               "beyond": "multiples of the path's top to measure up to, the reference continued past it until it "
-                        "stalls: `[2.0]`"}),
+                        "stalls: `[2.0]`",
+              "refine": "parts each training interval is cut into for the points between training states (default "
+                        "4: the quarter points and middle; `1`: the path's states only), and the points near rest",
+              "extrapolation": "`true`: the validity radius counts the points past the training range (`beyond`); "
+                               "by default it stops at the training range"}),
     "positions": ("held-out load positions, each with its reference path",
                   {"held_out": "how many (midpoints and quarter points of the training lattice), or a list"}),
     "trajectory": ("the scene's reference time integration, the model stepped from the start",

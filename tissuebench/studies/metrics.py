@@ -174,10 +174,10 @@ def summarise_points(points: pd.DataFrame, outputs: pd.DataFrame, evaluation, fi
         with np.errstate(over="ignore", invalid="ignore"):  # a blown-up step counts as inf, said once
             failed = u is None or not np.all(np.isfinite(u))
             e2 = np.inf if failed else float(np.sum((u - p.reference) ** 2))
+            abs_err = max(abs_err, np.inf if failed else nodal_error(u, p.reference))
         num += e2
         den += float(np.sum(p.reference ** 2))
         peak_err, peak_ref = max(peak_err, np.sqrt(e2)), max(peak_ref, float(np.linalg.norm(p.reference)))
-        abs_err = max(abs_err, np.inf if failed else nodal_error(u, p.reference))
     counts = points["status"].value_counts()
     n_seen = int((points["seen"] & has_ref).sum()) if "seen" in points else 0
     row = {"n_points": int(len(points)), "n_reference_points": int(has_ref.sum()),

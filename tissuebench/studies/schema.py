@@ -118,6 +118,12 @@ UNIT_COLUMNS_DOC = {
     "validity_1pct": "the largest x up to which every error is within 1 %",
     "validity_5pct": "the same within 5 %", "x_scale": "what x = 1 is in the scene's units",
     "x_unit": "that unit", "reference_limit": "where the reference continued past the path stopped converging",
+    "validity_range": "the points the validity radius reads: `training` (a path: the training range only), "
+                      "`extrapolation` (the evaluation asked `extrapolation = true`: past it too) or empty (every "
+                      "point: a distance, a time)",
+    "peak_rel_l2": "the worst step's l2 error over the run's peak displacement (inf where every reference is zero)",
+    "max_abs_error": "the largest nodal displacement error, in `length_unit`",
+    "length_unit": "the scene's length unit (`[units] length`) of the absolute error columns",
     "n_beyond_reference": "points past the path's top with a reference",
     "n_seen": "evaluation points whose reference is a training snapshot",
     "seen": "every evaluation point was seen in training (never recommended)",

@@ -115,7 +115,10 @@ ERROR_METRICS_DOC = {"max_rel_l2": "the largest relative l2 error of the full fi
                      "rmse_rel": "sqrt(sum ||u_rom - u_ref||^2 / sum ||u_ref||^2) over the points",
                      "max_rel_l2_in_envelope": "the largest relative l2 error over the points inside the training "
                                                "envelope",
-                     "max_monitor_rel_error": "the largest relative error of the monitored outputs"}
+                     "max_monitor_rel_error": "the largest relative error of the monitored outputs",
+                     "peak_rel_l2": "max ||u_rom - u_ref|| over the points / max ||u_ref||: the worst step's error "
+                                    "against the run's peak displacement (a motion)",
+                     "max_abs_error": "the largest nodal displacement error, in the scene's length unit (not relative)"}
 BACKENDS = BACKEND_NAMES
 
 
