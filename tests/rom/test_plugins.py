@@ -47,7 +47,8 @@ def test_an_entry_point_joins_the_registry_at_its_first_read_with_its_distributi
     assert main(["methods"]) == 0
     out = capsys.readouterr().out
     assert "toy_plug" in out and "[plugin tb-toyplug 0.1.0 (tb_toyplug:Toy)]" in out
-    assert "17 methods (16 shipped, 1 from other packages)" in out
+    shipped = sum(cls.__module__.split(".")[0] == "tissuebench" for cls in METHODS.values())
+    assert f"{shipped + 1} methods ({shipped} shipped, 1 from other packages)" in out and shipped >= 17
     assert main(["methods", "cornea_pinch", "--method", "toy_plug"]) == 0
     assert "toy_plug  applies (path training)  [plugin tb-toyplug 0.1.0" in capsys.readouterr().out
 

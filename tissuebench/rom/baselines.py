@@ -101,13 +101,18 @@ class Nearest(RomMethod):
         if in_time and "time" not in keys:
             raise ValueError(f"{self.name}: a trajectory training needs the time of every snapshot "
                              f"(training.parameters[0] = {training.parameters[0]})")
-        return _NearestModel(self.name, keys, P, lo, span, training.snapshots)
+        problem = getattr(getattr(training, "backend", None), "problem", None)
+        return _NearestModel(self.name, keys, P, lo, span, training.snapshots, problem)
 
 
 class _NearestModel(_ParametricModel):
-    def __init__(self, name, keys, P, lo, span, S):
+    def __init__(self, name, keys, P, lo, span, S, problem=None):
         super().__init__(name, keys, P, lo, span)
         self._S = S
+        # the step's prescribed (Dirichlet) values replace the stored snapshot's on the fixed dofs:
+        # the prescribed motion is an input the haptic loop knows (the ROM contract's full field)
+        fixed = getattr(problem, "fixed_dofs", None)
+        self._problem = problem if fixed is not None and len(fixed) and S.shape[0] == problem.ndof else None
         self._D = np.empty_like(self._X)  # squared differences to the stored parameters
         self._d2 = np.empty(len(self._X))
         self._ones = np.ones(self._X.shape[1])  # their row sums as one matrix-vector product
@@ -144,18 +149,32 @@ class _NearestModel(_ParametricModel):
 
     def attach_outputs(self, operators) -> None:
         names = list(operators)
-        self._outputs = (names, np.array([operators[n] for n in names]).reshape(len(names), -1) @ self._S)
+        C = np.array([operators[n] for n in names]).reshape(len(names), -1)
+        self._outputs = (names, C @ self._S)
+        # outputs that read prescribed dofs follow the step's values there, as reconstruct does
+        pb = self._problem
+        Cf = C[:, pb.fixed_dofs] if pb is not None else np.zeros((len(names), 0))
+        self._fixed_outputs = (Cf, self._S[pb.fixed_dofs]) if np.any(Cf) else None
 
     def outputs(self, result) -> dict:
         names, Y = getattr(self, "_outputs", ((), None))
         if not names or result.q is None:
             return {n: float("nan") for n in names}
-        return dict(zip(names, Y[:, int(result.q[0])].tolist()))
+        j, y = int(result.q[0]), Y[:, int(result.q[0])]
+        fixed, mu = getattr(self, "_fixed_outputs", None), result.mu
+        if fixed is not None and mu is not None and "load_factor" in mu:
+            Cf, Sf = fixed
+            y = y + Cf @ (self._problem.prescribed_values(float(mu["load_factor"])) - Sf[:, j])
+        return dict(zip(names, y.tolist()))
 
     def reconstruct(self, result) -> np.ndarray:
         if result.q is None:
             raise ValueError(f"{self.name}: cannot reconstruct a failed step ({result.message})")
-        return self._S[:, int(result.q[0])].copy()
+        u = self._S[:, int(result.q[0])].copy()
+        pb, mu = self._problem, result.mu
+        if pb is not None and mu is not None and "load_factor" in mu:
+            u[pb.fixed_dofs] = pb.prescribed_values(float(mu["load_factor"]))
+        return u
 
 
 @register
