@@ -1,10 +1,14 @@
 """Git repositories for the tests of ``check --against REF`` on a project's own repository:
-``commit(repo, files)`` writes files (None deletes one) and commits them."""
+``commit(repo, files)`` writes files (None deletes one) and commits them; ``example_repo`` is the
+user's repository of the example method package (examples/bring_your_own_method) at its top."""
 from __future__ import annotations
 
 import shutil
 import subprocess
 from pathlib import Path
+
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "bring_your_own_method"
 
 
 def git(cwd, *args) -> str:
@@ -34,3 +38,12 @@ def commit(repo: Path, files: dict, message: str = "change") -> str:
     git(repo, "add", "-A", ".")
     git(repo, "commit", "-qm", message, "--allow-empty")
     return git(repo, "rev-parse", "HEAD")
+
+
+def example_repo(root: Path, files: dict, message: str = "base") -> tuple[Path, str]:
+    """``(repo, sha)``: the example package copied to ``root/podreg`` (no build leftovers), a git
+    repository whose first commit adds ``files`` too."""
+    repo = root / "podreg"
+    shutil.copytree(EXAMPLE, repo, ignore=shutil.ignore_patterns("build", "*.egg-info", "out", "__pycache__", ".cache"))
+    init(repo)
+    return repo, commit(repo, files, message)

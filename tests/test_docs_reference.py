@@ -22,10 +22,10 @@ from tissuebench.studies import limits, spec, training  # noqa: E402
 
 def test_the_spec_page_follows_a_limit(monkeypatch):
     before = tbdocs_formats.spec_format()
-    assert "| `latency_steps` | `200` | an integer from 1 to 100000 |" in before
+    assert "| `latency_steps` | `2000` | an integer from 1 to 100000 |" in before
     monkeypatch.setitem(limits.LIMITS, "latency_steps", 4321)
     after = tbdocs_formats.spec_format()
-    assert "| `latency_steps` | `200` | an integer from 1 to 4321 |" in after
+    assert "| `latency_steps` | `2000` | an integer from 1 to 4321 |" in after
     assert "| `latency_steps` | 4,321 |" in after and "100,000 |" in after  # the limits table: warmup keeps its own
 
 

@@ -344,10 +344,14 @@ def _print_pareto(out) -> None:
 
 
 def _report(args) -> int:
-    from .reports.html import DEFAULT_NAME, write_report
+    from .reports.html import DEFAULT_NAME, verdict_lines, write_report
+    from .reports.recommend import parse_requirement
 
     path = write_report(args.results, args.out or args.results / DEFAULT_NAME, args.require, args.case,
                         force=args.force)
+    print(f"requirement {parse_requirement(args.require).text}:")
+    for line in verdict_lines(args.results, args.require, args.case):  # the recommendation, one line per case
+        print(f"  {line}")
     print(f"report: {path}")
     return 0
 

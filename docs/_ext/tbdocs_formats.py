@@ -218,7 +218,7 @@ def _integrator_options() -> list:
 
 # ------------------------------------------------------------------------------------------ spec
 def _protocol_accepts(key: str) -> str:
-    """What ``check_protocol`` accepts for a protocol key (a count; a key that is no count: seconds)."""
+    """What ``check_protocol`` accepts for a protocol key: a count, or seconds for the budget."""
     from tissuebench.studies import limits
     if key in limits._PROTOCOL_MIN:
         return f"an integer from {limits._PROTOCOL_MIN[key]} to {limits.LIMITS[key]}"

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import time
 from pathlib import Path
@@ -39,10 +38,9 @@ from tissuebench.studies.results import read_units
 from tissuebench.studies.spec import load_spec
 from tissuebench.studies.sweep import run_sweep
 
-from _gate_repo import commit, init
+from _gate_repo import commit, example_repo
 from _venv import chained_venv, tissuebench_command
 
-EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "bring_your_own_method"
 SPEC = """[sweep]
 name = "plugin-power"
 resolution = "ci"
@@ -76,11 +74,7 @@ def _report(key: str, report: dict) -> None:
 
 
 def _user_repo(root: Path) -> tuple[Path, str]:
-    repo = root / "podreg"
-    shutil.copytree(EXAMPLE, repo, ignore=shutil.ignore_patterns("build", "*.egg-info", "out", "__pycache__",
-                                                                   ".cache"))
-    init(repo)
-    return repo, commit(repo, {"power_spec.toml": SPEC}, "base")
+    return example_repo(root, {"power_spec.toml": SPEC})
 
 
 @pytest.mark.benchmark

@@ -20,6 +20,7 @@ from _workers import RunLog
 
 import tissuebench.reference.cache as cache_module
 from tissuebench.studies.executors import execute
+from tissuebench.studies.path_range import range_scenes
 from tissuebench.reference import reference_key
 from tissuebench.studies.results import read_units
 from tissuebench.studies.spec import expand_units, load_spec
@@ -74,8 +75,13 @@ def test_the_declared_references_are_the_ones_the_units_read(spec):
     units = expand_units(spec)
     scene = case_scene(units[0].case)
     assert len(units) == 5
-    # the path is declared (its key, on the case's backend); the continuation past the top is not
-    assert all(list(unit_references(u)) == [reference_key(scene, "skfem")] for u in units)
+    # the path and its range (issue 44: the finer path between the training states, the short one
+    # near rest, one increment from rest to 1/64 and 1/1024 of the first training state) are declared
+    # (their keys, on the case's backend); the continuation past the top is not
+    ranges = [run for _, run in range_scenes(scene, 2)]
+    assert len(ranges) == 4
+    declared = [reference_key(s, "skfem") for s in [scene, *ranges]]
+    assert all(list(unit_references(u)) == declared for u in units)
 
 
 def test_a_reference_five_units_need_is_computed_once_on_two_workers(spec, tmp_path):
@@ -91,9 +97,9 @@ def test_a_reference_five_units_need_is_computed_once_on_two_workers(spec, tmp_p
                             cache=url)
     assert len(summary.computed) == 5 and not summary.failed, read_units(tmp_path / "out")["message"].tolist()
     counted = [key for what, key, _ in (ln.split() for ln in log.read_text().splitlines()) if what == "solve"]
-    # two references: the path (declared: a task) and its continuation past the top (not declared:
-    # computed by the first unit to need it under the lock, read by the other four)
-    assert len(counted) == 2 and len(set(counted)) == 2, counted
+    # six references: the path and its range's four (declared: tasks) and its continuation past the
+    # top (not declared: computed by the first unit to need it under the lock, read by the other four)
+    assert len(counted) == 6 and len(set(counted)) == 6, counted
     assert sorted(p.name for p in (tmp_path / "cache" / "references").iterdir()) == sorted(set(counted))
 
 
@@ -102,10 +108,10 @@ def test_serial_and_processes_keep_their_cache_argument(spec, tmp_path, counted)
     url = f"memory://tb-{uuid.uuid4().hex[:8]}/serial"
     outcomes = list(execute(expand_units(spec)[:2], "serial", cache=url))
     assert all(o.row["unit_status"] == "ok" for _, o in outcomes)
-    assert len(counted) == 2  # path and continuation, once each, into the memory cache
+    assert len(counted) == 6  # path, its range's four and continuation, once each, into the memory cache
     import fsspec
 
-    assert len(fsspec.filesystem("memory").ls(f"/{url.split('://', 1)[1]}/references", detail=False)) == 2
+    assert len(fsspec.filesystem("memory").ls(f"/{url.split('://', 1)[1]}/references", detail=False)) == 6
 
 
 def _ci_cases():
@@ -122,6 +128,7 @@ def test_each_kind_declares_the_references_its_builders_read(case, monkeypatch):
     what they read beyond it is the continuation past a path's top (``beyond``), the one reference
     not declared by design."""
     import tissuebench.studies.evaluation as evaluation
+    import tissuebench.studies.path_range as path_range
     import tissuebench.studies.training as training
     from tissuebench.studies.units import WorkUnit
 
@@ -133,6 +140,7 @@ def test_each_kind_declares_the_references_its_builders_read(case, monkeypatch):
 
     monkeypatch.setattr(training, "cached_solve", recording)
     monkeypatch.setattr(evaluation, "cached_solve", recording)
+    monkeypatch.setattr(path_range, "cached_solve", recording)
     declared = unit_references(WorkUnit(case, "nearest", {}, {}, {}, "0" * 64))
     scene = case_scene(case)
     training.build_training(case, scene)

@@ -78,7 +78,8 @@ def test_a_requirement_that_is_not_a_string():
 def test_descriptions():
     req = parse_requirement("rate>=2kHz, latency<1ms, error<=1.5%")
     assert req.describe("max_rel_l2") == ("haptic rate >= 2 kHz on the p99 step (p99 <= 500 µs) and haptic step p99 "
-                                          "< 1 ms and error (max_rel_l2) <= 1.5 %")
+                                          "< 1 ms and error (worst relative L2 error of the field over the evaluation "
+                                          "points, max_rel_l2) <= 1.5 %")
     assert Clause("rate", ">", 500.0, "").describe("e") == "haptic rate > 500 Hz on the p99 step (p99 < 2 ms)"
 
 

@@ -109,8 +109,28 @@ def test_none_meets_names_the_closest_and_what_it_misses_by(store):
     assert closest["label"] == "fast_rough n_modes=2"
     assert closest["margin"] == pytest.approx(0.01 / 0.03, rel=1e-12)
     assert closest["misses"] == "error 3 % is 3x over 1 %"
+    # the handmade units were timed on 200 steps: their p99 rests on 2 samples, and the verdict says so
     assert ranked.set_index("label").loc["accurate n_modes=9", "misses"] == \
-        "rate 400 Hz (p99 2.5 ms) is 25x short of 10 kHz"
+        "rate 400 Hz (p99 2.5 ms, decided by 2 samples of 200 (fewer than 20)) is 25x short of 10 kHz"
+
+
+@pytest.mark.parametrize("n, note", [(200, "200 steps, 2 beyond the p99: it rests on fewer than 20"),
+                                     (1901, "1901 steps, 19 beyond the p99: it rests on fewer than 20"),
+                                     (1902, "1902 steps, 20 beyond the p99"), (2000, "2000 steps, 20 beyond the p99")])
+def test_a_p99_verdict_says_how_many_samples_decided_it(n, note):
+    """Issue 44: 2 of 200 timed steps over 1 ms decided a p99 verdict and nothing said so."""
+    from tissuebench.reports.report_sections import p99_samples, recommendation
+
+    units = pd.DataFrame([{**unit_row("c", "rom", {"n_modes": 3}, 0.01, 57e-6, 8.2e-3, False), "haptic_n": n,
+                           "unit_key": "k"}])
+    meets = recommendation(units, parse_requirement("rate>=100Hz"), "max_rel_l2")
+    assert meets["lines"][0].startswith(f"rom n_modes=3: p99 8.2 ms (122 Hz; {note}), median 57 µs")
+    ranked = rank_units(units, parse_requirement("rate>=1kHz"), "max_rel_l2")
+    thin = n < 1902
+    assert ("decided by" in ranked["misses"].iloc[0]) == thin and p99_samples(ranked.iloc[0]) == note
+    if thin:
+        assert f"(p99 8.2 ms, decided by {2 if n == 200 else 19} samples of {n} (fewer than 20))" in \
+            ranked["misses"].iloc[0]
 
 
 def test_rate_applies_to_the_p99_not_the_median(store):
@@ -172,7 +192,8 @@ def test_report_writes_page_and_every_table_data(store, tmp_path):
     assert links and links == {p.name for p in folder.glob("*.csv")}
     pareto = pd.read_csv(next(folder.glob("pareto_*.csv")))
     assert len(pareto) == 5 and pareto["pareto"].sum() == 4  # "slow" is dominated, "broken" not drawn
-    assert "1 of 6 units meet it" in page and "fast_rough n_modes=4: p99 1.5 ms (667 Hz)" in page
+    assert "1 of 6 units meet it" in page and \
+        "fast_rough n_modes=4: p99 1.5 ms (667 Hz; 200 steps, 2 beyond the p99: it rests on fewer than 20)" in page
     assert "haptic rate &gt;= 500 Hz on the p99 step" in page and "max_rel_l2" in page
     # every unit's arithmetic floor and efficiency beside its haptic median
     ranking = pd.read_csv(next(folder.glob("ranking_*.csv")))

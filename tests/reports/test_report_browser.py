@@ -111,7 +111,9 @@ def test_handmade_report_in_chromium(tmp_path):
     dom = _check_page(page, tmp_path, n_cases=1, shot="report_handmade")
     assert element(dom, "pareto-0").points == 5  # 5 finished units; the failed one is not drawn
     rec = " ".join("".join(element(dom, "recommendation-0").text).split())
-    assert f"{EVIL}: 1 of 6 units meet it" in rec and "fast_rough n_modes=4: p99 1.5 ms (667 Hz)" in rec
+    # the section is titled by the scene, the case id in small print (issue 44's wording)
+    assert f"{EVIL} (case {EVIL}): 1 of 6 units meet it" in rec
+    assert "fast_rough n_modes=4: p99 1.5 ms (667 Hz; 200 steps, 2 beyond the p99" in rec
     assert EVIL not in dom  # shown as text (&lt;script&gt;...) everywhere, never as an element
     assert dom.count("&lt;script&gt;alert(1)&lt;/script&gt;") >= 5
 
@@ -163,4 +165,6 @@ def test_report_of_a_real_sweep_in_chromium(tmp_path):
     assert element(dom, "pareto-0").points == int((units["unit_status"] == "ok").sum()) == 5
     rec = " ".join("".join(element(dom, "recommendation-0").text).split())
     assert rec.startswith("cornea_pinch: ") and ("meet it, ranked by margin" in rec or "None meets it" in rec)
-    assert "haptic rate &gt;= 500 Hz on the p99 step" in dom and "(max_rel_l2)" in dom
+    # the requirement in words, the metric's id beside them (issue 44: the report read by a person)
+    assert "haptic rate &gt;= 500 Hz on the p99 step" in dom
+    assert "(worst relative L2 error of the field over the evaluation points, max_rel_l2)" in dom

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import subprocess
 import time
 import xml.etree.ElementTree as ET
@@ -19,10 +18,9 @@ from pathlib import Path
 
 import pytest
 
-from _gate_repo import commit, git, init
+from _gate_repo import EXAMPLE, commit, example_repo, git, init
 from _venv import chained_venv, tissuebench_command
 
-EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "bring_your_own_method"
 SPEC = """[sweep]
 name = "podreg_gate"
 resolution = "ci"
@@ -44,8 +42,8 @@ STEP = ("        q = (lam / self._top) ** self._powers @ self._coeffs  # a new a
 SLOWER = ("        x = lam / self._top\n        for _ in range(2):  # a leftover of profiling\n"
           "            x ** self._powers @ self._coeffs\n        q = x ** self._powers @ self._coeffs\n")
 # (b) one degree fewer than asked: the reduced coordinates' fit is worse
-FIT = "        V = np.vander(lams / top, self.degree + 1, increasing=True)\n"
-WORSE = "        V = np.vander(lams / top, self.degree, increasing=True)\n"
+FIT = "        V = np.vander(lams / top, self.degree + 1, increasing=True)[:, 1:]"
+WORSE = "        V = np.vander(lams / top, self.degree, increasing=True)[:, 1:]"
 COMMENT = "        # the reduced coordinates of the step: a polynomial in the scaled load factor\n"
 
 
@@ -66,11 +64,7 @@ def user_repo(tmp_path_factory):
     """The user's repository: the example package at its top, its gate spec, a base commit and a
     branch per change; the package installed editable (src/ layout: a path in a .pth file)."""
     root = tmp_path_factory.mktemp("own")
-    repo = root / "podreg"
-    shutil.copytree(EXAMPLE, repo, ignore=shutil.ignore_patterns("build", "*.egg-info", "out", "__pycache__",
-                                                                   ".cache"))
-    init(repo)
-    base = commit(repo, {"gate_spec.toml": SPEC}, "base")
+    repo, base = example_repo(root, {"gate_spec.toml": SPEC})
     for branch, files in (("slower", _edit(repo, STEP, SLOWER)), ("worse", _edit(repo, FIT, WORSE)),
                           ("comment", _edit(repo, STEP, COMMENT + STEP))):
         git(repo, "checkout", "-q", "-b", branch, base)

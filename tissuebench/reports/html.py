@@ -40,10 +40,11 @@ from .plotly_figures import error_figure, pareto_figure
 from .recommend import LATENCY_STATISTIC, parse_requirement
 from .report_data import load_results
 from .report_sections import (Table, anchors_table, backends_table, calibration, convergence_table,
-                              extremes_table_view, offline_table, paper_table, provenance_rows, radius_table,
-                              ranking_table, recommendation, scene_info, scene_of)
+                              extremes_table_view, offline_table, one_line, paper_table, provenance_rows,
+                              radius_table, ranking_table, recommendation, scene_info, scene_of)
+from .wording import case_titles, mesh_text, metric_words, monitors_note
 
-__all__ = ["write_report", "TEMPLATES", "DEFAULT_NAME"]
+__all__ = ["write_report", "verdict_lines", "report_titles", "TEMPLATES", "DEFAULT_NAME"]
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 DEFAULT_NAME = Path("_report") / "report.html"  # inside a results folder (a '_' folder is not part of the dataset)
@@ -62,17 +63,19 @@ def _case_units(data, case):
     return units.reset_index(drop=True)
 
 
-def _case_section(data, case, index, requirement, figures, tables):
+def _case_section(data, case, index, requirement, figures, tables, title):
     units = _case_units(data, case)
     scene, scene_error = scene_of(units)
     part = f"{index:02d}_{_file_part(case)}"
-    pareto, pareto_data = pareto_figure(case, units, data.error_metric, requirement)
-    err, err_data = error_figure(case, units, data.points)
+    pareto, pareto_data = pareto_figure(title, units, data.error_metric, requirement)
+    err, err_data = error_figure(title, units, data.points)
     figures[f"pareto-{index}"], figures[f"error-{index}"] = pareto, err
     tables += [Table(f"pareto_{part}", [], [], pareto_data), Table(f"error_{part}", [], [], err_data)]
     rec = recommendation(units, requirement, data.error_metric)
     ext = extremes_table(units, data.points, {case: scene_info(scene)})
-    section = {"case": case, "index": index, "scene": scene, "scene_error": scene_error,
+    section = {"case": case, "title": title, "index": index, "scene": scene, "scene_error": scene_error,
+               "mesh": mesh_text(scene) if scene is not None else "",
+               "monitors": monitors_note(scene, data.outputs, units["unit_key"]),
                "n_units": len(units), "n_plotted": len(pareto_data),
                "n_failed": int((units["unit_status"] != "ok").sum()),
                "pareto_csv": f"pareto_{part}.csv", "error_csv": f"error_{part}.csv", "recommendation": rec,
@@ -84,6 +87,23 @@ def _case_section(data, case, index, requirement, figures, tables):
                "failed_units": units[units["unit_status"] != "ok"]}
     tables += [section[k] for k in ("ranking", "extremes", "offline", "radius")]
     return section
+
+
+def report_titles(data) -> dict:
+    """``{case id: title}`` of a results folder's cases (:func:`~.wording.case_titles`)."""
+    scenes = {c: scene_of(data.units[data.units["case"] == c])[0] for c in data.cases}
+    return case_titles(data.units, data.manifest, scenes)
+
+
+def verdict_lines(results_dir, require: str | None = None, case: str | None = None) -> list[str]:
+    """One line per case of a results folder: its title and the recommendation's verdict for
+    ``require`` (the unit that meets it with the largest margin, or the closest and what it
+    misses by): what ``tissuebench report`` prints beside the page's path."""
+    requirement = parse_requirement(require)
+    data = load_results(results_dir, case)
+    titles = report_titles(data)
+    return [f"{titles[c]}: {one_line(recommendation(_case_units(data, c), requirement, data.error_metric))}"
+            for c in data.cases]
 
 
 def _paper_sections(data, tables):
@@ -256,7 +276,8 @@ def write_report(results_dir, out_html, require: str | None = None, case: str | 
     _data_folder(out_html)
     data = load_results(results_dir, case)
     figures, tables = {}, []
-    sections = [_case_section(data, c, i, requirement, figures, tables) for i, c in enumerate(data.cases)]
+    titles = report_titles(data)
+    sections = [_case_section(data, c, i, requirement, figures, tables, titles[c]) for i, c in enumerate(data.cases)]
     papers = _paper_sections(data, tables)
     anchors = anchors_table("anchors", data.anchors) if data.anchors is not None else None
     if anchors is not None:
@@ -267,14 +288,15 @@ def write_report(results_dir, out_html, require: str | None = None, case: str | 
     convergence = convergence_table("convergence", data.convergence) if data.convergence is not None else None
     if convergence is not None:
         tables.append(convergence)
-    ladder = ladder_section(data, Table)
+    ladder = ladder_section(data, Table, titles)
     tables += ladder["tables"] if ladder else []
     scaling = scaling_section(data, Table)  # cost versus size (studies/scaling.py)
     tables += scaling["tables"] if scaling else []
     tables.append(Table("units", [], [], data.units))
     context = {"title": f"tissuebench report: {data.manifest.get('spec_name', data.root.name)}",
                "data_folder": f"{out_html.stem}_data", "requirement": requirement, "require_text": requirement.text,
-               "error_metric": data.error_metric, "latency_statistic": LATENCY_STATISTIC, "sections": sections,
+               "error_metric": data.error_metric, "error_words": metric_words(data.error_metric),
+               "latency_statistic": LATENCY_STATISTIC, "sections": sections,
                "papers": papers, "ladder": ladder, "scaling": scaling, "anchors": anchors, "backends": backends,
                "convergence": convergence, "convergence_how": _convergence_how(data.convergence),
                "calibration": calibration(data.units),

@@ -34,21 +34,22 @@ def plot_ladder(table, points, folder) -> list[Path]:
     for case, grp in rungs.groupby("case", sort=False):
         fig, ax = plt.subplots(figsize=(7.5, 4.6))
         x_name = grp["x_name"].iloc[0]
+        scale, axis = _axis(grp.iloc[0])
         for _, r in grp.sort_values(["coarsening", "physics"]).iterrows():
             p = points[points["unit_key"] == r["unit_key"]]
             p = p[p["has_reference"] & (p["status"] != "initial")].sort_values("x")
             e = p["rel_l2"].to_numpy(float)
             keep = np.isfinite(e) & (e > 0)
-            line, = ax.plot(p["x"].to_numpy(float)[keep], e[keep], "o-", ms=3, lw=1.2, label=r["rung"])
+            line, = ax.plot(scale * p["x"].to_numpy(float)[keep], e[keep], "o-", ms=3, lw=1.2, label=r["rung"])
             for col in ("first_above_1pct", "first_above_5pct"):
                 if np.isfinite(r[col]):
-                    ax.axvline(r[col], color=line.get_color(), ls=":", lw=0.7)
+                    ax.axvline(scale * r[col], color=line.get_color(), ls=":", lw=0.7)
         for y, name in ((0.01, "1 %"), (0.05, "5 %")):
             ax.axhline(y, color="tab:red", ls="--", lw=0.8)
             ax.annotate(name, (0.005, y), xycoords=("axes fraction", "data"), color="tab:red", fontsize=7,
                         va="bottom")
         ax.set_yscale("log")
-        ax.set_xlabel(x_name.replace("_", " ") + (" [s]" if x_name == "time" else ""))
+        ax.set_xlabel(axis or x_name.replace("_", " ") + (" [s]" if x_name == "time" else ""))
         ax.set_ylabel("relative l2 error against the full reference")
         ax.set_title(f"{case}: fidelity ladder (dotted: where a rung first exceeds 1 % / 5 %)", fontsize=9)
         ax.grid(alpha=0.3, which="both")
@@ -61,28 +62,42 @@ def plot_ladder(table, points, folder) -> list[Path]:
     return paths
 
 
-def _x(v) -> str:
-    return "never" if v != v else number(v, 3)
+def _axis(rung) -> tuple[float, str]:
+    """``(scale, label)``: the abscissa in the scene's units (``x_scale``, ``x_unit`` of the ladder
+    table: load factor 1 is the net force in N ...), or ``(1, "")`` without them."""
+    scale, unit = rung.get("x_scale", np.nan), rung.get("x_unit", "")
+    if isinstance(unit, str) and unit and np.isfinite(scale):
+        what = "time" if rung["x_name"] == "time" else "load"
+        return float(scale), f"{what} [{unit}]"
+    return 1.0, ""
 
 
-def ladder_section(data, Table) -> dict | None:
-    """``{"scenes": [{"case", "sentences", "table"}], "tables": [...]}`` of the report, or None when
-    the sweep has no path or trajectory case."""
+def _x(v, scale=1.0) -> str:
+    return "never" if v != v else number(v * scale, 3)
+
+
+def ladder_section(data, Table, titles: dict | None = None) -> dict | None:
+    """``{"scenes": [{"case", "title", "sentences", "table"}], "tables": [...]}`` of the report, or
+    None when the sweep has no path or trajectory case; ``titles``: case id -> the case in words
+    (:func:`~.wording.case_titles`; default: the id)."""
     table = ladder_table(data.units, data.points)
     if table.empty:
         return None
     scenes, tables = [], []
     for i, (case, grp) in enumerate(table.groupby("case", sort=False)):
-        rows = [[r["rung"], r["label"], percent(r["max_error"]), percent(r["final_error"]), _x(r["within_1pct_to"]),
-                 _x(r["first_above_1pct"]), _x(r["within_5pct_to"]), _x(r["first_above_5pct"]),
-                 seconds(r["haptic_p99_s"])] for _, r in grp.iterrows() if r["rung"] != "none"]
-        x_name = str(grp["x_name"].iloc[0]).replace("_", " ")
+        scale, axis = _axis(grp.iloc[0])
+        rows = [[r["rung"], r["label"], percent(r["max_error"]), percent(r["final_error"]),
+                 _x(r["within_1pct_to"], scale), _x(r["first_above_1pct"], scale), _x(r["within_5pct_to"], scale),
+                 _x(r["first_above_5pct"], scale), seconds(r["haptic_p99_s"])]
+                for _, r in grp.iterrows() if r["rung"] != "none"]
+        x_name = axis or str(grp["x_name"].iloc[0]).replace("_", " ")
         t = Table(f"ladder_{i:02d}_{_file_part(case)}",
                   ["rung", "unit", "max error", "error at the end", f"within 1 % up to ({x_name})",
                    "first above 1 %", "within 5 % up to", "first above 5 %", "haptic p99"], rows,
                   grp.reset_index(drop=True))
         notes = [n for n in grp["note"].dropna() if n]
-        scenes.append({"case": case, "sentences": ladder_statements(table, case) or notes,
+        scenes.append({"case": case, "title": (titles or {}).get(case, case),
+                       "sentences": ladder_statements(table, case) or notes,
                        "table": t if rows else None})
         if rows:  # every CSV beside the page is linked from it
             tables.append(t)

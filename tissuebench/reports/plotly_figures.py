@@ -16,8 +16,9 @@ import pandas as pd
 
 from ..studies.metrics import TOLERANCES
 from .format import percent, seconds
+from .wording import metric_words
 
-__all__ = ["pareto_figure", "error_figure", "PALETTE"]
+__all__ = ["pareto_figure", "error_figure", "PALETTE", "SYMBOLS"]
 
 PALETTE = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
            "#17becf"]
@@ -61,15 +62,16 @@ def pareto_figure(case: str, units: pd.DataFrame, error_metric: str, requirement
                    & (units["error"] > 0) & (units["haptic_median_s"] > 0) & (units["unit_status"] == "ok")]
     data = finite[cols].copy()
     traces = []
-    for i, (method, g) in enumerate(data.groupby("method", sort=True)):
-        hover = [f"<b>{esc(r.method)}</b><br>{esc(r.options)}<br>{esc(error_metric)}: {percent(r.error)}<br>"
-                 f"median {seconds(r.haptic_median_s)}, p99 {seconds(r.haptic_p99_s)}<br>speed-up {r.speedup:.3g}"
-                 + ("<br>on the Pareto front" if r.pareto else "") for r in g.itertuples()]
-        traces.append({"type": "scatter", "mode": "markers", "name": esc(method), "x": [_num(v) for v in
-                       g["haptic_median_s"]], "y": [_num(v) for v in g["error"]], "text": hover,
-                       "hovertemplate": "%{text}<extra></extra>",
-                       "marker": {"size": 10, "color": PALETTE[i % len(PALETTE)], "line": {"width": 1.5},
-                                  "symbol": ["circle" if p else "circle-open" for p in g["pareto"]]},
+    for color, symbol, label, g in _option_sets(data):
+        hover = [f"<b>{esc(r.method)}</b><br>{esc(r.options)}<br>{esc(metric_words(error_metric))}: "
+                 f"{percent(r.error)}<br>median {seconds(r.haptic_median_s)}, p99 {seconds(r.haptic_p99_s)}<br>"
+                 f"speed-up {r.speedup:.3g}" + ("<br>on the Pareto front" if r.pareto else "") for r in g.itertuples()]
+        traces.append({"type": "scatter", "mode": "markers", "name": esc(label),
+                       "legendgroup": esc(g["method"].iloc[0]), "x": [_num(v) for v in g["haptic_median_s"]],
+                       "y": [_num(v) for v in g["error"]],
+                       "text": hover, "hovertemplate": "%{text}<extra></extra>",
+                       "marker": {"size": 10, "color": color, "line": {"width": 1.5},
+                                  "symbol": [symbol if p else f"{symbol}-open" for p in g["pareto"]]},
                        "error_x": {"type": "data", "symmetric": False, "thickness": 1, "width": 0,
                                    "array": [_num(p - m) for p, m in zip(g["haptic_p99_s"], g["haptic_median_s"])],
                                    "arrayminus": [0.0] * len(g)}})
@@ -103,11 +105,26 @@ def pareto_figure(case: str, units: pd.DataFrame, error_metric: str, requirement
                                 f"{int(data['pareto'].sum())} on the front)"},
               "xaxis": _log_axis("haptic step, median (whisker: p99)", list(data["haptic_median_s"])
                                  + list(data["haptic_p99_s"]) + lines_x, seconds),
-              "yaxis": _log_axis(f"error ({esc(error_metric)})", list(data["error"]) + lines_y, percent),
+              "yaxis": _log_axis(metric_words(error_metric, markup=True), list(data["error"]) + lines_y, percent),
               "shapes": shapes, "annotations": notes, "hovermode": "closest", "legend": {"orientation": "v"},
               "margin": {"t": 60, "r": 20},
               "height": 480}
     return {"data": traces, "layout": layout}, data
+
+
+#: marker shapes of a method's option sets (its colour is the method's): filled on the Pareto front
+SYMBOLS = ["circle", "square", "diamond", "triangle-up", "triangle-down", "pentagon", "hexagon", "star", "cross",
+           "x"]
+
+
+def _option_sets(data: pd.DataFrame):
+    """``(colour, symbol, legend label, rows)`` per option set of every method in ``data``: a
+    method's colour (:data:`PALETTE`, by method), one marker shape per option set of it
+    (:data:`SYMBOLS`), so that ``pod_interp`` linear and RBF are told apart on the plot."""
+    for i, (method, g) in enumerate(data.groupby("method", sort=True)):
+        for j, (_, rows) in enumerate(g.groupby("options", sort=True)):
+            label = rows["label"].iloc[0] if g["options"].nunique() > 1 else method
+            yield PALETTE[i % len(PALETTE)], SYMBOLS[j % len(SYMBOLS)], label, rows
 
 
 def _unit_traces(key, g, meta, color, visible, top) -> list:

@@ -15,6 +15,10 @@ latency / p99``, ``allowed error / error``. Units that meet every clause are ran
 (largest first); when none does, the closest is the unit with the largest margin, and what
 it misses by is each failed clause's ratio.
 
+The p99 comes with the samples behind it: ``p99_n`` timed steps, ``p99_tail`` of them beyond it
+(:func:`tissuebench.studies.timing.p99_tail`); a verdict on the rate or the latency that rests
+on fewer than :data:`~tissuebench.studies.timing.TAIL_SAMPLES` says so (:func:`tail_note`).
+
 A unit evaluated only where it was trained (``seen``: every evaluation point's reference is one
 of its training snapshots, :func:`tissuebench.studies.metrics.seen_points`) is never
 recommended, nor the closest: its error says what it stored, not what it predicts (a nearest
@@ -30,10 +34,12 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from ..studies.timing import TAIL_SAMPLES, p99_tail
 from .format import hz as _hz, percent as _percent, seconds as _seconds, times as _times
+from .wording import metric_words
 
 __all__ = ["DEFAULT_REQUIREMENT", "Clause", "Requirement", "parse_requirement", "rank_units", "LATENCY_STATISTIC",
-           "SEEN_REASON"]
+           "SEEN_REASON", "tail_note"]
 
 SEEN_REASON = ("not recommended: evaluated only on its training data (every evaluation point is a training snapshot: "
                "seen); give its case a held-out evaluation")
@@ -64,7 +70,7 @@ class Clause:
                    f"{_seconds(1.0 / self.value)})"
         if self.quantity == "latency":
             return f"haptic step p99 {self.op} {_seconds(self.value)}"
-        return f"error ({error_metric}) {self.op} {_percent(self.value)}"
+        return f"error ({metric_words(error_metric)}, {error_metric}) {self.op} {_percent(self.value)}"
 
 
 @dataclass(frozen=True)
@@ -138,7 +144,8 @@ def _holds(clause: Clause, ratio: np.ndarray) -> np.ndarray:
 
 
 def rank_units(units: pd.DataFrame, requirement: Requirement, error_metric: str) -> pd.DataFrame:
-    """``units`` with ``error``, ``p99_s``, ``rate_hz``, one ``headroom_<quantity>`` column per clause,
+    """``units`` with ``error``, ``p99_s``, ``rate_hz``, ``p99_n`` / ``p99_tail`` (the timed steps and
+    those beyond the p99), one ``headroom_<quantity>`` column per clause,
     ``margin`` (the smallest headroom), ``meets`` (bool), ``measurable`` (ok unit, finite
     error and p99) and ``misses`` (text: the failed clauses and by how much), sorted: units
     that meet first, then by margin, largest first."""
@@ -147,6 +154,9 @@ def rank_units(units: pd.DataFrame, requirement: Requirement, error_metric: str)
     out = units.copy()
     out["error"] = out[error_metric].astype(float)
     out["p99_s"] = out[LATENCY_STATISTIC].astype(float)
+    n = out["haptic_n"].astype(float) if "haptic_n" in out else pd.Series(np.nan, index=out.index)
+    out["p99_n"] = n.where(n > 0)  # -1: the schema's missing value (a failed unit)
+    out["p99_tail"] = [p99_tail(k) if np.isfinite(k) else np.nan for k in out["p99_n"]]
     with np.errstate(divide="ignore"):
         out["rate_hz"] = 1.0 / out["p99_s"]
     ok = (out["unit_status"] == "ok") & np.isfinite(out["p99_s"]) & (out["p99_s"] > 0) & ~out["error"].isna()
@@ -184,10 +194,19 @@ def _misses(requirement: Requirement, row) -> str:
         if _holds(c, np.array([r]))[0]:
             continue
         if c.quantity == "rate":
-            parts.append(f"rate {_hz(row['rate_hz'])} (p99 {_seconds(row['p99_s'])}) is {_times(r)} short of "
-                         f"{_hz(c.value)}")
+            parts.append(f"rate {_hz(row['rate_hz'])} (p99 {_seconds(row['p99_s'])}{tail_note(row)}) is {_times(r)} "
+                         f"short of {_hz(c.value)}")
         elif c.quantity == "latency":
-            parts.append(f"p99 {_seconds(row['p99_s'])} is {_times(r)} over {_seconds(c.value)}")
+            parts.append(f"p99 {_seconds(row['p99_s'])}{tail_note(row)} is {_times(r)} over {_seconds(c.value)}")
         else:
             parts.append(f"error {_percent(row['error'])} is {_times(r)} over {_percent(c.value)}")
     return "; ".join(parts)
+
+
+def tail_note(row) -> str:
+    """``", decided by 2 samples of 200 (fewer than 20)"`` where the p99 of ``row`` (a row of
+    :func:`rank_units`) rests on fewer than :data:`TAIL_SAMPLES` samples, else ``""``."""
+    n, tail = row.get("p99_n", np.nan), row.get("p99_tail", np.nan)
+    if not (isinstance(n, (int, float)) and np.isfinite(n)) or tail >= TAIL_SAMPLES:
+        return ""
+    return f", decided by {int(tail)} sample{'s' if tail != 1 else ''} of {int(n)} (fewer than {TAIL_SAMPLES})"

@@ -12,10 +12,12 @@ from ..cases import load
 from ..reference.backend_comparison import RTOL
 from .extremes import ENERGY_DRIFT_TOL
 from .format import hz, nbytes, number, percent, seconds
+from ..studies.timing import TAIL_SAMPLES
 from .recommend import rank_units
 
-__all__ = ["Table", "scene_of", "scene_info", "recommendation", "ranking_table", "extremes_table_view",
-           "offline_table", "radius_table", "paper_table", "anchors_table", "backends_table", "convergence_table",
+__all__ = ["Table", "scene_of", "scene_info", "recommendation", "one_line", "p99_samples", "ranking_table",
+           "extremes_table_view", "offline_table", "radius_table", "paper_table", "anchors_table", "backends_table",
+           "convergence_table",
            "provenance_rows", "calibration", "plugin_methods"]
 
 
@@ -45,7 +47,8 @@ def recommendation(units: pd.DataFrame, requirement, error_metric: str) -> dict:
     """The ranked units and the sentence(s) of the recommendation for one case."""
     ranked = rank_units(units, requirement, error_metric)
     meets = ranked[ranked["meets"]]
-    items = [f"{r.label}: p99 {seconds(r.p99_s)} ({hz(r.rate_hz)}), median {seconds(r.haptic_median_s)}, "
+    items = [f"{r.label}: p99 {seconds(r.p99_s)} ({hz(r.rate_hz)}; {p99_samples(r)}), median "
+             f"{seconds(r.haptic_median_s)}, "
              f"error {percent(r.error)}, margin {r.margin:.3g}x" + _seen_note(r)
              + (f"; {v}" if (v := validity_text(r)) else "") for r in meets.itertuples()]
     measurable = ranked[ranked["measurable"]]
@@ -65,6 +68,25 @@ def recommendation(units: pd.DataFrame, requirement, error_metric: str) -> dict:
     return {"verdict": verdict, "lines": items, "meets": len(meets), "ranked": ranked, "excluded": excluded}
 
 
+def one_line(rec: dict) -> str:
+    """A case's recommendation (:func:`recommendation`) in one line: the unit that meets the
+    requirement with the largest margin, or the verdict naming the closest and what it misses by."""
+    if rec["meets"]:
+        return f"{rec['meets']} of {len(rec['ranked'])} units meet it; recommended: {rec['lines'][0]}"
+    return rec["verdict"]
+
+
+def p99_samples(r) -> str:
+    """``"2000 steps, 20 beyond the p99"``: the samples a unit's p99 rests on (``p99_n``,
+    ``p99_tail`` of :func:`~.recommend.rank_units`), with a warning when fewer than
+    :data:`~tissuebench.studies.timing.TAIL_SAMPLES` decide it; ``"-"`` when unknown."""
+    n, tail = getattr(r, "p99_n", np.nan), getattr(r, "p99_tail", np.nan)
+    if not np.isfinite(n):
+        return "-"
+    text = f"{int(n)} steps, {int(tail)} beyond the p99"
+    return text + (f": it rests on fewer than {TAIL_SAMPLES}" if tail < TAIL_SAMPLES else "")
+
+
 def _seen_note(r) -> str:
     """The share of a unit's evaluation points it was trained on, when there is one."""
     n_seen, n = getattr(r, "n_seen", 0), getattr(r, "n_reference_points", 0)
@@ -81,14 +103,17 @@ def ranking_table(name: str, ranked: pd.DataFrame) -> dict:
     for r, f, e, k, n in zip(ranked.itertuples(), floor, eff, n_seen, n_ref):
         meets = {"text": "seen", "cls": "seen"} if r.seen else \
             {"text": "meets" if r.meets else "no", "cls": "pass" if r.meets else "fail"}
-        cells = [r.label, meets, number(r.margin, 3), seconds(r.p99_s), hz(r.rate_hz), seconds(r.haptic_median_s),
+        cells = [r.label, meets, number(r.margin, 3), seconds(r.p99_s), p99_samples(r), hz(r.rate_hz),
+                 seconds(r.haptic_median_s),
                  seconds(f), number(e, 2), percent(r.error), f"{int(k)} / {int(n)}" if k >= 0 and n >= 0 else "",
                  r.misses]
         # a unit evaluated on its training data: greyed, with the reason (recommend.SEEN_REASON)
         rows.append([c if isinstance(c, dict) else {"text": c, "cls": "seen"} for c in cells] if r.seen else cells)
-    cols = ["unit", "meets", "margin", "haptic p99", "rate on p99", "haptic median", "arithmetic floor",
+    cols = ["unit", "meets", "margin", "haptic p99", "timed steps behind the p99", "rate on p99", "haptic median",
+            "arithmetic floor",
             "efficiency (floor / median)", "error", "points seen in training", "misses by"]
-    keep = ["case", "label", "options", "unit_key", "meets", "seen", "margin", "p99_s", "rate_hz", "haptic_median_s",
+    keep = ["case", "label", "options", "unit_key", "meets", "seen", "margin", "p99_s", "p99_n", "p99_tail",
+            "rate_hz", "haptic_median_s",
             "error", "misses"] + [c for c in ranked.columns if c.startswith("headroom_")]
     return Table(name, cols, rows, ranked[keep].assign(floor_s=floor, efficiency=eff, n_seen=n_seen))
 
@@ -132,8 +157,10 @@ def offline_table(name: str, units: pd.DataFrame) -> dict:
 
 
 def validity_text(r) -> str:
-    """``valid to 1.2 N at 1 % / 2.3 N at 5 %``: the validity radii in the scene's units (the abscissa
-    times ``x_scale`` ``x_unit``: load factor 1 is the scene's net force ...), "" where unknown."""
+    """``valid to 1.2 N at 1 % / 2.3 N at 5 % (training range)``: the validity radii in the scene's
+    units (the abscissa times ``x_scale`` ``x_unit``: load factor 1 is the scene's net force ...) and
+    what they read (``validity_range``: the training range only, or extrapolation asked), "" where
+    unknown."""
     scale, unit = getattr(r, "x_scale", np.nan), getattr(r, "x_unit", "")
     if not isinstance(unit, str) or not unit or not np.isfinite(scale) or getattr(r, "unit_status", "ok") != "ok":
         return ""
@@ -142,22 +169,32 @@ def validity_text(r) -> str:
     over = [f"{p} %" for v, p in radii if v <= 0]
     text = "; ".join((["valid to " + " / ".join(valid)] if valid else [])
                      + ([f"over {' and '.join(over)} from the first point"] if over else []))
+    within = getattr(r, "validity_range", "")
+    if text and within in RANGE_WORDS:
+        text += f" ({RANGE_WORDS[within]})"
     limit = getattr(r, "reference_limit", np.nan)
-    if text and np.isfinite(limit) and max(r.validity_1pct, r.validity_5pct) >= limit * (1 - 1e-9):
+    if text and within != "training" and np.isfinite(limit) and max(r.validity_1pct, r.validity_5pct) >= limit * (
+            1 - 1e-9):
         text += f" (the reference itself stops converging at {number(limit * scale)} {unit})"
     return text
 
 
+#: what a unit's validity radius reads (its ``validity_range``, :func:`~tissuebench.studies.metrics.claimed_range`)
+RANGE_WORDS = {"training": "training range only: the steps past it are extrapolation, not counted; "
+                           "evaluation.extrapolation = true counts them",
+               "extrapolation": "extrapolation asked: the steps past the training range are counted"}
+
+
 def radius_table(name: str, units: pd.DataFrame) -> dict:
     units = units.assign(**{c: units[c] if c in units else np.nan for c in ("x_scale", "reference_limit")},
-                         x_unit=units["x_unit"] if "x_unit" in units else "")
+                         **{c: units[c] if c in units else "" for c in ("x_unit", "validity_range")})
     rows = [[r.label, number(r.validity_1pct) if r.unit_status == "ok" else "-",
              number(r.validity_5pct) if r.unit_status == "ok" else "-", r.x_name, validity_text(r)]
             for r in units.itertuples()]
     return Table(name, ["unit", "validity radius, error <= 1 %", "validity radius, error <= 5 %", "abscissa",
                         "in the scene's units"],
                  rows, units[["case", "label", "unit_key", "x_name", "validity_1pct", "validity_5pct", "x_scale",
-                              "x_unit", "reference_limit"]])
+                              "x_unit", "reference_limit", "validity_range"]])
 
 
 def paper_table(name: str, rows: pd.DataFrame) -> dict:

@@ -8,8 +8,12 @@ from pathlib import Path
 import numpy as np
 
 from .figures import pyplot
+from .wording import metric_words
 
 __all__ = ["plot_pareto", "plot_radius"]
+
+
+_MARKERS = ["o", "s", "D", "^", "v", "p", "h", "*", "P", "X"]
 
 
 def _file_part(name: str) -> str:
@@ -18,15 +22,19 @@ def _file_part(name: str) -> str:
 
 def plot_pareto(pareto, folder: Path, paper=None) -> list[Path]:
     """``pareto_<case>.png``: error versus haptic median latency (log axes), one colour per
-    method, the front joined, the reference's step time as a vertical line; ``paper``
-    (columns case, label, step_ms, error) adds the published points of a case."""
+    method and one marker per option set of it, the front joined, the reference's step time as a
+    vertical line; ``paper`` (columns case, label, step_ms, error) adds the published points of a case."""
     plt = pyplot()
     paths = []
     for case, grp in pareto.groupby("case"):
         ok = grp[np.isfinite(grp["error"]) & np.isfinite(grp["haptic_median_s"]) & (grp["error"] > 0)]
         fig, ax = plt.subplots(figsize=(7.5, 5))
-        for method, g in ok.groupby("method"):
-            ax.scatter(g["haptic_median_s"] * 1e3, g["error"], s=22, label=method, alpha=0.8)
+        for i, (method, g) in enumerate(ok.groupby("method")):  # a colour per method, a marker per option set
+            sets = list(g.groupby("options")) if "options" in g else [("", g)]
+            for j, (_, rows) in enumerate(sets):
+                ax.scatter(rows["haptic_median_s"] * 1e3, rows["error"], s=22, color=f"C{i % 10}",
+                           marker=_MARKERS[j % len(_MARKERS)], alpha=0.8,
+                           label=rows["label"].iloc[0] if len(sets) > 1 else method)
         pub = paper[paper["case"] == case] if paper is not None and len(paper) else []
         if len(pub):
             ax.scatter(pub["step_ms"], pub["error"], s=30, marker="s", facecolors="none", edgecolors="k",
@@ -44,7 +52,8 @@ def plot_pareto(pareto, folder: Path, paper=None) -> list[Path]:
             ax.set_xscale("log")
             ax.set_yscale("log")
         ax.set_xlabel("haptic step, median [ms]")
-        ax.set_ylabel(f"error ({grp['error_metric'].iloc[0]})")
+        metric = grp["error_metric"].iloc[0]
+        ax.set_ylabel(f"{metric_words(metric)}\n({metric})", fontsize=8)
         ax.set_title(f"{case}: accuracy versus latency ({len(ok)} units, {int(ok['pareto'].sum())} on the front)")
         ax.grid(alpha=0.3, which="both")
         if ax.get_legend_handles_labels()[0]:  # a case whose units all failed draws nothing

@@ -4,7 +4,8 @@ Written by :func:`~tissuebench.studies.sweep.write_derived` into ``_derived/`` b
 Pareto front, for every sweep and any method (no per-method plotting code):
 
 * ``history_<case>.png`` (trajectory units): the first monitored output against time, the
-  reference beside the best units, each unit's relative l2 error history (the papers'
+  reference beside the best units and the one the report recommends (default requirement),
+  each unit's relative l2 error history (the papers'
   displacement-history and error-history figures, e.g. pgd-pod-direct Figs. 2, 15-16, 20)
   and, where the load ends constant, the energy history of the reference and of the units
   over that window (pgd-pod-direct Fig. 17: Bathe inside the step over 10 s);
@@ -27,10 +28,11 @@ import pandas as pd
 from scipy.signal import periodogram
 
 from .figures import pyplot
+from .recommend import LATENCY_STATISTIC, parse_requirement, rank_units
 from .sweep_plots import _file_part
 
-__all__ = ["plot_histories", "plot_spectra", "output_spectra", "plot_option_trends", "plot_case_trends",
-           "option_trends", "case_trends"]
+__all__ = ["plot_histories", "recommended_unit", "plot_spectra", "output_spectra", "plot_option_trends",
+           "plot_case_trends", "option_trends", "case_trends"]
 
 MAX_HISTORY_UNITS = 8
 
@@ -124,15 +126,40 @@ def _draw_energy(ax, energy, chosen):
     ax.grid(alpha=0.3, which="both")
 
 
-def plot_histories(units, points, outputs, folder: Path, error_metric: str = "rmse_rel") -> list[Path]:
-    """``history_<case>.png`` for every case with trajectory units (see the module docstring)."""
+def recommended_unit(group: pd.DataFrame, error_metric: str, require: str | None = None) -> str | None:
+    """The unit key the report's recommendation names for ``require`` (default: its default
+    requirement) among ``group`` (one case's units): the one that meets it with the largest
+    margin, else the closest (:func:`~.recommend.rank_units`); None when no unit is measurable (or
+    the rows lack a status or a latency)."""
+    if not {"unit_status", LATENCY_STATISTIC, error_metric} <= set(group):
+        return None
+    ranked = rank_units(group, parse_requirement(require), error_metric)
+    ranked = ranked[ranked["measurable"]]
+    return str(ranked["unit_key"].iloc[0]) if len(ranked) else None
+
+
+def _with_recommended(chosen, group, metric, require):
+    """``chosen`` with the recommended unit first (it may not be among the most accurate), labelled."""
+    key = recommended_unit(group, metric, require)
+    if key is None:
+        return chosen
+    row = group[group["unit_key"] == key].assign(label=lambda g: g["label"] + " [recommended]")
+    rest = chosen[chosen["unit_key"] != key]
+    return pd.concat([row, rest.head(MAX_HISTORY_UNITS - 1)])
+
+
+def plot_histories(units, points, outputs, folder: Path, error_metric: str = "rmse_rel",
+                   require: str | None = None) -> list[Path]:
+    """``history_<case>.png`` for every case with trajectory units (see the module docstring), the
+    unit the recommendation names for ``require`` (default: the report's default requirement)
+    among them, marked ``[recommended]``."""
     if units.empty or points.empty or "kind" not in units:
         return []
     plt = pyplot()
     paths = []
     for case, group in units[units["kind"] == "trajectory"].groupby("case"):
         metric = error_metric if error_metric in group else "max_rel_l2"
-        chosen = _best_units(group, metric, MAX_HISTORY_UNITS)
+        chosen = _with_recommended(_best_units(group, metric, MAX_HISTORY_UNITS), group, metric, require)
         outs = outputs[outputs["unit_key"].isin(chosen["unit_key"])] if not outputs.empty else outputs
         monitor = str(outs["monitor"].iloc[0]) if len(outs) else None
         energy = _energy_rows(points, chosen["unit_key"])

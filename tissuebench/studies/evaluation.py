@@ -4,15 +4,21 @@ The case entry's ``evaluation`` table has a ``kind`` (default: the training's):
 
 ``path``        the reference load path's load factors (``every`` thins them; ``held_out =
                 true`` keeps only the states the training left out: every other state with
-                ``training.every = 2``), driven in increasing order. ``beyond = [1.5, 2]``
+                ``training.every = 2``), and the range the training claims at load factors the
+                path has no state at (:mod:`.path_range`: the quarter points and the middle of
+                every training interval, and near rest 1/8, 1/16, 1/64 and 1/1024 of the first
+                training state, from the path solved with a finer increment and short runs
+                from rest; ``refine = r`` cuts the interval into ``r``, default 4; ``refine =
+                1``: the path's states only), driven in increasing order. ``beyond = [1.5, 2]``
                 measures past the path, up to those multiples of its top: the reference is
-                continued with the path's increment (:func:`beyond_scene`: at most
-                :data:`BEYOND_MAX_INCREMENTS` times the path's increments past it, halved at most
-                :data:`BEYOND_MAX_CUTS` times where Newton does not converge, until it stalls;
+                continued with the path's increment (:func:`~.path_range.beyond_scene`: at most
+                ``BEYOND_MAX_INCREMENTS`` times the path's increments past it, halved at most
+                ``BEYOND_MAX_CUTS`` times where Newton does not converge, until it stalls;
                 its last converged load factor is
                 ``info["reference_limit"]``) and every converged state past the top is a point
-                with its reference (``beyond``: it enters the validity radius, which so reaches
-                past the training range, not the unit's error columns, which stay the path's);
+                with its reference (``beyond``: not in the unit's error columns, which stay the
+                path's; in the validity radius only with ``extrapolation = true``: by default
+                "valid to" stops at the training range, :func:`~.metrics.summarise_points`);
                 a factor past where the reference stopped is a point without one (only its
                 step status is measured: extrapolation must be flagged, not hidden).
 ``positions``   held-out load positions (``held_out = n`` points at the midpoints and
@@ -62,10 +68,11 @@ import numpy as np
 from ..refsolvers.backends import make_backend
 from ..reference.cut import cut_references
 from .energy import EnergyDrift, conservative_window, reference_drift
-from .kinds import Kind, no_references, the_scene
+from .kinds import Kind, no_references
 from .limits import (check_contact_nodes_evaluation, check_cut_lengths_evaluation, check_map_evaluation,
                      check_path_evaluation, check_positions_evaluation, check_trajectory_evaluation)
 from ..reference import cached_solve
+from .path_range import DEFAULT_REFINE, beyond_scene, interval_every, range_scenes, range_states
 from .training import lattice_positions, positional_reference, positional_scene, reference_states, training_indices
 
 if TYPE_CHECKING:  # annotations only: case_entry imports this module's kind registry
@@ -114,8 +121,14 @@ def _path(scene, case, spec):
         idx = np.array([k for k in idx if k not in trained], dtype=int)
     points = [EvaluationPoint({"load_factor": float(lams[k])}, U[:, k], ref.monitors_at("load_factor", lams[k]),
                               float(lams[k])) for k in idx]
+    # the range the training claims, between its states and near rest (path_range)
+    between, range_info = range_states(scene, case.backend, interval_every(case), spec.get("refine", DEFAULT_REFINE),
+                                       lams)
+    points += [EvaluationPoint({"load_factor": lam}, u, monitors, lam) for lam, u, monitors in between]
+    points.sort(key=lambda p: p.x)  # driven in increasing order
     top = float(lams[-1]) if len(lams) else float(scene.analysis.get("max_load_factor", 1.0))
-    info = {"reference_status": ref.status, "reference_top": top, **load_measure(scene, ref, case.backend)}
+    info = {"reference_status": ref.status, "reference_top": top, **load_measure(scene, ref, case.backend),
+            **range_info, "extrapolation": bool(spec.get("extrapolation", False))}
     factors = sorted(float(f) for f in spec.get("beyond", []))
     reached = top
     if factors and factors[-1] > 1.0 and ref.status == "success":
@@ -131,29 +144,6 @@ def _path(scene, case, spec):
     points += [EvaluationPoint({"load_factor": f * top}, None, {}, f * top, beyond=True) for f in factors
                if f * top > reached * (1 + 1e-9)]
     return Evaluation("path", "load_factor", points, reference_steps={"ref": ref, "scene": scene}, info=info)
-
-
-#: the continuation of a path past its top takes at most this many times the path's increments,
-#: each halved at most BEYOND_MAX_CUTS times where Newton does not converge
-BEYOND_MAX_INCREMENTS, BEYOND_MAX_CUTS = 4, 2
-
-
-def beyond_scene(scene, load_factor: float):
-    """``scene`` run past its path's top to ``load_factor`` with the path's own increment (at
-    most :data:`BEYOND_MAX_INCREMENTS` x its increments past the top), an increment Newton does
-    not converge halved at most :data:`BEYOND_MAX_CUTS` times, until it stalls: its last converged
-    load factor is where the reference stops (``status = "stalled"``, the message says at which)."""
-    a = scene.analysis
-    n, top = int(a.get("load_steps", 1)), float(a.get("max_load_factor", 1.0))
-    h = top / n
-    steps = min(int(np.ceil(load_factor / h - 1e-9)), n * (1 + BEYOND_MAX_INCREMENTS))
-    ext = scene.at({"max_load_factor": steps * h, "load_steps": steps})
-    # two halvings of an increment before it stalls: where the reference stops, without crawling
-    # towards it in ever smaller steps (a kidney took > 4 min there with the path's 1/4096)
-    new = dataclasses.replace(ext, analysis={**ext.analysis, "max_cuts": BEYOND_MAX_CUTS})
-    if "built" in scene.__dict__:  # the same mesh: not built again
-        new.__dict__["built"] = scene.__dict__["built"]
-    return new
 
 
 def load_measure(scene, ref, backend: str) -> dict:
@@ -310,6 +300,11 @@ def _contact_nodes(scene, case, spec, model):
     return Evaluation("contact_nodes", "load_factor", points, reference_steps=first, info={"nodes": pick.tolist()})
 
 
+def _path_references(case: CaseEntry, scene) -> list:
+    refine = case.evaluation.get("refine", DEFAULT_REFINE)
+    return [scene] + [run for _, run in range_scenes(scene, interval_every(case), refine)]
+
+
 def _positions_references(case: CaseEntry, scene) -> list:
     lattice = lattice_positions(scene, case.training.get("positions", 5))
     held = case.evaluation.get("held_out")
@@ -326,8 +321,8 @@ def _map_references(case: CaseEntry, scene) -> list:
 
 #: the evaluation kinds (:class:`~.kinds.Kind`): options, value checks, builder, references read
 EVALUATION_KINDS = {k.name: k for k in (
-    Kind("path", frozenset({"every", "beyond", "held_out"}), lambda sc, c, o, m: _path(sc, c, o),
-         the_scene, check_path_evaluation),
+    Kind("path", frozenset({"every", "beyond", "held_out", "refine", "extrapolation"}),
+         lambda sc, c, o, m: _path(sc, c, o), _path_references, check_path_evaluation),
     Kind("positions", frozenset({"held_out"}), lambda sc, c, o, m: _positions(sc, c, o, c.training),
          _positions_references, check_positions_evaluation),
     Kind("trajectory", frozenset({"t_end", "load_scale", "from_time"}), lambda sc, c, o, m: _trajectory(sc, c, o),
@@ -346,7 +341,11 @@ EVALUATION_KIND_DOCS = {
              {"every": "keep every k-th state", "held_out": "`true`: only the states a path training with "
               "`every = 2` (or more) left out",
               "beyond": "multiples of the path's top to measure up to, the reference continued past it until it "
-                        "stalls: `[2.0]`"}),
+                        "stalls: `[2.0]`",
+              "refine": "parts each training interval is cut into for the points between training states (default "
+                        "4: the quarter points and middle; `1`: the path's states only), and the points near rest",
+              "extrapolation": "`true`: the validity radius counts the points past the training range (`beyond`); "
+                               "by default it stops at the training range"}),
     "positions": ("held-out load positions, each with its reference path",
                   {"held_out": "how many (midpoints and quarter points of the training lattice), or a list"}),
     "trajectory": ("the scene's reference time integration, the model stepped from the start",

@@ -16,9 +16,11 @@ evaluation point (the store's ``_points``) gives, per rung,
 * ``max_error``, ``final_error`` (at the last point with a reference), ``rmse`` (the unit's
   relative RMSE over the evaluation), ``x_end``.
 
-:func:`ladder_statements` turns a case's rungs into what the scene requires ("up to load factor
-0.5 linear elasticity is within 1 %; beyond, geometric nonlinearity is required ...; a 2x
-coarser mesh costs 24 %"), the report's "Fidelity ladder" section.
+:func:`ladder_statements` turns a case's rungs into what the scene requires ("linear elasticity
+is within 1 % up to 0.52 N; beyond, geometric nonlinearity is required ...; a 2x coarser mesh
+costs 24 %"), the report's "Fidelity ladder" section, in the scene's units where the sweep
+measured them (``x_scale``, ``x_unit`` of the units: the recommendation's "valid to" speaks
+in them too), else in load factors.
 :func:`~tissuebench.studies.sweep.write_derived` writes :func:`ladder_table` to
 ``_derived/ladder.parquet``; its figures (``ladder_<case>.png``: each rung's error along the
 path with the 1 % and 5 % lines) are the reports layer's (:mod:`tissuebench.reports.ladder`).
@@ -35,10 +37,11 @@ import pandas as pd
 
 from .metrics import validity_radius
 
-__all__ = ["RUNG_METHODS", "LADDER_COLUMNS", "rung_of", "ladder_table", "ladder_statements"]
+__all__ = ["RUNG_METHODS", "LADDER_COLUMNS", "rung_of", "ladder_table", "ladder_statements", "in_units"]
 
 RUNG_METHODS = ("linear_fe", "corotational_fe", "coarse_fe")
-LADDER_COLUMNS = ["case", "case_name", "variant", "resolution", "x_name", "rung", "physics", "coarsening",
+LADDER_COLUMNS = ["case", "case_name", "variant", "resolution", "x_name", "x_scale", "x_unit", "rung", "physics",
+                  "coarsening",
                   "achieved_coarsening", "method", "label", "unit_key", "n_points", "max_error", "final_error", "rmse",
                   "x_end", "within_1pct_to", "first_above_1pct", "within_5pct_to", "first_above_5pct",
                   "haptic_median_s", "haptic_p99_s", "note"]
@@ -106,7 +109,7 @@ def ladder_table(units: pd.DataFrame, points: pd.DataFrame) -> pd.DataFrame:
         if x_name not in _LADDER_X or grouped:
             continue
         head = {"case": case, "case_name": group["case_name"].iloc[0], "variant": group["variant"].iloc[0],
-                "resolution": group["resolution"].iloc[0], "x_name": x_name}
+                "resolution": group["resolution"].iloc[0], "x_name": x_name, **_measure(group)}
         ok = group[(group["method"].isin(RUNG_METHODS)) & (group["unit_status"] == "ok")]
         case_rows = [{**head, **_rung_row(u, case_pts[case_pts["unit_key"] == u["unit_key"]])}
                      for _, u in ok.iterrows()]
@@ -119,8 +122,26 @@ def ladder_table(units: pd.DataFrame, points: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=LADDER_COLUMNS)
 
 
-def _at(x_name, x) -> str:
+def _measure(group) -> dict:
+    """``x_scale``, ``x_unit`` of a case's units: what abscissa 1 is in the scene's units (load
+    factor 1: the net force in N ...; :func:`~.evaluation.load_measure`), NaN and "" when unknown."""
+    scale = pd.to_numeric(group["x_scale"], errors="coerce").dropna() if "x_scale" in group else pd.Series([])
+    unit = group["x_unit"].dropna() if "x_unit" in group else pd.Series([])
+    unit = unit[unit.astype(str) != ""]
+    return {"x_scale": float(scale.iloc[0]) if len(scale) else np.nan,
+            "x_unit": str(unit.iloc[0]) if len(unit) and len(scale) else ""}
+
+
+def in_units(x_name: str, x: float, scale=np.nan, unit="") -> str:
+    """An abscissa as the scene measures it: ``"0.52 N"`` (``x * scale`` in ``unit``), else
+    ``"load factor 0.26"`` (``"time 0.5 s"``) without a unit."""
+    if isinstance(unit, str) and unit and np.isfinite(scale):
+        return f"{x * scale:.3g} {unit}"
     return f"{x_name.replace('_', ' ')} {x:.3g}" + (" s" if x_name == "time" else "")
+
+
+def _at(rung, x) -> str:
+    return in_units(rung["x_name"], x, rung.get("x_scale", np.nan), rung.get("x_unit", ""))
 
 
 def _pct(e) -> str:
@@ -136,9 +157,9 @@ def _first(rung) -> str:
     if np.isnan(rung["first_above_1pct"]):
         return None
     if rung["within_1pct_to"] > 0:
-        return f"up to {_at(rung['x_name'], rung['within_1pct_to'])}"
+        return f"up to {_at(rung, rung['within_1pct_to'])}"
     # the table keeps the max, not the first point's error: name the point only (the max follows)
-    return f"not even at the first point ({_at(rung['x_name'], rung['first_above_1pct'])})"
+    return f"not even at the first point ({_at(rung, rung['first_above_1pct'])})"
 
 
 def ladder_statements(table: pd.DataFrame, case: str) -> list[str]:
@@ -156,7 +177,7 @@ def ladder_statements(table: pd.DataFrame, case: str) -> list[str]:
                        "scene requires no nonlinearity.")
         else:
             five = ("" if np.isnan(lin["first_above_5pct"]) else
-                    f", within 5 % up to {_at(lin['x_name'], lin['within_5pct_to'])}")
+                    f", within 5 % up to {_at(lin, lin['within_5pct_to'])}")
             out.append(f"Linear elasticity is within 1 % {reach}{five} (max {_pct(lin['max_error'])} over the {span}).")
     if cor is not None and (lin is None or _first(lin) is not None):
         reach = _first(cor)

@@ -26,11 +26,11 @@ __all__ = ["LIMITS", "MAX_UNITS", "MAX_BEYOND_FACTOR", "MAX_OPTION_INT", "check_
 LIMITS = {
     # protocol
     "latency_steps": 100_000, "warmup": 100_000, "blas_threads": 256, "reference_samples": 1_000,
-    "seed": 2 ** 32 - 1,
+    "seed": 2 ** 32 - 1, "latency_budget_s": 86_400,
     # training
     "every": 10_000, "repeat": 100, "positions": 1_000, "load_steps": 10_000, "runs": 100,
     # evaluation
-    "held_out": 1_000, "beyond": 100, "mus": 1_000, "steps_per_length": 10_000, "count": 10_000,
+    "held_out": 1_000, "beyond": 100, "refine": 64, "mus": 1_000, "steps_per_length": 10_000, "count": 10_000,
     "trajectory_steps": 1_000_000,  # t_end / dt of a trajectory evaluation
 }
 MAX_UNITS = 10_000
@@ -59,6 +59,11 @@ def check_count(path, value, name, lo=1):
 
 def check_protocol(path, protocol: dict) -> None:
     for k, v in protocol.items():
+        if k == "latency_budget_s":  # seconds: any positive number
+            if not is_num(v) or not 0 < v <= LIMITS[k]:
+                _fail(f"{path}.{k}", v, f"expected a number of seconds > 0 and at most {LIMITS[k]} "
+                      f"(LIMITS[{k!r}])")
+            continue
         check_count(f"{path}.{k}", v, k, _PROTOCOL_MIN[k])
 
 
@@ -150,6 +155,19 @@ def check_path_evaluation(path, evaluation: dict, scene, training: dict | None =
     if "beyond" in evaluation:
         _numbers(f"{path}.beyond", evaluation["beyond"], "beyond", lo=0, positive=True,
                  hi=(MAX_BEYOND_FACTOR, "times the path's top load: MAX_BEYOND_FACTOR of tissuebench.studies.limits"))
+    if "refine" in evaluation:  # parts of a training interval: 1 keeps the path's states only
+        check_count(f"{path}.refine", evaluation["refine"], "refine")
+    from .path_range import DEFAULT_REFINE, range_scenes  # here: path_range reads training, which reads this
+
+    t = training or {}
+    refine = evaluation.get("refine", DEFAULT_REFINE)
+    try:  # the finer paths are scenes at other load steps: within the scene's limits
+        range_scenes(scene, t.get("every", 1) if t.get("kind") == "path" else 1, refine)
+    except ValueError as exc:
+        _fail(f"{path}.refine", refine, f"the finer reference path between the training states: {exc}")
+    if "extrapolation" in evaluation and not isinstance(evaluation["extrapolation"], bool):
+        _fail(f"{path}.extrapolation", evaluation["extrapolation"], "expected true or false (true: the validity "
+              "radius counts the points past the training range)")
 
 
 def check_positions_evaluation(path, evaluation: dict, scene, training: dict | None = None) -> None:

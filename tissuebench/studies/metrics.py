@@ -17,7 +17,9 @@
   unit, the largest nodal displacement error ``max_k max_node |u_rom - u_ref|``
   (``max_abs_error``; :data:`ABSOLUTE_ERROR_METRICS`);
 * the validity radius: the largest abscissa (load factor, distance to the nearest stored
-  position, time) up to which every error stays within a tolerance (1 %, 5 %);
+  position, time) up to which every error stays within a tolerance (1 %, 5 %); along a path,
+  within the training range unless the evaluation asks ``extrapolation = true``
+  (:func:`claimed_range`);
 * the Pareto front per scene: units not beaten in both haptic latency and error.
 """
 from __future__ import annotations
@@ -28,9 +30,11 @@ import pandas as pd
 from .timing import max_displacement
 
 __all__ = ["point_rows", "output_rows", "summarise_points", "validity_radius", "pareto_front", "TOLERANCES",
-           "seen_points", "SEEN_RTOL", "ABSOLUTE_ERROR_METRICS", "nodal_error"]
+           "seen_points", "SEEN_RTOL", "ABSOLUTE_ERROR_METRICS", "nodal_error", "claimed_range", "FLAGGED"]
 
 TOLERANCES = (0.01, 0.05)
+#: the statuses of a step the model itself flags as outside its training envelope
+FLAGGED = ("extrapolation", "beyond_validity")
 #: a reference field within this relative distance of a training snapshot is the snapshot
 SEEN_RTOL = 1e-6
 #: the error columns in the scene's length unit (``[units] length``), not relative: the others are
@@ -161,7 +165,7 @@ def summarise_points(points: pd.DataFrame, outputs: pd.DataFrame, evaluation, fi
     rel = points.loc[has_ref, "rel_l2"].to_numpy(float)
     # inside the envelope: every point the model did not flag as outside it; a step that failed
     # there counts (its rel_l2 is inf), so a unit that fails on its own range is never "accurate"
-    inside = ~points.loc[has_ref, "status"].isin(["extrapolation", "beyond_validity"]).to_numpy()
+    inside = ~points.loc[has_ref, "status"].isin(FLAGGED).to_numpy()
     num = den = 0.0
     peak_err = peak_ref = abs_err = 0.0
     for p, u, use in zip(evaluation.points, fields, has_ref.to_numpy()):
@@ -189,9 +193,25 @@ def summarise_points(points: pd.DataFrame, outputs: pd.DataFrame, evaluation, fi
            "x_name": evaluation.x_name}
     for status in ("ok", "extrapolation", "beyond_validity", "failed", "not_reached"):
         row[f"n_{status}"] = int(counts.get(status, 0))
+    claimed, row["validity_range"] = claimed_range(points, evaluation)
     for tol in TOLERANCES:
-        row[f"validity_{int(round(tol * 100))}pct"] = validity_radius(points["x"], points["rel_l2"], tol)
+        row[f"validity_{int(round(tol * 100))}pct"] = validity_radius(points.loc[claimed, "x"],
+                                                                      points.loc[claimed, "rel_l2"], tol)
     return row
+
+
+def claimed_range(points: pd.DataFrame, evaluation) -> tuple[pd.Series, str]:
+    """``(mask of the points the validity radius reads, what they are)``. A path evaluation
+    (``evaluation.info["extrapolation"]`` set) without ``extrapolation = true``: the training
+    range only (``"training"``), neither the points past the path's top (``beyond``) nor those
+    the model flags (:data:`FLAGGED`), so "valid to" never reaches past what the unit learnt; with
+    it, every point (``"extrapolation"``). Other kinds: every point (``""``: no training range
+    along the abscissa: a distance to the stored positions, a time)."""
+    asked = (getattr(evaluation, "info", None) or {}).get("extrapolation")
+    if asked is None or asked:
+        return pd.Series(True, index=points.index), "" if asked is None else "extrapolation"
+    past = points["beyond"].astype(bool) if "beyond" in points else pd.Series(False, index=points.index)
+    return ~past & ~points["status"].isin(FLAGGED), "training"
 
 
 def pareto_front(units: pd.DataFrame, error: str = "max_rel_l2", latency: str = "haptic_median_s") -> pd.DataFrame:

@@ -10,10 +10,13 @@ For every unit, in one process, one unit at a time, with the BLAS thread count l
    (``step`` + ``outputs`` back to back, as a haptic loop runs them) are timed one by one
    with ``time.perf_counter`` (a map model at seeded random parameters, a path model along
    its path, a trajectory model through its time steps, restarted untimed when a pass
-   ends). The full field is reconstructed, and timed apart, only at the display's rate:
-   once every ``ceil(1 kHz / 60 Hz) = 17`` steps (a display draws at ~60 Hz while the
-   haptic loop runs at 1 kHz), so the caches a step sees are those of a haptic loop, not
-   those left by a full-size reconstruction after every step. Right after each step the
+   ends): 2000 by default, so that 20 samples lie beyond the p99 (:func:`~.timing.p99_tail`).
+   A model too slow for them within ``budget_s`` seconds of timing (a full solve per step)
+   stops there, after at least one step: the row's ``haptic_n`` says how many were timed and
+   the report how many samples its p99 rests on. The full field is reconstructed, and timed
+   apart, only at the display's rate: once every ``ceil(1 kHz / 60 Hz) = 17`` steps (a
+   display draws at ~60 Hz while the haptic loop runs at 1 kHz), so the caches a step sees
+   are those of a haptic loop, not those left by a full-size reconstruction after every step. Right after each step the
    model's **floor** (:meth:`~tissuebench.rom.OnlineModel.floor_ops`: the arithmetic its
    step cannot avoid) is timed too, so ``efficiency = floor / haptic median`` compares
    the two under the same load. Median and 99th percentile. A map model is timed at fresh
@@ -35,7 +38,7 @@ import numpy as np
 from threadpoolctl import threadpool_info
 
 from ..reference.step_timing import reference_step_seconds as step_seconds
-from .timing import latency_stats
+from .timing import TAIL_STEPS, latency_stats
 
 __all__ = ["Driven", "drive", "time_latency", "calibration_seconds", "reference_step_seconds", "blas_info",
            "HAPTIC_HZ", "DISPLAY_HZ", "DISPLAY_EVERY"]
@@ -146,8 +149,8 @@ HAPTIC_HZ, DISPLAY_HZ = 1000.0, 60.0
 DISPLAY_EVERY = int(np.ceil(HAPTIC_HZ / DISPLAY_HZ))
 
 
-def time_latency(model, evaluation, history=None, steps: int = 200, warmup: int = 20, seed: int = 0,
-                 clock=time.perf_counter, display_every: int = DISPLAY_EVERY) -> dict:
+def time_latency(model, evaluation, history=None, steps: int = TAIL_STEPS, warmup: int = 20, seed: int = 0,
+                 clock=time.perf_counter, display_every: int = DISPLAY_EVERY, budget_s: float | None = None) -> dict:
     """Latency pass (module docstring, 2).
 
     Returns ``{"haptic": LatencyStats, "reconstruct": LatencyStats | None, "floor": LatencyStats,
@@ -157,7 +160,8 @@ def time_latency(model, evaluation, history=None, steps: int = 200, warmup: int 
     ``reconstruct_s`` [s] (NaN where nothing was reconstructed: the display asks for a field
     every ``display_every``-th step only): the distribution per cut length or load factor
     (pgd-cutting Fig. 8). ``clock`` returns seconds (injectable, for testing the protocol with
-    exact durations)."""
+    exact durations). ``budget_s``: the timing stops once this many seconds (by ``clock``) have
+    passed since the first timed step, even short of ``steps`` (None: no budget)."""
     if int(display_every) < 1:
         raise ValueError(f"time_latency: display_every must be >= 1, got {display_every!r}")
     seq = _timing_sequence(model, evaluation, history, steps, seed)
@@ -175,9 +179,14 @@ def time_latency(model, evaluation, history=None, steps: int = 200, warmup: int 
         if res.q is not None and i % display_every == 0:
             model.reconstruct(res)
     haptic, floors, recon, samples = [], [], [], []
-    while len(haptic) < steps:
+    began = clock()
+    spent = False
+    while len(haptic) < steps and not spent:
         _start(model, evaluation, seq)
         for mu, x in zip(seq, xs):
+            if haptic and budget_s is not None and clock() - began >= budget_s:
+                spent = True  # a slow model: fewer steps, said by haptic_n and the report
+                break
             # the haptic loop: step + outputs back to back, one clock pair per step
             t0 = clock()
             res = model.step(mu)

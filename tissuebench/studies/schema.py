@@ -45,6 +45,10 @@ UNIT_COLUMNS = {
     # displacement, and the largest nodal error in the scene's length unit (length_unit)
     "peak_rel_l2": _F, "max_abs_error": _F, "length_unit": _S,
     "x_name": _S, "validity_1pct": _F, "validity_5pct": _F,
+    # what the validity radii read (studies/metrics.claimed_range): "training" (a path's training
+    # range: no point past its top, none the model flags), "extrapolation" (asked: every point),
+    # "" (a kind without a training range along its abscissa, or a store written before issue 44)
+    "validity_range": _S,
     # the abscissa in the scene's units: x = 1 is x_scale x_unit (load factor 1: the net force, in N ...);
     # reference_limit: where the reference continued past the path stopped converging (evaluation beyond)
     "x_scale": _F, "x_unit": _S, "reference_limit": _F, "n_beyond_reference": _I,
@@ -114,6 +118,9 @@ UNIT_COLUMNS_DOC = {
     "validity_1pct": "the largest x up to which every error is within 1 %",
     "validity_5pct": "the same within 5 %", "x_scale": "what x = 1 is in the scene's units",
     "x_unit": "that unit", "reference_limit": "where the reference continued past the path stopped converging",
+    "validity_range": "the points the validity radius reads: `training` (a path: the training range only), "
+                      "`extrapolation` (the evaluation asked `extrapolation = true`: past it too) or empty (every "
+                      "point: a distance, a time)",
     "peak_rel_l2": "the worst step's l2 error over the run's peak displacement (inf where every reference is zero)",
     "max_abs_error": "the largest nodal displacement error, in `length_unit`",
     "length_unit": "the scene's length unit (`[units] length`) of the absolute error columns",

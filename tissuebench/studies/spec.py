@@ -12,7 +12,8 @@ options, the protocol and the error metric of the derived tables::
     error_metric = "max_rel_l2"       # the error of the Pareto front and the gate
 
     [protocol]                        # optional; defaults shown
-    latency_steps = 200               # timed haptic steps (>= 200 for a p99)
+    latency_steps = 2000              # timed haptic steps: 20 samples beyond the p99
+    latency_budget_s = 60             # seconds of timing after which a slow model stops short
     warmup = 20
     blas_threads = 1
     reference_samples = 3

@@ -251,6 +251,7 @@ def write_derived(out: Path, error_metric: str = "max_rel_l2", figures=None) -> 
     pareto.insert(len(cols), "error_metric", error_metric)
     radius = units[["case", "method", "label", "options", "unit_key", "x_name"]
                    + [f"validity_{int(round(t * 100))}pct" for t in TOLERANCES]].copy()
+    radius["validity_range"] = units["validity_range"] if "validity_range" in units else ""
     tables = {"pareto": pareto, "radius": radius, "ladder": ladder_table(units, read_points(out))}
     scaling = scaling_table(units, read_sweep_manifest(out, missing_ok=True).get("cases", []), error_metric)
     if not scaling.empty:  # a scaling_group of cases at >= 2 sizes (studies/scaling.py)

@@ -1,7 +1,10 @@
 """Latency statistics and the basic error measures shared by every study.
 
 Latency: each online step is timed on its own (:mod:`.protocol`) and reported as median
-and 99th percentile (never a mean: one page fault must not move the figure).
+and 99th percentile (never a mean: one page fault must not move the figure). A p99 is decided
+by the few slowest samples, ranked above it: :func:`p99_tail` of them (2 of 200 steps: one
+late step moves it); :data:`TAIL_SAMPLES` is how many a verdict should rest on, so the
+protocol times :data:`TAIL_STEPS` steps by default.
 """
 from __future__ import annotations
 
@@ -9,7 +12,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LatencyStats", "latency_stats", "relative_l2", "max_displacement"]
+__all__ = ["LatencyStats", "latency_stats", "relative_l2", "max_displacement", "p99_tail", "TAIL_SAMPLES",
+           "TAIL_STEPS"]
+
+#: samples ranked above the p99 that a verdict on it should rest on, and the steps that gives
+TAIL_SAMPLES = 20
+TAIL_STEPS = 100 * TAIL_SAMPLES
+
+
+def p99_tail(n) -> int:
+    """The samples of ``n`` ranked above their 99th percentile, which decide it: numpy's p99
+    (linear interpolation) lies between the sorted samples ``i`` and ``i + 1``, ``i = floor(0.99
+    (n - 1))``, so ``n - 1 - i`` of them are beyond it (2 of 200, 20 of 2000; 0 when ``n < 2``)."""
+    n = int(n)
+    return 0 if n < 2 else n - 1 - (99 * (n - 1)) // 100
 
 
 @dataclass(frozen=True)
@@ -21,6 +37,11 @@ class LatencyStats:
     min: float
     max: float
     n: int
+
+    @property
+    def tail(self) -> int:
+        """The samples beyond the p99 (:func:`p99_tail`)."""
+        return p99_tail(self.n)
 
     def as_dict(self, prefix: str = "") -> dict:
         return {f"{prefix}median_s": self.median, f"{prefix}p99_s": self.p99, f"{prefix}min_s": self.min,

@@ -32,6 +32,7 @@ from .energy import EnergyDrift, model_drift
 from .evaluation import NEEDS_MODEL, build_evaluation, evaluation_references
 from .metrics import output_rows, point_rows, seen_points, summarise_points
 from .protocol import _timing_sequence, blas_info, calibration_seconds, drive, reference_step_seconds, time_latency
+from .timing import TAIL_STEPS
 from ..reference.provenance import code_hash, git_commit, package_versions
 from ..reference import cached_dynamics_system, reference_key
 from .training import build_training, case_scene, training_references
@@ -39,9 +40,14 @@ from .training import build_training, case_scene, training_references
 __all__ = ["WorkUnit", "UnitOutcome", "unit_key", "options_text", "run_unit", "failed_outcome", "unit_references",
            "unit_method", "DEFAULT_PROTOCOL"]
 
-DEFAULT_PROTOCOL = {"latency_steps": 200, "warmup": 20, "blas_threads": 1, "reference_samples": 3, "seed": 0}
+#: 2000 timed steps: 20 samples beyond the p99 (studies/timing.p99_tail); a model slower than
+#: latency_budget_s seconds for them is timed on fewer (its haptic_n)
+DEFAULT_PROTOCOL = {"latency_steps": TAIL_STEPS, "latency_budget_s": 60, "warmup": 20, "blas_threads": 1,
+                    "reference_samples": 3, "seed": 0}
 # what each protocol key means (the spec-format reference of the documentation)
-PROTOCOL_DOC = {"latency_steps": "timed haptic steps per unit (>= 200 for a meaningful p99)",
+PROTOCOL_DOC = {"latency_steps": "timed haptic steps per unit (2000 by default: 20 samples beyond the p99)",
+                "latency_budget_s": "seconds the timed steps may take; a slower model is timed on fewer "
+                                    "(its haptic_n says how many)",
                 "warmup": "untimed steps before them",
                 "blas_threads": "BLAS threads while a unit runs (threadpoolctl; 0: leave as is)",
                 "reference_samples": "reference steps timed in the same process",
@@ -220,11 +226,16 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
         **histories)
     outputs = pd.DataFrame(output_rows(evaluation, driven), columns=["point", "x", "monitor", "reference", "rom",
                                                                        "rel_error"])
-    lat = time_latency(model, evaluation, history, int(p["latency_steps"]), int(p["warmup"]), int(p["seed"]))
+    lat = time_latency(model, evaluation, history, int(p["latency_steps"]), int(p["warmup"]), int(p["seed"]),
+                       budget_s=p.get("latency_budget_s"))
     notes, label = _asked_versus_done(unit, model, evaluation, history, training.info)
+    h = lat["haptic"]
+    if h.n < int(p["latency_steps"]):  # the budget ran out before the steps asked (a slow step)
+        notes.append(f"latency_budget_s = {p.get('latency_budget_s'):g} s reached: {h.n} of {p['latency_steps']} "
+                     f"steps timed, the p99 rests on {h.tail} samples beyond it")
     ref_step = reference_step_seconds(evaluation, unit.case.backend, int(p["reference_samples"]))
     calib = calibration_seconds()
-    h, r = lat["haptic"], lat["reconstruct"]
+    r = lat["reconstruct"]
     n_dof = len(evaluation.points[0].reference) if evaluation.points and evaluation.points[0].reference is not None \
         else int(getattr(model, "ndof", 0))
     return {**summarise_points(points, outputs, evaluation, driven.fields),

@@ -19,3 +19,5 @@ def test_the_prescribed_stretch_of_a_cube():
 def test_options_are_checked_naming_them():
     with pytest.raises(ValueError, match="degree = -1"):
         PodPolyReg(degree=-1)
+    with pytest.raises(ValueError, match="degree = 0"):  # no constant term: degree 0 would be u = 0
+        PodPolyReg(degree=0)

@@ -3,10 +3,13 @@
 Offline: the POD basis of the path's snapshots on the free dofs (the SVD's leading ``n_modes``
 left singular vectors), each snapshot's reduced coordinates ``q_j = B^T u_j[free]``, and a
 least-squares polynomial of degree ``degree`` per coordinate in the scaled load factor
-``x = lambda / lambda_max``. Online: ``q(lambda) = sum_k c_k x^k`` (a ``(degree+1) x n_modes``
-product), the field ``u[free] = B q`` and the prescribed values of the step on the fixed dofs
-(tissuebench's :class:`~tissuebench.rom.LinearReconstruction`). Outside the training's load
-factors the step is flagged ``extrapolation``: a polynomial is not to be trusted there.
+``x = lambda / lambda_max`` without a constant term: the path starts at rest (``u = 0`` at load
+factor 0), which the model then reproduces exactly (with a constant term the fit misses rest by
+a fixed offset, which tissuebench's evaluation near rest finds as a relative error of tens of
+per cent). Online: ``q(lambda) = sum_{k=1..degree} c_k x^k`` (a ``degree x n_modes`` product),
+the field ``u[free] = B q`` and the prescribed values of the step on the fixed dofs
+(tissuebench's :class:`~tissuebench.rom.LinearReconstruction`). Outside rest to the training's
+largest load factor the step is flagged ``extrapolation``: a polynomial is not to be trusted there.
 """
 from __future__ import annotations
 
@@ -30,8 +33,8 @@ class PodPolyReg(RomMethod):
     n_modes : int
         POD modes kept (fewer when the snapshots span fewer).
     degree : int
-        Degree of the polynomial of each reduced coordinate in the load factor (at most the
-        number of distinct training load factors minus one).
+        Degree of the polynomial of each reduced coordinate in the load factor, >= 1 (at most
+        the number of distinct nonzero training load factors).
     """
 
     name = "pod_polyreg"
@@ -40,26 +43,26 @@ class PodPolyReg(RomMethod):
     applies = Applies()  # any finite-element scene with a static load path; its step reads the load factor
 
     def __init__(self, n_modes: int = 4, degree: int = 2):
-        self.n_modes, self.degree = _count("n_modes", n_modes, 1), _count("degree", degree, 0)
+        self.n_modes, self.degree = _count("n_modes", n_modes, 1), _count("degree", degree, 1)
 
     def build(self, training: Training) -> OnlineModel:
         free = np.asarray(training.free_dofs)
         lams = training.parameter_values("load_factor")
-        if len(np.unique(lams)) <= self.degree:
-            raise ValueError(f"pod_polyreg: degree = {self.degree} needs {self.degree + 1} distinct load factors; "
-                             f"the training has {len(np.unique(lams))}")
+        if len(np.unique(lams[lams != 0])) < self.degree:
+            raise ValueError(f"pod_polyreg: degree = {self.degree} needs {self.degree} distinct nonzero load factors; "
+                             f"the training has {len(np.unique(lams[lams != 0]))}")
         U, s, _ = np.linalg.svd(training.snapshots[free], full_matrices=False)
         rank = int(np.sum(s > 1e-12 * s[0])) if s.size and s[0] > 0 else 0
         r = max(1, min(self.n_modes, rank))
         basis = np.ascontiguousarray(U[:, :r])
         coords = basis.T @ training.snapshots[free]  # (r, n_snap)
         top = float(np.abs(lams).max()) or 1.0
-        V = np.vander(lams / top, self.degree + 1, increasing=True)
-        coeffs = np.linalg.lstsq(V, coords.T, rcond=None)[0]  # (degree + 1, r)
+        V = np.vander(lams / top, self.degree + 1, increasing=True)[:, 1:]  # no constant term: rest is u = 0
+        coeffs = np.linalg.lstsq(V, coords.T, rcond=None)[0]  # (degree, r)
         energy = float(np.sum(s[:r] ** 2) / np.sum(s ** 2)) if rank else 1.0
         problem = training.backend.problem if training.backend is not None else None
         return _PodPolyRegModel(basis, free, training.snapshots.shape[0], problem, coeffs, top,
-                                (float(lams.min()), float(lams.max())),
+                                (min(0.0, float(lams.min())), float(lams.max())),
                                 {"n_modes": r, "degree": self.degree, "energy_captured": energy})
 
 
@@ -69,7 +72,7 @@ class _PodPolyRegModel(LinearReconstruction, OnlineModel):
     def __init__(self, basis, free_dofs, ndof, problem, coeffs, top, envelope, info):
         self.name, self.basis, self.free_dofs, self.ndof, self.problem = "pod_polyreg", basis, free_dofs, ndof, problem
         self._coeffs, self._top, self._envelope, self.info = coeffs, top, envelope, info
-        self._powers = np.arange(coeffs.shape[0])
+        self._powers = np.arange(1, coeffs.shape[0] + 1)
 
     @property
     def n_reduced(self) -> int:
