@@ -85,8 +85,8 @@ def main(argv=None) -> int:
     sweep = args.out / "sweep"
     if not (args.keep and (sweep / "_sweep.json").is_file()):
         shutil.rmtree(sweep, ignore_errors=True)
-        subprocess.run([sys.executable, "-m", "tissuebench", "sweep", "--scene", str(args.scene), "--all-methods",
-                        "--out", str(sweep)], check=True)
+        code = [sys.executable, "-c", "import sys; from tissuebench.cli import main; sys.exit(main())"]
+        subprocess.run([*code, "sweep", "--scene", str(args.scene), "--all-methods", "--out", str(sweep)], check=True)
     units = read_units(sweep)
     rows = units[(units["case"] == "path") & (units["unit_status"] == "ok")]
     abs_ = {u.uid: u for u in ab_units(sweep, rows, workdir=args.out)}
