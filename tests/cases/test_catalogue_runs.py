@@ -46,7 +46,14 @@ def with_changes(scene, mesh=None, analysis=None):
     return dataclasses.replace(scene, mesh_spec=spec, analysis={**scene.analysis, **(analysis or {})})
 
 
-@pytest.mark.parametrize("case,variant", CASES, ids=[f"{c}-{v}" if v else c for c, v in CASES])
+#: the heaviest at ci (~30 s: 2 s of neo-Hookean dynamics) runs with the slow tests; the default run
+#: keeps the liver's dynamics by test_liver_dynamic_first_period_is_the_modal_one (linear variant)
+SLOW_AT_CI = {("liver_dynamic", "neo_hookean")}
+
+
+@pytest.mark.parametrize("case,variant", [pytest.param(c, v, id=f"{c}-{v}" if v else c,
+                                                       marks=[pytest.mark.slow] if (c, v) in SLOW_AT_CI else [])
+                                          for c, v in CASES])
 def test_every_case_runs_at_ci(case, variant):
     scene = load(case, variant=variant)
     r = run(case, variant)
@@ -248,7 +255,8 @@ def test_left_ventricle_converges_under_refinement():
 
 
 @pytest.mark.ngsolve
-@pytest.mark.parametrize("case,variant", [("land_beam", None), ("left_ventricle", "guccione"),
+@pytest.mark.parametrize("case,variant", [("land_beam", None),
+                                          pytest.param("left_ventricle", "guccione", marks=pytest.mark.slow),  # ~20 s
                                           ("cornea_pinch", None), ("wave_block", "svk")])
 def test_backends_agree_on_the_catalogue(case, variant):
     if case == "wave_block":  # the first 40 steps: the front and its reflection

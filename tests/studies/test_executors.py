@@ -61,8 +61,11 @@ def test_a_scenario_process_that_dies_fails_its_test_naming_the_signal():
         _scenario("the_process_itself_killed")
 
 
-def test_minor_an_unreachable_scheduler_marks_the_sweep_failed(tmp_path):
+def test_minor_an_unreachable_scheduler_marks_the_sweep_failed(tmp_path, monkeypatch):
     from tissuebench.cli import main
+    from tissuebench.studies import executors
+
+    monkeypatch.setattr(executors, "SCHEDULER_CONNECT_TIMEOUT_S", 1.0)  # refused at once; dask retries until then
     from tissuebench.studies.sweep_manifest import read_sweep_manifest
 
     spec = tmp_path / "s.toml"

@@ -152,7 +152,10 @@ def test_example_sweep_specs_load_and_expand():
     (["--executor", "dask", "--scheduler", "tcp://127.0.0.1:9"], "cannot be reached"),
     (["--workers", "0"], "workers = 0"),
 ])
-def test_bad_command_line_exits_2_and_writes_nothing(tmp_path, capsys, argv, message):
+def test_bad_command_line_exits_2_and_writes_nothing(tmp_path, capsys, monkeypatch, argv, message):
+    from tissuebench.studies import executors
+
+    monkeypatch.setattr(executors, "SCHEDULER_CONNECT_TIMEOUT_S", 1.0)  # the unreachable one: said after 1 s
     spec = write_spec(tmp_path)
     out = tmp_path / "out"
     assert main(["sweep", str(spec), "--out", str(out), "--quiet", *argv]) == 2

@@ -51,6 +51,8 @@ logger = logging.getLogger(__name__)
 
 
 WORKERS_PER_CORE = 4  # a unit is single-threaded: more workers than this per core only share the cores
+#: how long a sweep waits for a ``--scheduler`` to answer before it says it cannot be reached
+SCHEDULER_CONNECT_TIMEOUT_S = 10.0
 # tcp://HOST:PORT, HOST a name, an IPv4 address or a bracketed IPv6 address (what dask's tcp comm parses)
 _SCHEDULER = re.compile(r"tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9](?:[A-Za-z0-9._-]*[A-Za-z0-9])?):([0-9]{1,5})")
 
@@ -204,7 +206,7 @@ def _dask(units, workers, scheduler, run, cache):
         cluster, client = _local_cluster(LocalCluster, Client, workers)
     else:
         try:
-            client = Client(scheduler, timeout="10s")
+            client = Client(scheduler, timeout=f"{SCHEDULER_CONNECT_TIMEOUT_S}s")
         except (OSError, TimeoutError) as exc:
             raise ValueError(f"scheduler = {scheduler!r} cannot be reached: {exc}") from None
     try:
