@@ -117,8 +117,10 @@ def test_serial_and_processes_keep_their_cache_argument(spec, tmp_path, counted)
 def _ci_cases():
     spec = load_spec(Path(__file__).resolve().parents[2] / "tissuebench" / "studies" / "presets" / "ci.toml")
     cases = {u.case.id: u.case for u in expand_units(spec)}  # every case of the preset, once
-    return [pytest.param(c, id=i) for i, c in cases.items()
-            if c.training_kind != "operators" or c.evaluation_kind == "map"]
+    # the trained dynamic case (~14 s of reference runs) with the slow tests: cube-tension-dynamic
+    # keeps the trajectory kinds in the default run
+    return [pytest.param(c, id=i, marks=[pytest.mark.slow] if i == "cube-tension-dynamic-trained" else [])
+            for i, c in cases.items() if c.training_kind != "operators" or c.evaluation_kind == "map"]
 
 
 @pytest.mark.parametrize("case", _ci_cases())

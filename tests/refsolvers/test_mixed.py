@@ -250,6 +250,7 @@ def test_saddle_point_solver(asymmetry, use_ngsolve):
         assert info2["symbolic"] == "reused" and np.linalg.norm(K2 @ x2 - b) <= 1e-10 * np.linalg.norm(b)
 
 
+@pytest.mark.slow  # ~16 s; the u-p solver on both backends stays in the default run (test_mixed_backends_agree)
 def test_catalogue_scene_with_mixed_formulation_runs_mixed_on_both_backends():
     """land_beam declares analysis.formulation = "mixed": the scene runner solves the u-p
     problem (not the penalty), the plan says so, and the two backends agree."""
