@@ -162,7 +162,9 @@ def test_a_write_that_fails_leaves_nothing_and_raises(tmp_path, solver, monkeypa
 # ---------------------------------------------------------------- refused entries
 def _warned(record, *messages):
     assert [str(w.message) for w in record] == list(messages)
-    assert all(w.filename == __file__ for w in record)  # the warning points at the caller of cached_solve
+    # the warning points at the caller of cached_solve (not under mutmut: its trampoline is one
+    # more frame between them; tox -e mutation)
+    assert "MUTANT_UNDER_TEST" in os.environ or all(w.filename == __file__ for w in record)
 
 
 def test_an_edited_entry_is_refused_removed_and_recomputed(tmp_path, solver):
