@@ -16,7 +16,8 @@ import pandas as pd
 import pytest
 
 from tissuebench.studies.evaluation import Evaluation, EvaluationPoint
-from tissuebench.studies.metrics import (SEEN_RTOL, TOLERANCES, ZERO_REFERENCE, output_rows, pareto_front, point_rows,
+from tissuebench.studies.metrics import (SEEN_RTOL, TOLERANCES, ZERO_REFERENCE, claimed_range, output_rows, pareto_front,
+                                         point_rows,
                                          seen_points, summarise_points, validity_radius)
 from tissuebench.studies.timing import LatencyStats, latency_stats, max_displacement, relative_l2
 
@@ -256,6 +257,26 @@ def test_unit_summary_by_hand():
     # validity over every point with a reference (the beyond one too): 0.02 fails 1 % at the first
     # point; 5 % holds up to 0.2, where the 0.5 of x = 0.3 fails it
     assert row["validity_1pct"] == 0.0 and row["validity_5pct"] == 0.2
+    assert row["validity_range"] == ""  # no extrapolation key: a plain evaluation, every point
+    # the worst step's error over the peak reference (0.5 / 5) and the largest nodal error (0.5)
+    assert row["peak_rel_l2"] == pytest.approx(0.1) and row["max_abs_error"] == pytest.approx(0.5)
+
+
+def test_peak_and_absolute_errors_of_references_smaller_than_one():
+    ev = _evaluation([[0.3, 0.4, 0.0], [0.0, 0.0, 0.2]])  # |u| 0.5 and 0.2
+    fields = [[0.3, 0.4, 0.1], [0.0, 0.0, 0.2]]
+    points = pd.DataFrame(point_rows(ev, _driven(fields)))
+    row = summarise_points(points, pd.DataFrame(), ev, [np.asarray(f, float) for f in fields])
+    assert row["peak_rel_l2"] == pytest.approx(0.2) and row["max_abs_error"] == pytest.approx(0.1)
+
+
+def test_every_reference_zero_makes_the_history_errors_inf():
+    ev = _evaluation([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    fields = [[0.1, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    points = pd.DataFrame(point_rows(ev, _driven(fields)))
+    row = summarise_points(points, pd.DataFrame(), ev, [np.asarray(f, float) for f in fields])
+    assert row["rmse_rel"] == math.inf and row["peak_rel_l2"] == math.inf
+    assert row["max_abs_error"] == pytest.approx(0.1)
 
 
 def test_unit_summary_seen_when_every_reference_point_is_seen_and_a_failure_is_inf():
@@ -269,6 +290,7 @@ def test_unit_summary_seen_when_every_reference_point_is_seen_and_a_failure_is_i
     row = summarise_points(points, pd.DataFrame(), ev, fields)
     assert row["rmse_rel"] == math.inf and row["max_rel_l2"] == math.inf
     assert row["max_rel_l2_in_envelope"] == math.inf  # a failure on its own range is never accurate
+    assert row["peak_rel_l2"] == math.inf and row["max_abs_error"] == math.inf
     assert math.isnan(row["max_monitor_rel_error"]) and row["n_failed"] == 1 and row["n_seen"] == 0
 
 
@@ -327,6 +349,48 @@ def test_in_envelope_without_any_inside_point_is_nan():
     points = pd.DataFrame(point_rows(ev, _driven([[2, 0, 0]], statuses=["beyond_validity"])))
     row = summarise_points(points, pd.DataFrame(), ev, [np.array([2.0, 0, 0])])
     assert math.isnan(row["max_rel_l2_in_envelope"]) and row["max_rel_l2"] == 1.0 and row["n_beyond_validity"] == 1
+
+
+# ---------------------------------------------------------------- the range a unit claims (issue 44)
+def _range_points(statuses, beyond):
+    return pd.DataFrame({"x": [0.1, 0.2, 0.3], "status": statuses, "beyond": beyond}, index=[7, 8, 9])
+
+
+@pytest.mark.parametrize("flag", ["extrapolation", "beyond_validity"])
+def test_the_claimed_range_is_the_training_range_unless_extrapolation_is_asked(flag):
+    points = _range_points(["ok", flag, "ok"], [False, False, True])
+    mask, what = claimed_range(points, SimpleNamespace(info={"extrapolation": False}))
+    assert what == "training" and mask.to_dict() == {7: True, 8: False, 9: False}
+    mask, what = claimed_range(points, SimpleNamespace(info={"extrapolation": True}))
+    assert what == "extrapolation" and mask.to_dict() == {7: True, 8: True, 9: True}
+    for evaluation in (SimpleNamespace(info={}), SimpleNamespace(info=None), SimpleNamespace()):
+        mask, what = claimed_range(points, evaluation)  # not a path: every point, no range named
+        assert what == "" and mask.to_dict() == {7: True, 8: True, 9: True}
+    # a store without the beyond column: nothing is past the top, the flagged point still left out
+    mask, _ = claimed_range(points.drop(columns="beyond"), SimpleNamespace(info={"extrapolation": False}))
+    assert mask.to_dict() == {7: True, 8: False, 9: True}
+
+
+def _radius_row(statuses, beyond, fields, extrapolation):
+    ev = _evaluation([[1, 0, 0]] * 3, xs=[0.1, 0.2, 0.3], beyond=beyond)
+    ev.info["extrapolation"] = extrapolation
+    points = pd.DataFrame(point_rows(ev, _driven(fields, statuses=statuses)))
+    return summarise_points(points, pd.DataFrame(), ev, [np.asarray(f, float) for f in fields])
+
+
+def test_valid_to_stops_at_the_training_range_unless_extrapolation_is_asked():
+    exact = [[1, 0, 0]] * 3
+    # the point past the top is exact: "valid to" reaches it only when extrapolation is asked
+    row = _radius_row(["ok"] * 3, [False, False, True], exact, False)
+    assert (row["validity_1pct"], row["validity_5pct"], row["validity_range"]) == (0.2, 0.2, "training")
+    row = _radius_row(["ok"] * 3, [False, False, True], exact, True)
+    assert (row["validity_1pct"], row["validity_5pct"], row["validity_range"]) == (0.3, 0.3, "extrapolation")
+    # a flagged point 50 % off inside the path: out of the training range, in with extrapolation
+    off = [[1, 0, 0], [1.5, 0, 0], [1, 0, 0]]
+    row = _radius_row(["ok", "extrapolation", "ok"], [False] * 3, off, False)
+    assert row["validity_5pct"] == 0.3 and row["validity_range"] == "training"
+    row = _radius_row(["ok", "extrapolation", "ok"], [False] * 3, off, True)
+    assert row["validity_5pct"] == 0.1
 
 
 # ---------------------------------------------------------------- Pareto front

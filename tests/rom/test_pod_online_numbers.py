@@ -1,0 +1,96 @@
+"""pod_linear's online step on a linear-elastic bar whose supports prescribe displacements of
+every kind (issue 41: the branches the mutation run found untested): scaled with the load
+factor, imposed at every load factor (an offset at rest), and a motion (not affine in the load
+factor). On a linear problem the free field is ``u_f(lam) = K_ff^-1 (lam f_f - K_fc u_D(lam))``;
+a basis spanning it makes the Galerkin step exact, so the step is checked against that solve
+(scipy, here) to round-off, at load factors no snapshot holds; the envelope's bounds on both
+sides of their tolerance; the latency floor doing the step's arithmetic (a fair lower bound)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse.linalg as spla
+
+from tissuebench.cases.meshes import box_mesh
+from tissuebench.refsolvers import Dirichlet, LinearElastic, PointLoad, Problem, make_backend
+from tissuebench.rom.base import Training, make_method
+
+
+def _tilt(x, lam):
+    """A motion: the end face's z grows as lam**2 (not affine in lam), zero at rest."""
+    return np.full((len(x), 1), 0.05 * lam ** 2)
+
+
+def _problem(kind: str) -> Problem:
+    end = [Dirichlet(lambda x: x[:, 0] > 4.0 - 1e-9, (0,), 0.4)]  # pulled along x, scaled
+    if kind == "offset":  # the end held 0.03 up at every load factor
+        end.append(Dirichlet(lambda x: x[:, 0] > 4.0 - 1e-9, (2,), 0.03, scaled=False))
+    elif kind == "motion":
+        end.append(Dirichlet(lambda x: x[:, 0] > 4.0 - 1e-9, (2,), motion=_tilt))
+    mesh = box_mesh((4.0, 1.0, 1.0), (8, 2, 2), "tetra")
+    return Problem(mesh, LinearElastic(1e3, 0.3), "P1", dirichlet=[Dirichlet(lambda x: x[:, 0] < 1e-9), *end],
+                   loads=[PointLoad(lambda x: np.isclose(x[:, 0], 2.0), np.array([0.0, -3.0, 0.0]) / 9)])
+
+
+def _solve(be, lam: float) -> np.ndarray:
+    """The full linear solution at ``lam`` (independent of the ROM: scipy's sparse LU)."""
+    pb = be.problem
+    free, fixed = pb.free_dofs, pb.fixed_dofs
+    K = be.tangent(np.zeros(be.ndof)).tocsr()
+    u = np.zeros(be.ndof)
+    u[fixed] = pb.prescribed_values(lam)
+    rhs = be.external_force(u, lam)[free] - K[free][:, fixed] @ u[fixed]
+    u[free] = spla.spsolve(K[free][:, free].tocsc(), rhs)
+    return u
+
+
+def _model(kind: str, lams=(0.25, 0.5, 1.0)):
+    be = make_backend("skfem", _problem(kind))
+    S = np.column_stack([_solve(be, lam) for lam in lams])
+    training = Training(snapshots=S, parameters=[{"load_factor": lam} for lam in lams], backend=be)
+    return be, make_method("pod_linear", n_modes=len(lams)).build(training)
+
+
+@pytest.mark.parametrize("kind", ["scaled", "offset", "motion"])
+def test_the_step_is_the_linear_solution_between_and_inside_the_snapshots(kind):
+    be, model = _model(kind)
+    fixed = be.problem.fixed_dofs
+    for lam in (0.3, 0.7, 1.0):
+        res = model.step({"load_factor": lam})
+        assert (res.status, res.message, res.mu) == ("ok", "", {"load_factor": lam})
+        u, exact = model.reconstruct(res), _solve(be, lam)
+        np.testing.assert_allclose(u[fixed], be.problem.prescribed_values(lam), rtol=0, atol=1e-15)
+        assert np.linalg.norm(u - exact) <= 1e-9 * np.linalg.norm(exact), (kind, lam)
+    if kind == "offset":  # the share of the values held at every load factor, at rest too
+        res = model.step({"load_factor": 0.25})
+        assert np.abs(model.reconstruct(res)[fixed]).max() == pytest.approx(0.4 * 0.25)
+        assert np.abs(be.problem.prescribed_values(0.0)).max() == pytest.approx(0.03)
+
+
+def test_the_envelope_bounds_on_both_sides_of_their_tolerance():
+    _, model = _model("scaled")
+    assert model.envelope == {"load_factor": (0.25, 1.0)}
+    for lam in (0.25 * (1 - 1e-13), 1.0 + 1e-13):  # within 1e-12 of the bound: inside
+        assert model.step({"load_factor": lam}).status == "ok"
+    for lam in (0.25 * (1 - 1e-9), 1.0 + 1e-9, 0.0, 1.5):
+        res = model.step({"load_factor": lam})
+        assert res.status == "extrapolation" and res.mu == {"load_factor": lam}, lam
+        assert res.q is not None and np.all(np.isfinite(res.q))
+
+
+def _closure(fn) -> dict:
+    return dict(zip(fn.__code__.co_freevars, (c.cell_contents for c in fn.__closure__)))
+
+
+@pytest.mark.parametrize("kind", ["scaled", "offset"])
+def test_the_latency_floor_does_the_steps_arithmetic(kind):
+    be, model = _model(kind)
+    rng = np.random.default_rng(5)
+    model.attach_outputs({"a": rng.standard_normal(be.ndof), "b": rng.standard_normal(be.ndof)})
+    floor = model.floor_ops()
+    floor()
+    cells = _closure(floor)
+    res = model.step({"load_factor": 0.5})  # the floor's load factor
+    np.testing.assert_allclose(cells["q"], res.q, rtol=1e-14, atol=1e-300)
+    out = model.outputs(res)
+    np.testing.assert_allclose(cells["y"], [out["a"], out["b"]], rtol=1e-12)
