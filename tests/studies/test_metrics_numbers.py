@@ -16,9 +16,8 @@ import pandas as pd
 import pytest
 
 from tissuebench.studies.evaluation import Evaluation, EvaluationPoint
-from tissuebench.studies.metrics import (SEEN_RTOL, TOLERANCES, ZERO_REFERENCE, claimed_range, output_rows, pareto_front,
-                                         point_rows,
-                                         seen_points, summarise_points, validity_radius)
+from tissuebench.studies.metrics import (SEEN_RTOL, TOLERANCES, ZERO_REFERENCE, claimed_range, output_rows,
+                                         pareto_front, point_rows, seen_points, summarise_points, validity_radius)
 from tissuebench.studies.timing import LatencyStats, latency_stats, max_displacement, relative_l2
 
 
