@@ -94,3 +94,66 @@ def test_the_latency_floor_does_the_steps_arithmetic(kind):
     np.testing.assert_allclose(cells["q"], res.q, rtol=1e-14, atol=1e-300)
     out = model.outputs(res)
     np.testing.assert_allclose(cells["y"], [out["a"], out["b"]], rtol=1e-12)
+
+
+# ---------------------------------------------------------------- pod_newton's iterations
+@pytest.fixture(scope="module")
+def svk_path():
+    """An SVK cantilever bent by a tip load, its Newton path at lam = 1/4 ... 1 (training)."""
+    from tissuebench.refsolvers import SaintVenantKirchhoff
+    from tissuebench.refsolvers.newton import newton_solve
+
+    mesh = box_mesh((4.0, 1.0, 1.0), (8, 2, 2), "tetra")
+    pb = Problem(mesh, SaintVenantKirchhoff(1e3, 0.3), "P1", dirichlet=[Dirichlet(lambda x: x[:, 0] < 1e-9)],
+                 loads=[PointLoad(lambda x: np.isclose(x[:, 0], 4.0), np.array([0.0, 0.0, -12.0]) / 9)])
+    be = make_backend("skfem", pb)
+    ref = newton_solve(be, 1.0, n_increments=4, max_increment=0.25)
+    assert ref.success
+    lams = [inc.load_factor for inc in ref.increments if inc.converged]
+    return be, np.column_stack(ref.states), lams
+
+
+def _newton(svk_path, **options):
+    be, S, lams = svk_path
+    training = Training(snapshots=S, parameters=[{"load_factor": lam} for lam in lams], backend=be)
+    return make_method("pod_newton", n_modes=S.shape[1], **options).build(training)
+
+
+def test_pod_newton_stops_at_the_first_iterate_within_its_tolerance_and_starts_from_it(svk_path):
+    be = svk_path[0]
+    model = _newton(svk_path, rtol=1e-9)
+    res = model.step({"load_factor": 0.5})
+    norms = res.info["residual_norms"]
+    assert res.status == "ok" and res.mu == {"load_factor": 0.5} and res.info["iterations"] == len(norms) - 1 >= 2
+    u = model.reconstruct(res)
+    scale = max(np.linalg.norm(be.external_force(u, 0.5)), np.linalg.norm(be.internal_force(u)[be.problem.fixed_dofs]))
+    tol = 1e-9 * scale + model._atol
+    assert norms[-1] <= tol < min(norms[:-1])  # the first within the tolerance ends the iterations
+    again = model.step({"load_factor": 0.5})  # the warm start: the converged q itself
+    assert again.info["iterations"] == 0 and np.array_equal(again.q, res.q)
+    model.start()  # forgets it: from q = 0 again
+    assert model.step({"load_factor": 0.5}).info["iterations"] == res.info["iterations"]
+    floor = model.floor_ops()
+    assert floor() is None  # one iteration's work at the last converged state, no error
+    with pytest.raises(ValueError, match="pod_newton"):
+        model.step({})  # no load factor: the error names the model
+
+
+def test_pod_newton_says_how_many_iterations_failed_and_keeps_its_warm_start(svk_path):
+    model = _newton(svk_path, max_iterations=1)
+    res = model.step({"load_factor": 1.0})  # from rest in one iteration: not converged
+    norms = res.info["residual_norms"]
+    assert res.status == "failed" and res.q is None and res.mu == {"load_factor": 1.0}
+    assert res.info["iterations"] == 1 and len(norms) == 2
+    assert res.message == f"pod_newton: no convergence at load factor 1 in 1 iterations (residual {norms[-1]:.3e})"
+    assert np.array_equal(model._q, np.zeros(model.n_reduced))  # a failed step leaves the warm start
+
+
+def test_pod_newton_outside_its_envelope_says_where(svk_path):
+    model = _newton(svk_path)
+    res = model.step({"load_factor": 1.25})
+    assert res.status == "extrapolation" and res.q is not None
+    assert res.message == "load factor 1.25 outside the training envelope [0.25, 1]"
+    assert model.step({"load_factor": 1.0 + 1e-13}).status == "ok"
+    assert model.step({"load_factor": 0.25 * (1 - 1e-13)}).status == "ok"
+    assert model.step({"load_factor": 0.25 * (1 - 1e-9)}).status == "extrapolation"
