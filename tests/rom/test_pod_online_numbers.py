@@ -157,3 +157,52 @@ def test_pod_newton_outside_its_envelope_says_where(svk_path):
     assert model.step({"load_factor": 1.0 + 1e-13}).status == "ok"
     assert model.step({"load_factor": 0.25 * (1 - 1e-13)}).status == "ok"
     assert model.step({"load_factor": 0.25 * (1 - 1e-9)}).status == "extrapolation"
+
+
+# ---------------------------------------------------------------- options and the POD's inner product
+@pytest.mark.parametrize("method", ["pod_linear", "pod_newton"])
+def test_the_options_at_their_boundaries(method):
+    assert make_method(method, n_modes=1).n_modes == 1
+    for bad in (0, -1, True, 1.5):
+        with pytest.raises(ValueError, match=method):
+            make_method(method, n_modes=bad)
+    with pytest.raises(ValueError, match=f"{method}: inner='energy'"):
+        make_method(method, inner="energy")
+
+
+def test_pod_newton_options_at_their_boundaries():
+    model = make_method("pod_newton")
+    assert (model.rtol, model.max_iterations) == (1e-10, 25)
+    assert make_method("pod_newton", rtol=1e-30, max_iterations=1).max_iterations == 1
+    for bad in ({"rtol": 0.0}, {"rtol": -1e-9}, {"max_iterations": 0}, {"rtol": 0.0, "max_iterations": 0}):
+        with pytest.raises(ValueError, match="pod_newton: rtol > 0 and max_iterations >= 1"):
+            make_method("pod_newton", **bad)
+
+
+@pytest.mark.parametrize("inner", ["mass", "stiffness"])
+def test_the_modes_are_orthonormal_in_the_inner_product_asked(inner):
+    be = make_backend("skfem", _problem("scaled"))
+    S = np.column_stack([_solve(be, lam) for lam in (0.25, 0.5, 1.0)])
+    S[:, 1:] += 1e-2 * np.random.default_rng(2).standard_normal((be.ndof, 2))  # three independent snapshots
+    training = Training(snapshots=S, parameters=[{"load_factor": lam} for lam in (0.25, 0.5, 1.0)], backend=be)
+    free = be.problem.free_dofs
+    W = (be.mass() if inner == "mass" else be.tangent(np.zeros(be.ndof)))[free][:, free]
+    Phi = make_method("pod_linear", n_modes=3, inner=inner).build(training).basis
+    np.testing.assert_allclose(Phi.T @ (W @ Phi), np.eye(3), atol=1e-10)
+    assert not np.allclose(Phi.T @ Phi, np.eye(3), atol=1e-3)  # not the euclidean ones
+
+
+@pytest.mark.parametrize("method", ["pod_linear", "pod_newton"])
+def test_the_envelopes_tolerance_is_relative_to_its_largest_bound(method, svk_path):
+    be, S, lams = svk_path
+    if method == "pod_linear":
+        be = make_backend("skfem", _problem("scaled"))
+    for top, inside, outside in ((0.5, 0.75e-12, 1.5e-12), (4.0, 3e-12, 5e-12)):
+        train = [top / 2, top]
+        snaps = np.column_stack([_solve(be, t) if method == "pod_linear" else S[:, -1] * t for t in train])
+        training = Training(snapshots=snaps, parameters=[{"load_factor": t} for t in train], backend=be)
+        model = make_method(method, n_modes=1).build(training)
+        assert model.step({"load_factor": top + inside}).status == "ok", (top, inside)
+        assert model.step({"load_factor": top + outside}).status == "extrapolation", (top, outside)
+        assert model.step({"load_factor": top / 2 - inside}).status == "ok"
+        model.start() if method == "pod_newton" else None
