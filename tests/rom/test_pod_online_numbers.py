@@ -124,7 +124,8 @@ def test_pod_newton_stops_at_the_first_iterate_within_its_tolerance_and_starts_f
     model = _newton(svk_path, rtol=1e-9)
     res = model.step({"load_factor": 0.5})
     norms = res.info["residual_norms"]
-    assert res.status == "ok" and res.mu == {"load_factor": 0.5} and res.info["iterations"] == len(norms) - 1 >= 2
+    assert (res.status, res.message, res.mu) == ("ok", "", {"load_factor": 0.5})
+    assert res.info["iterations"] == len(norms) - 1 >= 2
     u = model.reconstruct(res)
     scale = max(np.linalg.norm(be.external_force(u, 0.5)), np.linalg.norm(be.internal_force(u)[be.problem.fixed_dofs]))
     tol = 1e-9 * scale + model._atol
@@ -197,12 +198,16 @@ def test_the_envelopes_tolerance_is_relative_to_its_largest_bound(method, svk_pa
     be, S, lams = svk_path
     if method == "pod_linear":
         be = make_backend("skfem", _problem("scaled"))
-    for top, inside, outside in ((0.5, 0.75e-12, 1.5e-12), (4.0, 3e-12, 5e-12)):
-        train = [top / 2, top]
+    # (lowest, highest, inside, outside): bounds below 1, above 1, and a pushed (negative) range
+    # whose largest bound is its lowest
+    for lo, top, inside, outside in ((0.25, 0.5, 0.75e-12, 1.5e-12), (2.0, 4.0, 3e-12, 5e-12),
+                                     (-4.0, -2.0, 3e-12, 5e-12)):
+        train = [lo, top]
         snaps = np.column_stack([_solve(be, t) if method == "pod_linear" else S[:, -1] * t for t in train])
         training = Training(snapshots=snaps, parameters=[{"load_factor": t} for t in train], backend=be)
         model = make_method(method, n_modes=1).build(training)
         assert model.step({"load_factor": top + inside}).status == "ok", (top, inside)
         assert model.step({"load_factor": top + outside}).status == "extrapolation", (top, outside)
-        assert model.step({"load_factor": top / 2 - inside}).status == "ok"
+        assert model.step({"load_factor": lo - inside}).status == "ok"
+        assert model.step({"load_factor": lo - outside}).status == "extrapolation"
         model.start() if method == "pod_newton" else None
