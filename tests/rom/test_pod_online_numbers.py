@@ -27,6 +27,8 @@ def _problem(kind: str) -> Problem:
         end.append(Dirichlet(lambda x: x[:, 0] > 4.0 - 1e-9, (2,), 0.03, scaled=False))
     elif kind == "motion":
         end.append(Dirichlet(lambda x: x[:, 0] > 4.0 - 1e-9, (2,), motion=_tilt))
+    elif kind == "clamped":  # no prescribed value but zero: the outputs have no fixed share
+        end = []
     mesh = box_mesh((4.0, 1.0, 1.0), (8, 2, 2), "tetra")
     return Problem(mesh, LinearElastic(1e3, 0.3), "P1", dirichlet=[Dirichlet(lambda x: x[:, 0] < 1e-9), *end],
                    loads=[PointLoad(lambda x: np.isclose(x[:, 0], 2.0), np.array([0.0, -3.0, 0.0]) / 9)])
@@ -82,7 +84,7 @@ def _closure(fn) -> dict:
     return dict(zip(fn.__code__.co_freevars, (c.cell_contents for c in fn.__closure__)))
 
 
-@pytest.mark.parametrize("kind", ["scaled", "offset"])
+@pytest.mark.parametrize("kind", ["scaled", "offset", "clamped"])
 def test_the_latency_floor_does_the_steps_arithmetic(kind):
     be, model = _model(kind)
     rng = np.random.default_rng(5)
@@ -211,3 +213,20 @@ def test_the_envelopes_tolerance_is_relative_to_its_largest_bound(method, svk_pa
         assert model.step({"load_factor": lo - inside}).status == "ok"
         assert model.step({"load_factor": lo - outside}).status == "extrapolation"
         model.start() if method == "pod_newton" else None
+
+
+@pytest.mark.parametrize("kind", ["scaled", "motion", "clamped"])
+def test_the_latency_floor_runs_without_outputs_and_on_a_motion(kind):
+    """Without outputs attached (a scene without monitors) the floor is the reduced step alone; on
+    a motion (no affine form) it is the loaded share ``lam q1``, the motion's solve left out."""
+    be, model = _model(kind)
+    floor = model.floor_ops()
+    assert floor() is None
+    cells = _closure(floor)
+    if kind != "motion":
+        np.testing.assert_allclose(cells["q"], model.step({"load_factor": 0.5}).q, rtol=1e-14, atol=1e-300)
+    else:
+        np.testing.assert_allclose(cells["q"], 0.5 * model._q1, rtol=1e-14, atol=1e-300)
+    model.attach_outputs({"a": np.ones(be.ndof)})
+    floor = model.floor_ops()
+    assert floor() is None and _closure(floor)["y"].shape == (1,)
