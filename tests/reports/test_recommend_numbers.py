@@ -10,7 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tissuebench.reports.recommend import (DEFAULT_REQUIREMENT, SEEN_REASON, Clause, parse_requirement, rank_units)
+from tissuebench.reports.recommend import (DEFAULT_REQUIREMENT, SEEN_REASON, Clause, parse_requirement, rank_units,
+                                          tail_note)
 
 
 @pytest.mark.parametrize("text, expected", [
@@ -171,3 +172,29 @@ def test_a_clause_that_holds_does_not_hide_the_next_that_fails_and_an_error_of_o
     assert o.loc["a", "misses"] == "error 2 % is 2x over 1 %"
     assert o.loc["b", "headroom_error"] == pytest.approx(0.01)
     assert o.loc["b", "misses"] == "error 100 % is 100x over 1 %"
+
+
+# ---------------------------------------------------------------- the samples behind a p99 (issue 44)
+def test_each_p99_comes_with_its_samples_and_the_tail_beyond_it():
+    units = _units([{"label": "short", "e": 0.0, "haptic_p99_s": 1e-4, "haptic_n": 200},
+                    {"label": "long", "e": 0.0, "haptic_p99_s": 2e-4, "haptic_n": 2000},
+                    {"label": "one", "e": 0.0, "haptic_p99_s": 3e-4, "haptic_n": 1},
+                    {"label": "failed", "e": 0.0, "haptic_p99_s": 4e-4, "haptic_n": -1}])
+    out = rank_units(units, parse_requirement("rate>=500Hz"), "e").set_index("label")
+    assert out.loc["short", "p99_n"] == 200 and out.loc["short", "p99_tail"] == 2
+    assert out.loc["long", "p99_n"] == 2000 and out.loc["long", "p99_tail"] == 20
+    assert out.loc["one", "p99_n"] == 1 and out.loc["one", "p99_tail"] == 0
+    assert math.isnan(out.loc["failed", "p99_n"]) and math.isnan(out.loc["failed", "p99_tail"])
+    no_counts = rank_units(_units([{"label": "x", "e": 0.0, "haptic_p99_s": 1e-4}]), parse_requirement("rate>=500Hz"),
+                           "e").iloc[0]
+    assert math.isnan(no_counts["p99_n"]) and math.isnan(no_counts["p99_tail"])  # a store from before issue 44
+
+
+def test_the_tail_note_at_its_boundary():
+    assert tail_note({"p99_n": 200, "p99_tail": 2}) == ", decided by 2 samples of 200 (fewer than 20)"
+    assert tail_note({"p99_n": 100, "p99_tail": 1}) == ", decided by 1 sample of 100 (fewer than 20)"
+    assert tail_note({"p99_n": 1999.0, "p99_tail": 19}) == ", decided by 19 samples of 1999 (fewer than 20)"
+    assert tail_note(pd.Series({"p99_n": 2000, "p99_tail": 20})) == ""  # enough: no note
+    for row in ({"p99_n": np.nan, "p99_tail": 2}, {"p99_tail": 2}, {"p99_n": np.inf, "p99_tail": 2},
+                {"p99_n": "200", "p99_tail": 2}, {}):
+        assert tail_note(row) == "", row
