@@ -198,3 +198,34 @@ def test_the_tail_note_at_its_boundary():
     for row in ({"p99_n": np.nan, "p99_tail": 2}, {"p99_tail": 2}, {"p99_n": np.inf, "p99_tail": 2},
                 {"p99_n": "200", "p99_tail": 2}, {}):
         assert tail_note(row) == "", row
+
+
+def test_a_requirement_without_clauses_gives_every_measurable_unit_an_infinite_margin():
+    from tissuebench.reports.recommend import Requirement
+    units = _units([{"label": "a", "e": 0.3, "haptic_p99_s": 1e-3},
+                    {"label": "b", "e": np.nan, "haptic_p99_s": 1e-3}])
+    out = rank_units(units, Requirement((), ""), "e")
+    assert out["label"].tolist() == ["a", "b"] and out["meets"].tolist() == [True, False]
+    assert out.iloc[0]["margin"] > 1e300 and np.isnan(out.iloc[1]["margin"])
+    assert out.iloc[0]["misses"] == "" and out.iloc[1]["misses"].startswith("no error")
+
+
+def test_without_timed_step_counts_p99_n_is_missing_whatever_the_index():
+    units = _units([{"label": "a", "e": 0.001, "haptic_p99_s": 1e-4},
+                    {"label": "b", "e": 0.002, "haptic_p99_s": 2e-4}])
+    units.index = [5, 7]
+    out = rank_units(units, parse_requirement("rate>=1kHz"), "e")
+    assert out["p99_n"].isna().all() and out["p99_tail"].isna().all()
+    assert [tail_note(row) for _, row in out.iterrows()] == ["", ""]
+    # a count of 0 is no count either; 1 step is one
+    units["haptic_n"] = [0, 1]
+    out = rank_units(units, parse_requirement("rate>=1kHz"), "e").set_index("label")
+    assert np.isnan(out.loc["a", "p99_n"]) and out.loc["b", "p99_n"] == 1.0
+
+
+def test_a_missing_seen_flag_is_not_seen():
+    units = _units([{"label": "a", "e": 0.001, "haptic_p99_s": 1e-4},
+                    {"label": "b", "e": 0.001, "haptic_p99_s": 1e-4}])
+    units["seen"] = pd.Series([None, True], dtype=object)
+    out = rank_units(units, parse_requirement("rate>=1kHz"), "e").set_index("label")
+    assert out["seen"].tolist() == [False, True] and out["meets"].tolist() == [True, False]

@@ -155,7 +155,7 @@ class Recorder:
         self.ke, self.ie, self.w, self.d, self.wall, self.rw = (np.zeros(size) for _ in range(6))
         self.states, self.steps = [], []
         self.k = -1
-        self._prev = None  # (u, v, f_ext, f_int) of the last recorded step
+        self._prev = None  # (u, v, f_ext, f_int, fixed dofs' state) of the last recorded step
 
     def _full_cols(self, x_f, x_c=None):
         return self.system.expand(x_f, x_c)[self.dofs]
@@ -166,7 +166,7 @@ class Recorder:
         ``constrained = (uc, vc, ac)`` is the state of the fixed dofs (prescribed motion).
 
         ``f_int`` is only used (and recomputed when None) if the system has no
-        strain-energy function.
+        strain-energy function; with a prescribed motion the force on all dofs is recomputed.
         """
         self.k += 1
         k = self.k
@@ -180,8 +180,13 @@ class Recorder:
             self.ke[k] = 0.5 * float(v_full @ (self.M_full @ v_full))
             support = sys.support_force(u, uc, v_full, sys.expand(a, ac), self.M_full)
         energy = sys.energy(u, uc)
-        if energy is None and f_int is None:
-            f_int = sys.f_int(u, uc)
+        if energy is None:
+            # the internal work is accumulated instead; with a prescribed motion the fixed dofs move
+            # too, so it takes the force on all dofs (f_int_c . du_c is work the support does)
+            if uc is not None:
+                f_int = np.asarray(sys.internal_force(sys.expand(u, uc)), dtype=float)
+            elif f_int is None:
+                f_int = sys.f_int(u, uc)
         if self._prev is None:
             self.ie[k] = 0.0 if energy is None else energy
         else:
@@ -199,8 +204,11 @@ class Recorder:
                     du_full = sys.expand(du, uc - uc0)
                     cv = sys.C_full @ (sys.expand(v0, vc0) + sys.expand(v, vc))
                     self.d[k] = self.d[k - 1] + 0.5 * float(cv @ du_full)
-            # without a strain-energy function the internal work is accumulated instead
-            self.ie[k] = energy if energy is not None else self.ie[k - 1] + 0.5 * float((fi0 + f_int) @ du)
+            if energy is None:  # the internal work by the trapezoidal rule, on all dofs that move
+                du_int = du if uc is None else sys.expand(du, uc - c0[0])
+                self.ie[k] = self.ie[k - 1] + 0.5 * float((fi0 + f_int) @ du_int)
+            else:
+                self.ie[k] = energy
         c = None if uc is None else (uc.copy(), vc.copy(), support)
         self._prev = (u.copy(), v.copy(), np.array(f_ext, dtype=float), f_int, c)
         if force_store or k % self.store_every == 0:

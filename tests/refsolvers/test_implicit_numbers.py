@@ -1,0 +1,260 @@
+"""The implicit schemes by their numbers where the one-dof recursions of test_integrator_updates.py do
+not reach (issue 41): a prescribed motion of a fixed dof entering the free row through the coupled
+mass, damping and stiffness; each Newton iterate of a nonlinear spring; the failure messages; and a
+new system or step invalidating the kept factorisation.
+
+The recursions are written from the schemes' papers (Newmark 1959; Hilber, Hughes, Taylor 1977;
+Bathe 2007) with the fixed dof moved by the scheme's own kinematics, as the module docstring of
+``tissuebench.refsolvers.dynamics.system`` states, and solved by hand for the one free unknown.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tissuebench.refsolvers.dynamics import SecondOrderSystem
+from tissuebench.refsolvers.dynamics.implicit import HHT, Bathe, BackwardEuler, Newmark, NewmarkFamily
+
+# dof 0 free, dof 1 follows g(t); consistent mass couples them
+MM = np.array([[2.0, 0.5], [0.5, 1.0]])
+KK = np.array([[60.0, -20.0], [-20.0, 30.0]])
+A_M, B_K, DT, STEPS = 0.3, 0.004, 0.05, 3
+U0, V0 = 0.1, -0.2
+m, mfc, k, kfc = 2.0, 0.5, 60.0, -20.0
+c, cfc = A_M * m + B_K * k, A_M * mfc + B_K * kfc
+
+
+def g(t):
+    return 0.05 + 0.01 * t + 0.2 * t * t
+
+
+def f(t):
+    return 3.0 + 4.0 * t
+
+
+def _system(**kw):
+    return SecondOrderSystem.linear_system(MM, KK, lambda t: np.array([f(t), 7.0]), free=[0], alpha_m=A_M,
+                                           beta_k=B_K, prescribed=lambda t: np.array([g(t)]), **kw)
+
+
+def _start(integ):
+    return integ.start(_system(), np.array([U0, g(0.0)]), np.array([V0, 0.01]), DT)
+
+
+def _a0():
+    # the fixed dof starts with g's velocity 0.01 and zero acceleration
+    return (f(0.0) - k * U0 - kfc * g(0.0) - c * V0 - cfc * 0.01) / m
+
+
+def newmark_hht(alpha, beta, gamma):
+    u, v, a, uc, vc, ac, t, out = U0, V0, _a0(), g(0.0), 0.01, 0.0, 0.0, []
+    for _ in range(STEPS):
+        t1 = t + DT
+        uc1 = g(t1)
+        ac1 = (uc1 - uc - DT * vc) / (beta * DT * DT) - (0.5 / beta - 1.0) * ac
+        vc1 = vc + DT * ((1 - gamma) * ac + gamma * ac1)
+        u_star = u + DT * v + DT * DT * (0.5 - beta) * a
+        v_star = v + DT * (1 - gamma) * a
+        old = c * v + cfc * vc + k * u + kfc * uc - f(t)
+        a1 = (alpha * old - mfc * ac1 - (1 + alpha) * (c * v_star + cfc * vc1 + k * u_star + kfc * uc1 - f(t1))) / (
+            m + (1 + alpha) * (c * gamma * DT + k * beta * DT * DT))
+        u, v, a = u_star + beta * DT * DT * a1, v_star + gamma * DT * a1, a1
+        uc, vc, ac, t = uc1, vc1, ac1, t1
+        out.append((u, v, a, uc, vc, ac))
+    return out
+
+
+def backward_euler():
+    u, v, uc, vc, t, out = U0, V0, g(0.0), 0.01, 0.0, []
+    for _ in range(STEPS):
+        t += DT
+        uc1 = g(t)
+        vc1 = (uc1 - uc) / DT
+        ac1 = (vc1 - vc) / DT
+        u1 = (f(t) - mfc * ac1 - cfc * vc1 - kfc * uc1 + m * (u / DT ** 2 + v / DT) + c * u / DT) / (
+            m / DT ** 2 + c / DT + k)
+        v1 = (u1 - u) / DT
+        out.append((u1, v1, (v1 - v) / DT, uc1, vc1, ac1))
+        u, v, uc, vc = u1, v1, uc1, vc1
+    return out
+
+
+def bathe():
+    u, v, a, uc, vc, ac, t, out, h = U0, V0, _a0(), g(0.0), 0.01, 0.0, 0.0, [], DT / 2
+    for _ in range(STEPS):
+        # trapezoidal rule over [t, t + h] on both dofs
+        uch = g(t + h)
+        vch = 2 / h * (uch - uc) - vc
+        ach = 2 / h * (vch - vc) - ac
+        uh = (f(t + h) - mfc * ach - cfc * vch - kfc * uch + m * (4 / h ** 2 * u + 4 / h * v + a)
+              + c * (2 / h * u + v)) / (4 * m / h ** 2 + 2 * c / h + k)
+        vh = 2 / h * (uh - u) - v
+        # 3-point backward Euler over [t, t + dt]
+        uc1 = g(t + DT)
+        vc1 = (uc - 4 * uch + 3 * uc1) / DT
+        ac1 = (vc - 4 * vch + 3 * vc1) / DT
+        r, s = (u - 4 * uh) / DT, (v - 4 * vh) / DT
+        u1 = (f(t + DT) - mfc * ac1 - cfc * vc1 - kfc * uc1 - m * (3 * r / DT + s) - c * r) / (
+            9 * m / DT ** 2 + 3 * c / DT + k)
+        v1 = 3 * u1 / DT + r
+        u, v, a, uc, vc, ac, t = u1, v1, 3 * v1 / DT + s, uc1, vc1, ac1, t + DT
+        out.append((u, v, a, uc, vc, ac))
+    return out
+
+
+def _steps(integ):
+    out = []
+    for _ in range(STEPS):
+        rep = integ.step()
+        assert rep.converged and rep.iterations == (2 if isinstance(integ, Bathe) else 1), rep
+        out.append((integ.u[0], integ.v[0], integ.a[0], integ.uc[0], integ.vc[0], integ.ac[0]))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("make, expected", [
+    (lambda: Newmark(), lambda: newmark_hht(0.0, 0.25, 0.5)),
+    (lambda: Newmark(beta=0.3, gamma=0.6), lambda: newmark_hht(0.0, 0.3, 0.6)),
+    (lambda: HHT(alpha=-0.1), lambda: newmark_hht(-0.1, 1.1 ** 2 / 4, 0.6)),
+    (lambda: BackwardEuler(), backward_euler),
+    (lambda: Bathe(), bathe),
+], ids=["newmark", "newmark(0.3,0.6)", "hht", "backward_euler", "bathe"])
+def test_a_prescribed_motion_enters_the_free_row_by_hand(make, expected):
+    integ = _start(make())
+    assert integ.a[0] == pytest.approx(_a0(), rel=1e-14)
+    np.testing.assert_allclose(_steps(integ), np.array(expected()), rtol=1e-11, atol=1e-13)
+    assert integ.t == pytest.approx(STEPS * DT, rel=1e-14)
+
+
+# ---------------------------------------------------------------------------- a nonlinear spring
+K3, F0 = 4000.0, 400.0
+
+
+def _spring():
+    return SecondOrderSystem(M=np.array([[m]]), internal_force=lambda u: k * u + K3 * u ** 3,
+                             tangent=lambda u: np.array([[k + 3 * K3 * u[0] ** 2]]),
+                             load=lambda t: np.array([F0 * min(t / DT, 1.0)]), alpha_m=A_M, beta_k=B_K)
+
+
+def _fint(u):
+    return k * u + K3 * u ** 3
+
+
+def _hand_newmark_step(alpha, beta, gamma, u, v, a, t, rtol):
+    """One step's Newton on the HHT residual: (u1, v1, a1, |r| history)."""
+    cc = A_M * m + B_K * k  # Rayleigh damping with the tangent at u = 0
+
+    def kin(x):
+        a1 = (x - u - DT * v) / (beta * DT * DT) - (0.5 / beta - 1.0) * a
+        return v + DT * ((1 - gamma) * a + gamma * a1), a1
+
+    def res(x):
+        v1, a1 = kin(x)
+        return m * a1 + (1 + alpha) * (cc * v1 + _fint(x) - F0 * min((t + DT) / DT, 1.0)) \
+            - alpha * (cc * v + _fint(u) - F0 * min(t / DT, 1.0))
+
+    x = u + DT * v + 0.5 * DT * DT * a
+    norms = [abs(res(x))]
+    r_ref = max(abs(F0 * min(t / DT, 1.0)), abs(_fint(u)), abs(m * a))
+    tol = rtol * max(r_ref, norms[0])
+    while norms[-1] > tol:
+        x -= res(x) / (m / (beta * DT * DT) + (1 + alpha) * (cc * gamma / (beta * DT) + k + 3 * K3 * x * x))
+        norms.append(abs(res(x)))
+    return (x, *kin(x), norms)
+
+
+@pytest.mark.parametrize("make, params", [(lambda: HHT(alpha=-0.2, newton_rtol=1e-12), (-0.2, 1.44 / 4, 0.7)),
+                                          (lambda: Newmark(newton_rtol=1e-12), (0.0, 0.25, 0.5))])
+def test_each_newton_iterate_of_a_nonlinear_step_by_hand(make, params):
+    integ = make().start(_spring(), np.array([0.0]), np.array([0.0]), DT)
+    u, v, a, t = 0.0, 0.0, 0.0, 0.0
+    for _ in range(3):
+        u, v, a, norms = _hand_newmark_step(*params, u, v, a, t, 1e-12)
+        rep = integ.step()
+        t += DT
+        assert rep.converged and rep.iterations == len(norms) - 1 >= 3
+        np.testing.assert_allclose(rep.residuals[:3], norms[:3], rtol=1e-9)
+        np.testing.assert_allclose((integ.u[0], integ.v[0], integ.a[0]), (u, v, a), rtol=1e-10)
+        assert integ.f_int[0] == pytest.approx(_fint(u), rel=1e-12)
+        assert integ.f_ext[0] == pytest.approx(F0 * min(t / DT, 1.0), rel=1e-14)
+
+
+def test_bathe_counts_both_sub_steps_iterations():
+    integ = Bathe(newton_rtol=1e-12).start(_spring(), np.array([0.0]), np.array([0.0]), DT)
+    rep = integ.step()
+    assert rep.converged and rep.message == ""
+    # both sub-steps iterate from their own predictors: two histories, each ending within tolerance
+    starts = [i for i in range(1, len(rep.residuals)) if rep.residuals[i] > rep.residuals[i - 1]]
+    assert len(starts) == 1 and rep.iterations == len(rep.residuals) - 2
+    assert rep.residuals[starts[0] - 1] <= 1e-12 * F0 and rep.residuals[-1] <= 1e-12 * F0
+    assert integ.f_ext[0] == F0 and integ.f_int[0] == pytest.approx(_fint(integ.u[0]), rel=1e-12)
+    m_a = m * integ.a[0] + (A_M * m + B_K * k) * integ.v[0] + integ.f_int[0] - integ.f_ext[0]
+    assert abs(m_a) <= 1e-9 * F0  # the equation of motion holds at t + dt
+
+
+def test_failures_say_when_and_which_sub_step():
+    integ = HHT(newton_max_iter=1, newton_rtol=1e-14).start(_spring(), np.array([0.0]), np.array([0.0]), DT)
+    rep = integ.step()
+    assert not rep.converged and rep.message.startswith("t=0.05: Newton did not converge in 1 iterations")
+    assert integ.t == 0.0 and integ.u[0] == 0.0  # the state is not advanced
+    integ = Bathe(newton_max_iter=1, newton_rtol=1e-14).start(_spring(), np.array([0.0]), np.array([0.0]), DT)
+    rep = integ.step()
+    assert rep.message.startswith("t=0.025 (first sub-step): Newton did not converge in 1 iterations")
+
+    # at rest and unloaded over the first half step, loaded over the second
+    system = _spring()
+    system.load = lambda t: np.array([0.0 if t <= 0.5 * DT + 1e-15 else F0])
+    integ = Bathe(newton_max_iter=1, newton_rtol=1e-14).start(system, np.array([0.0]), np.array([0.0]), DT)
+    rep = integ.step()
+    assert not rep.converged and rep.iterations == 1
+    assert rep.message.startswith("t=0.05 (second sub-step): Newton did not converge in 1 iterations")
+    assert integ.t == 0.0
+
+
+@pytest.mark.parametrize("make", [Newmark, HHT, BackwardEuler, Bathe])
+def test_a_new_system_or_step_forgets_the_kept_factorisation(make):
+    def one(K, dt):
+        return SecondOrderSystem.linear_system(np.array([[m]]), np.array([[K]]), np.array([F0]))
+
+    integ = make()
+    integ.start(one(k, DT), None, None, DT).step()
+    for K, dt in ((4 * k, DT), (k, 2 * DT)):
+        integ.start(one(K, dt), None, None, dt).step()
+        fresh = make().start(one(K, dt), None, None, dt)
+        fresh.step()
+        assert integ.u[0] == pytest.approx(fresh.u[0], rel=1e-14), (K, dt)
+
+
+# ---------------------------------------------------------------------------- parameters
+def test_scheme_parameters():
+    h = HHT(alpha=-0.2)
+    assert (h.alpha, h.beta, h.gamma) == (-0.2, pytest.approx(0.36), pytest.approx(0.7))
+    assert (HHT().alpha, HHT().beta, HHT().gamma) == (-0.05, pytest.approx(1.05 ** 2 / 4), pytest.approx(0.55))
+    assert (Newmark().alpha, Newmark().beta, Newmark().gamma) == (0.0, 0.25, 0.5)
+    assert (BackwardEuler().beta, BackwardEuler().gamma, BackwardEuler.order) == (1.0, 1.0, 1)
+    assert HHT.order == Newmark.order == Bathe.order == 2
+    assert all(s.implicit for s in (HHT, Newmark, Bathe, BackwardEuler))
+    assert (HHT.name, Newmark.name, Bathe.name, BackwardEuler.name) == ("hht", "newmark", "bathe", "backward_euler")
+    assert HHT(alpha=-1 / 3).alpha == -1 / 3 and HHT(alpha=0.0).alpha == 0.0
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: HHT(alpha=1e-12), "alpha must lie in [-1/3, 0], got 1e-12"),
+    (lambda: HHT(alpha=-1 / 3 - 1e-9), f"alpha must lie in [-1/3, 0], got {-1 / 3 - 1e-9!r}"),
+    (lambda: NewmarkFamily(alpha=float("nan")), "alpha must be finite, got nan"),
+    (lambda: Newmark(beta=float("inf")), "beta must be finite, got inf"),
+    (lambda: Newmark(gamma=float("nan")), "gamma must be finite, got nan"),
+    (lambda: Newmark(beta=0.0), "beta must be > 0 (explicit Newmark is not supported here), got 0.0"),
+    (lambda: Newmark(gamma=0.0), "gamma must be > 0, got 0.0"),
+    (lambda: Newmark(bogus=1), "Newmark: unknown option(s) ['bogus']"),
+    (lambda: Bathe(bogus=1), "Bathe: unknown option(s) ['bogus']"),
+])
+def test_bad_parameters_are_refused_naming_them(make, message):
+    with pytest.raises(ValueError) as err:
+        make()
+    assert str(err.value).startswith(message)
+
+
+def test_the_smallest_accepted_parameters():
+    n = Newmark(beta=1e-300, gamma=1e-300)
+    assert (n.beta, n.gamma) == (1e-300, 1e-300)
+    assert Bathe(linear_solver="cholesky").newton_opts.linear_solver == "cholesky"

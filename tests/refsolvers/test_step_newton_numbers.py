@@ -1,0 +1,299 @@
+"""The implicit schemes' per-step Newton loop by its numbers (issue 41): each iterate, residual and
+count of :func:`newton` against a hand iteration of one scalar equation, ``r(u) = u + u^3 - 2``
+(root 1, ``r' = 1 + 3 u^2``), written from the rules stated in the module's docstring (full
+Newton; modified Newton with its refresh ratios 0.05 and, for a dense matrix with Broyden's
+secant update, 0.2), and every tolerance and option at its boundary on both sides."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from tissuebench.refsolvers.dynamics.step_newton import (NewtonOptions, StepSolver, _dense_factor, newton,
+                                                     newton_options, step_solver_name)
+from tissuebench.refsolvers.linear_solvers import LinearSolverError
+
+
+def r_of(u):
+    return u + u ** 3 - 2.0
+
+
+def dr_of(u):
+    return 1.0 + 3.0 * u ** 2
+
+
+def residual(u):
+    return np.array([r_of(u[0])])
+
+
+def sparse_jacobian(u):
+    return sp.csr_matrix([[dr_of(u[0])]])
+
+
+def dense_jacobian(u):
+    return np.array([[dr_of(u[0])]])
+
+
+def hand_newton(u, n):
+    """(iterates, |r| of each) of n full Newton iterations from u."""
+    us = [u]
+    for _ in range(n):
+        us.append(us[-1] - r_of(us[-1]) / dr_of(us[-1]))
+    return us, [abs(r_of(x)) for x in us]
+
+
+def hand_modified(u, tol, max_iter=25, kept=None, ratio=0.05, secant=False, utol=1e-12):
+    """Modified Newton by the docstring's rules: (u, iterations, |r| history, converged).
+    ``kept``: a matrix factorised before the call under the key "newton"."""
+    r, norms, J = r_of(u), [abs(r_of(u))], kept
+    refresh = kept is None
+    for it in range(1, max_iter + 1):
+        fresh = refresh
+        if refresh:
+            J = dr_of(u)
+        du = -r / J
+        r_new = r_of(u + du)
+        if not fresh and not abs(r_new) < norms[-1]:
+            refresh = True  # the iterate of a kept matrix that does not reduce |r| is discarded (it counts)
+            continue
+        u, dr, r = u + du, r_new - r, r_new
+        norms.append(abs(r))
+        if abs(r) <= tol or abs(du) <= utol * abs(u):
+            return u, it, norms, True
+        refresh = abs(r) > ratio * norms[-2]
+        if not refresh and secant:
+            J = dr / du  # Broyden's update of a 1 x 1 matrix is the secant
+    return u, max_iter, norms, False
+
+
+def opts(**kw):
+    return NewtonOptions(**{"rtol": 1e-13, "tangent": "iteration", **kw})
+
+
+# ---------------------------------------------------------------------------- full Newton
+def test_full_newton_follows_the_hand_iterates():
+    us, norms = hand_newton(0.8, 6)
+    tol = 1e-10 * 2.0  # rtol * max(r_ref, |r(predictor)|): r_ref = 2 > |r0| = 0.688
+    n = next(k for k, x in enumerate(norms) if x <= tol)
+    u0 = np.array([0.8])
+    u, rep = newton(u0, residual, sparse_jacobian, 2.0, opts(rtol=1e-10))
+    assert rep.converged and rep.message == "" and rep.iterations == n == 4
+    np.testing.assert_allclose(rep.residuals, norms[:n + 1], rtol=1e-9, atol=1e-300)
+    assert u[0] == pytest.approx(us[n], rel=1e-15)
+    assert u0[0] == 0.8  # the predictor is not changed in place
+
+
+@pytest.mark.parametrize("k", [2, 3])
+def test_absolute_tolerance_stops_at_the_first_residual_at_or_below_it(k):
+    _, norms = hand_newton(0.8, 6)
+    at = newton(np.array([0.8]), residual, sparse_jacobian, 0.0, opts(rtol=0.0, atol=norms[k], utol=0.0))[1]
+    below = newton(np.array([0.8]), residual, sparse_jacobian, 0.0,
+                   opts(rtol=0.0, atol=norms[k] * (1 - 1e-9), utol=0.0))[1]
+    assert (at.iterations, below.iterations) == (k, k + 1)
+
+
+def test_relative_tolerance_takes_the_larger_of_r_ref_and_the_predictors_residual():
+    _, norms = hand_newton(0.8, 6)
+    # r_ref = 100 dominates |r0| = 0.688: rtol * 100 = |r_2| stops at iteration 2
+    assert newton(np.array([0.8]), residual, sparse_jacobian, 100.0,
+                  opts(rtol=norms[2] * (1 + 1e-12) / 100.0, utol=0.0))[1].iterations == 2
+    # r_ref = 0 (a load switched on from rest): the predictor's residual is the scale
+    assert newton(np.array([0.8]), residual, sparse_jacobian, 0.0,
+                  opts(rtol=norms[2] * (1 + 1e-12) / norms[0], utol=0.0))[1].iterations == 2
+    # an absolute tolerance above the relative one wins
+    assert newton(np.array([0.8]), residual, sparse_jacobian, 0.0,
+                  opts(rtol=1e-30, atol=norms[1], utol=0.0))[1].iterations == 1
+
+
+def test_a_predictor_within_tolerance_takes_no_iteration_on_both_sides_of_it():
+    r0 = abs(r_of(0.8))
+    u, rep = newton(np.array([0.8]), residual, sparse_jacobian, 0.0, opts(rtol=0.0, atol=r0, utol=0.0))
+    assert rep.converged and rep.iterations == 0 and rep.residuals == [r0] and u[0] == 0.8
+    rep = newton(np.array([0.8]), residual, sparse_jacobian, 0.0, opts(rtol=0.0, atol=r0 * (1 - 1e-12), utol=0.0))[1]
+    assert rep.iterations == 1
+
+
+def test_a_small_update_ends_the_iterations_on_both_sides_of_utol():
+    us, _ = hand_newton(0.8, 6)
+    k = 3
+    ratio = abs(us[k] - us[k - 1]) / abs(us[k])
+    assert newton(np.array([0.8]), residual, sparse_jacobian, 0.0, opts(rtol=1e-300, utol=ratio))[1].iterations == k
+    assert newton(np.array([0.8]), residual, sparse_jacobian, 0.0,
+                  opts(rtol=1e-300, utol=ratio * (1 - 1e-6)))[1].iterations == k + 1
+
+
+def test_a_newton_that_does_not_converge_is_reported_with_its_numbers():
+    _, norms = hand_newton(0.0, 2)
+    u, rep = newton(np.array([0.0]), residual, sparse_jacobian, 1.0, opts(rtol=1e-12, max_iter=2))
+    tol = 1e-12 * 2.0
+    assert not rep.converged and rep.iterations == 2
+    assert rep.message == (f"Newton did not converge in 2 iterations (||r|| = {norms[2]:.3e} N, "
+                           f"tolerance {tol:.3e} N)")
+    np.testing.assert_allclose(rep.residuals, norms, rtol=1e-12)
+
+
+def test_a_non_finite_residual_and_a_singular_matrix_are_reported():
+    def nan_after_start(u):
+        return residual(u) if u[0] == 0.8 else np.array([np.nan])
+    u, rep = newton(np.array([0.8]), nan_after_start, sparse_jacobian, 1.0, opts())
+    assert (rep.converged, rep.iterations, rep.message) == (False, 1, "non-finite residual in Newton iteration 1")
+
+    rep = newton(np.array([0.8]), residual, lambda u: sp.csr_matrix((1, 1)), 1.0, opts())[1]
+    assert not rep.converged and rep.iterations == 1 and rep.message.startswith("singular Newton matrix: ")
+
+
+def test_a_linear_step_is_one_solve_with_the_factors_kept_under_its_key():
+    solver = StepSolver("direct")
+    u, rep = newton(np.array([0.8]), residual, sparse_jacobian, 1.0, opts(), linear=True, solver=solver)
+    assert rep.converged and rep.iterations == 1 and rep.residuals == [abs(r_of(0.8))]
+    assert u[0] == pytest.approx(0.8 - r_of(0.8) / dr_of(0.8), rel=1e-15)
+    assert solver.key == "linear"
+    # the next linear step reuses the factors: a different Jacobian is not formed
+    u2 = newton(np.array([0.5]), residual, lambda u: sp.csr_matrix([[99.0]]), 1.0, opts(), linear=True,
+                solver=solver)[0]
+    assert u2[0] == pytest.approx(0.5 - r_of(0.5) / dr_of(0.8), rel=1e-15)
+
+
+# ---------------------------------------------------------------------------- modified Newton
+@pytest.mark.parametrize("u0", [0.0, 0.8, 3.0])
+def test_modified_newton_follows_the_hand_rules(u0):
+    tol = 1e-13 * max(1.0, abs(r_of(u0)))
+    u_h, it_h, norms_h, ok = hand_modified(u0, tol)
+    u, rep = newton(np.array([u0]), residual, sparse_jacobian, 1.0, opts(tangent="reuse"))
+    assert ok and rep.converged and rep.iterations == it_h
+    np.testing.assert_allclose(rep.residuals, norms_h, rtol=1e-8, atol=1e-15)
+    assert u[0] == pytest.approx(u_h, rel=1e-14)
+
+
+def test_a_kept_matrix_that_does_not_reduce_the_residual_costs_an_iteration():
+    solver = StepSolver("direct")
+    solver.solve_cached("newton", lambda: sp.csr_matrix([[-1.0]]), np.ones(1))
+    tol = 1e-13
+    u_h, it_h, norms_h, _ = hand_modified(0.8, tol, kept=-1.0)
+    u, rep = newton(np.array([0.8]), residual, sparse_jacobian, 1.0, opts(tangent="reuse"), solver=solver)
+    assert rep.converged and rep.iterations == it_h and len(rep.residuals) == it_h  # one discarded
+    np.testing.assert_allclose(rep.residuals, norms_h, rtol=1e-8, atol=1e-15)
+    # factors kept under another key are not the Newton matrix's: formed fresh, nothing discarded
+    solver = StepSolver("direct")
+    solver.solve_cached("linear", lambda: sp.csr_matrix([[-1.0]]), np.ones(1))
+    rep = newton(np.array([0.8]), residual, sparse_jacobian, 1.0, opts(tangent="reuse"), solver=solver)[1]
+    assert rep.iterations == hand_modified(0.8, tol)[1] == len(rep.residuals) - 1
+
+
+def test_a_kept_dense_matrix_follows_the_iterates_by_secant_updates():
+    for u0 in (0.3, 1.2, 1.5, 3.0):
+        tol = 1e-13 * max(1.0, abs(r_of(u0)))
+        u_h, it_h, norms_h, ok = hand_modified(u0, tol, ratio=0.2, secant=True)
+        u, rep = newton(np.array([u0]), residual, dense_jacobian, 1.0, opts(tangent="reuse"))
+        assert ok and rep.converged and rep.iterations == it_h, (u0, rep.iterations, it_h)
+        np.testing.assert_allclose(rep.residuals, norms_h, rtol=1e-6, atol=1e-15)
+        # without the secant updates, at either refresh ratio, the count differs
+        assert it_h not in (hand_modified(u0, tol, ratio=0.05)[1], hand_modified(u0, tol, ratio=0.2)[1])
+
+
+def test_modified_newton_reports_its_failures():
+    u, rep = newton(np.array([0.0]), residual, sparse_jacobian, 1.0, opts(tangent="reuse", max_iter=2))
+    _, _, norms, _ = hand_modified(0.0, 2e-13, max_iter=2)
+    assert not rep.converged and rep.iterations == 2
+    assert rep.message == (f"modified Newton did not converge in 2 iterations (||r|| = {norms[-1]:.3e} N, "
+                           f"tolerance {2e-13:.3e} N)")
+    rep = newton(np.array([0.8]), residual, lambda u: sp.csr_matrix((1, 1)), 1.0, opts(tangent="reuse"))[1]
+    assert not rep.converged and rep.iterations == 1 and rep.message.startswith("singular Newton matrix: ")
+    rep = newton(np.array([0.8]), lambda u: residual(u) if u[0] == 0.8 else np.array([np.inf]),
+                 sparse_jacobian, 1.0, opts(tangent="reuse"))[1]
+    assert (rep.converged, rep.iterations, rep.message) == (False, 1, "non-finite residual in Newton iteration 1")
+
+
+def test_modified_newton_stops_on_a_small_update_and_keeps_the_input():
+    us, _ = hand_newton(0.8, 1)
+    ratio = abs(us[1] - us[0]) / abs(us[1])
+    u0 = np.array([0.8])
+    u, rep = newton(u0, residual, sparse_jacobian, 0.0, opts(tangent="reuse", rtol=1e-300, utol=ratio))
+    assert rep.converged and rep.iterations == 1 and u[0] == pytest.approx(us[1], rel=1e-15) and u0[0] == 0.8
+    rep = newton(u0, residual, sparse_jacobian, 0.0, opts(tangent="reuse", rtol=1e-300, utol=ratio * (1 - 1e-9)))[1]
+    assert rep.iterations > 1
+
+
+# ---------------------------------------------------------------------------- options and solvers
+@pytest.mark.parametrize("field, value, message", [
+    ("rtol", -1e-300, "newton rtol must be finite and >= 0, got -1e-300"),
+    ("atol", float("nan"), "newton atol must be finite and >= 0, got nan"),
+    ("utol", float("inf"), "newton utol must be finite and >= 0, got inf"),
+    ("max_iter", 0, "newton max_iter must be an integer >= 1, got 0"),
+    ("max_iter", 2.5, "newton max_iter must be an integer >= 1, got 2.5"),
+    ("linear_solver", "lu", "linear_solver must be one of ['auto', 'direct', 'cholesky'], got 'lu'"),
+    ("tangent", "never", "newton_tangent must be one of ['auto', 'iteration', 'reuse'], got 'never'"),
+])
+def test_newton_options_refuse_values_naming_them(field, value, message):
+    with pytest.raises(ValueError) as err:
+        NewtonOptions(**{field: value})
+    assert str(err.value) == message
+
+
+def test_newton_options_accept_their_boundaries():
+    o = NewtonOptions(rtol=0.0, atol=0.0, utol=1e-300, max_iter=1)
+    assert (o.rtol, o.atol, o.utol, o.max_iter) == (0.0, 0.0, 1e-300, 1)
+    assert NewtonOptions(rtol=0.0, atol=1e-9, utol=0.0).atol == 1e-9
+    assert NewtonOptions(rtol=1e-9, atol=0.0, utol=0.0).rtol == 1e-9
+    with pytest.raises(ValueError, match=r"^newton tolerances: rtol, atol and utol are all 0$"):
+        NewtonOptions(rtol=0.0, atol=0.0, utol=0.0)
+    assert NewtonOptions() == NewtonOptions(1e-10, 0.0, 1e-12, 25, "auto", "auto")
+
+
+def test_newton_options_from_keywords():
+    o = newton_options("HHT", {"newton_rtol": 1e-6, "newton_atol": 2.0, "newton_utol": 3e-9, "newton_max_iter": 7,
+                               "newton_tangent": "reuse", "linear_solver": "cholesky"})
+    assert o == NewtonOptions(1e-6, 2.0, 3e-9, 7, "cholesky", "reuse")
+    assert newton_options("Bathe", {}) == NewtonOptions()
+    with pytest.raises(ValueError) as err:
+        newton_options("Bathe", {"newton_maxiter": 3, "alpha": 1})
+    assert str(err.value) == ("Bathe: unknown option(s) ['alpha', 'newton_maxiter']; valid Newton options: "
+                              "['newton_rtol', 'newton_atol', 'newton_utol', 'newton_max_iter', 'newton_tangent', "
+                              "'linear_solver']")
+
+
+def test_step_solver_names():
+    assert step_solver_name("cholesky", 1) == "cholesky" and step_solver_name("direct", 10 ** 7) == "direct"
+    s = StepSolver("direct")
+    assert (s.choice, s.name, s.key, s.has_factors, s.dense) == ("direct", None, None, False, False)
+    np.testing.assert_allclose(s.solve(sp.csr_matrix([[4.0, 1.0], [1.0, 3.0]]), np.array([1.0, 2.0])),
+                               np.linalg.solve([[4.0, 1.0], [1.0, 3.0]], [1.0, 2.0]), rtol=1e-14)
+    assert s.name == "direct"
+
+
+def test_a_dense_matrix_is_refused_from_a_pivot_ratio_of_1e_14_on():
+    with pytest.raises(LinearSolverError, match="dense LU: singular matrix"):
+        _dense_factor(np.diag([1.0, 1e-14]))
+    np.testing.assert_allclose(_dense_factor(np.diag([1.0, 2e-14]))(np.array([1.0, 1.0])), [1.0, 5e13], rtol=1e-14)
+    with pytest.raises(LinearSolverError):
+        _dense_factor(np.array([[np.inf, 0.0], [0.0, 1.0]]))
+    with pytest.raises(LinearSolverError):
+        _dense_factor(np.zeros((2, 2)))
+
+
+def test_kept_factors_switch_between_dense_and_sparse_and_are_forgotten_on_refresh():
+    s = StepSolver("direct")
+    A = np.array([[4.0, 1.0], [1.0, 3.0]])
+    b = np.array([1.0, 2.0])
+    np.testing.assert_allclose(s.solve_cached("a", lambda: A, b), np.linalg.solve(A, b), rtol=1e-14)
+    assert s.dense and s.has_factors and s.key == "a"
+    np.testing.assert_allclose(s.solve_cached("b", lambda: sp.csr_matrix(2 * A), b), np.linalg.solve(2 * A, b),
+                               rtol=1e-14)
+    assert not s.dense and s.key == "b" and s.name == "direct"
+    s.refresh()
+    assert (s.has_factors, s.key, s.dense) == (False, None, False)
+    c = StepSolver("cholesky")
+    np.testing.assert_allclose(c.solve_cached("k", lambda: sp.csr_matrix(A), b), np.linalg.solve(A, b), rtol=1e-12)
+    assert c.name == "cholesky"
+
+
+def test_broydens_update_is_the_rank_one_formula():
+    J = np.array([[4.0, 1.0], [0.5, 3.0]])
+    du, dr = np.array([0.3, -0.2]), np.array([1.0, 0.7])
+    s = StepSolver("auto")
+    s.solve_cached("newton", lambda: J, np.ones(2))
+    assert s.secant_update(du, dr) is True
+    expected = J + np.outer(dr - J @ du, du) / (du @ du)
+    b = np.array([0.4, -1.3])
+    np.testing.assert_allclose(s.solve_cached("newton", lambda: J, b), np.linalg.solve(expected, b), rtol=1e-13)
+    assert s.secant_update(np.zeros(2), dr) is False
