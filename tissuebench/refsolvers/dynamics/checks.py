@@ -28,8 +28,9 @@ def check_spd_mass(M: sp.csr_matrix) -> None:
     """Raise ValueError unless ``M`` (free-dof block) is symmetric positive definite.
 
     Cheap checks first (finite, diagonal > 0, symmetric); then a Cholesky factorisation
-    for small systems, a sparse LU with a positive-pivot check for large ones (a
-    singular mass fails the LU).
+    for small systems, for large ones a sparse LU without row pivoting (so that its pivots
+    are the D of ``L D L^T`` and have the signs of M's eigenvalues, Sylvester's law of
+    inertia) with a positive-pivot check (a singular mass fails the LU).
     """
     if M.shape[0] == 0:
         raise ValueError("M has no free dofs")
@@ -49,8 +50,9 @@ def check_spd_mass(M: sp.csr_matrix) -> None:
             lam = sla.eigvalsh(M.toarray(), subset_by_index=[0, 0])[0]
             raise ValueError(f"M is not positive definite: smallest eigenvalue {lam:.3e}") from None
         return
-    try:
-        lu = spla.splu(M.tocsc())
+    try:  # diagonal pivots, a symmetric ordering: U's diagonal is D of M = L D L^T, whose signs are M's inertia
+        lu = spla.splu(M.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                       options={"SymmetricMode": True})
     except RuntimeError as exc:  # "Factor is exactly singular"
         raise ValueError(f"M is singular: {exc}") from None
     piv = lu.U.diagonal()
