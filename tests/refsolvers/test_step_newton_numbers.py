@@ -297,3 +297,104 @@ def test_broydens_update_is_the_rank_one_formula():
     b = np.array([0.4, -1.3])
     np.testing.assert_allclose(s.solve_cached("newton", lambda: J, b), np.linalg.solve(expected, b), rtol=1e-13)
     assert s.secant_update(np.zeros(2), dr) is False
+
+
+def _exact_update_ratio():
+    """(u0, utol) with utol * |u1| == |du| exactly in floating point for Newton's first update from u0."""
+    for u0 in np.linspace(0.5, 1.5, 101):
+        du = -r_of(u0) / dr_of(u0)
+        u1 = u0 + du
+        ratio = abs(du) / abs(u1)
+        if ratio * abs(u1) == abs(du) and abs(du) > 1e-3:
+            return float(u0), ratio
+    raise AssertionError("no start with an exact update ratio")
+
+
+@pytest.mark.parametrize("tangent", ["iteration", "reuse"])
+def test_an_update_exactly_at_utol_ends_the_iterations(tangent):
+    u0, ratio = _exact_update_ratio()
+    rep = newton(np.array([u0]), residual, sparse_jacobian, 0.0, opts(tangent=tangent, rtol=1e-300, utol=ratio))[1]
+    assert rep.converged is True and rep.iterations == 1 and rep.message == ""
+
+
+def test_a_small_update_counts_relative_to_a_small_solution_without_a_floor_of_one():
+    b = 2e-3  # root near 2e-3: |u| < 1
+
+    def res(u):
+        return u + u ** 3 - b
+    du1 = -res(0.0)  # the first update from 0 (r' = 1)
+    u, rep = newton(np.array([0.0]), res, lambda u: sp.csr_matrix([[1.0 + 3.0 * u[0] ** 2]]), 0.0,
+                    opts(rtol=1e-300, utol=1.0))
+    assert rep.converged and rep.iterations == 1 and u[0] == du1  # |du| <= 1.0 * |u|
+    for tangent in ("iteration", "reuse"):
+        rep = newton(np.array([0.0]), res, lambda u: sp.csr_matrix([[1.0 + 3.0 * u[0] ** 2]]), 0.0,
+                     opts(tangent=tangent, rtol=1e-300, utol=0.5))[1]
+        assert rep.iterations > 1  # |du| = |u| after the first update: 0.5 |u| does not end it
+
+
+@pytest.mark.parametrize("k", [1, 2])
+def test_modified_newton_absolute_tolerance_at_a_residual(k):
+    _, _, norms, _ = hand_modified(0.8, 0.0, max_iter=6)
+    at = newton(np.array([0.8]), residual, sparse_jacobian, 0.0, opts(tangent="reuse", rtol=0.0, atol=norms[k],
+                                                                      utol=0.0))[1]
+    assert at.converged is True and at.iterations == k and at.message == "" and at.residuals == norms[:k + 1]
+
+
+def test_failures_keep_their_residual_history_and_say_false():
+    def bad_second(u):
+        return residual(u) if u[0] > 1.01 or u[0] == 0.8 else np.array([np.nan])
+    for tangent in ("iteration", "reuse"):
+        u, rep = newton(np.array([0.8]), residual, lambda u: sp.csr_matrix((1, 1)), 1.0, opts(tangent=tangent))
+        assert rep.converged is False and rep.residuals == [abs(r_of(0.8))]
+        u, rep = newton(np.array([0.0]), residual, sparse_jacobian, 1.0, opts(tangent=tangent, max_iter=1))
+        assert rep.converged is False and len(rep.residuals) == 2 and rep.residuals[0] == 2.0
+    # the second iterate's residual is NaN: the check reads the latest residual, not the first one's
+    u, rep = newton(np.array([0.8]), bad_second, sparse_jacobian, 1.0, opts())
+    assert (rep.converged, rep.iterations) == (False, 2) and rep.message == "non-finite residual in Newton iteration 2"
+    assert len(rep.residuals) == 3 and np.isnan(rep.residuals[-1])
+    u, rep = newton(np.array([0.8]), lambda u: residual(u) if u[0] == 0.8 else np.array([np.nan]), sparse_jacobian,
+                    1.0, opts(tangent="reuse"))
+    assert rep.converged is False and rep.residuals == [abs(r_of(0.8))]
+
+
+def test_success_messages_are_empty():
+    r0 = abs(r_of(0.8))
+    assert newton(np.array([0.8]), residual, sparse_jacobian, 0.0, opts(rtol=0.0, atol=r0))[1].message == ""
+    assert newton(np.array([0.8]), residual, sparse_jacobian, 1.0, opts(), linear=True)[1].message == ""
+    assert newton(np.array([0.8]), residual, sparse_jacobian, 1.0, opts(tangent="reuse"))[1].message == ""
+
+
+def test_factors_kept_under_another_key_are_not_trusted_as_the_newton_matrix():
+    # from 0 the first Newton update raises |r| (2 -> 8): taken as a kept matrix's it would be discarded
+    solver = StepSolver("direct")
+    solver.solve_cached("linear", lambda: sp.csr_matrix([[1.0]]), np.ones(1))
+    rep = newton(np.array([0.0]), residual, sparse_jacobian, 1.0, opts(tangent="reuse"), solver=solver)[1]
+    assert rep.iterations == hand_modified(0.0, 2e-13)[1] and rep.residuals[1] == 8.0
+
+
+def test_a_kept_matrix_that_leaves_the_residual_equal_is_discarded():
+    def res(u):  # from 2 with the kept slope 3/4 the update lands on -2, where |r| is equal (3)
+        return np.array([u[0] ** 2 - 1.0])
+    solver = StepSolver("direct")
+    solver.solve_cached("newton", lambda: sp.csr_matrix([[0.75]]), np.ones(1))
+    u, rep = newton(np.array([2.0]), res, lambda u: sp.csr_matrix([[2.0 * u[0]]]), 1.0, opts(tangent="reuse"),
+                    solver=solver)
+    assert rep.converged and u[0] == pytest.approx(1.0, rel=1e-12) and 3.0 not in rep.residuals[1:]
+
+
+def test_dense_pivot_checks_by_their_numbers():
+    with pytest.raises(LinearSolverError, match=r"^dense LU: singular matrix$"):
+        _dense_factor(np.array([[np.nan, 0.0], [0.0, 1.0]]))
+    with pytest.raises(LinearSolverError, match=r"^dense LU: singular matrix$"):
+        _dense_factor(np.diag([4.0, 3e-14]))                       # 3e-14 <= 1e-14 * 4
+    np.testing.assert_allclose(_dense_factor(np.diag([1e-3, 5e-17]))(np.array([1e-3, 5e-17])), [1.0, 1.0])
+    np.testing.assert_allclose(_dense_factor(np.array([[2, 1], [1, 3]]))(np.array([3.0, 4.0])), [1.0, 1.0])
+
+
+def test_the_step_solver_takes_ngsolve_for_cholesky():
+    from tissuebench.refsolvers.linear_solvers import DirectSolver, NgsolveSparseSolver
+    assert StepSolver().choice == "auto"
+    for choice, kind in (("cholesky", NgsolveSparseSolver), ("direct", DirectSolver)):
+        s = StepSolver(choice)
+        s.solve(sp.csr_matrix(np.diag([2.0, 4.0])), np.ones(2))
+        assert isinstance(s._solver, kind)
