@@ -229,3 +229,17 @@ def test_a_missing_seen_flag_is_not_seen():
     units["seen"] = pd.Series([None, True], dtype=object)
     out = rank_units(units, parse_requirement("rate>=1kHz"), "e").set_index("label")
     assert out["seen"].tolist() == [False, True] and out["meets"].tolist() == [True, False]
+
+
+def test_a_tail_of_exactly_twenty_samples_needs_no_note():
+    assert tail_note(pd.Series({"p99_n": 2000.0, "p99_tail": 20.0})) == ""
+    assert tail_note(pd.Series({"p99_n": 1900.0, "p99_tail": 19.0})) == \
+        ", decided by 19 samples of 1900 (fewer than 20)"
+
+
+def test_a_seen_flag_read_back_as_nan_is_not_seen():
+    units = _units([{"label": "a", "e": 0.001, "haptic_p99_s": 1e-4},
+                    {"label": "b", "e": 0.001, "haptic_p99_s": 1e-4}])
+    units["seen"] = [np.nan, 1.0]
+    out = rank_units(units, parse_requirement("rate>=1kHz"), "e").set_index("label")
+    assert out["seen"].tolist() == [False, True] and out["meets"].tolist() == [True, False]
