@@ -519,3 +519,10 @@ def test_sparse_path_refuses_an_indefinite_block_row_pivoting_would_hide():
                    big_with_block([[1.0, 2.0], [2.0, 1.0]]))
     raises_exactly(ValueError, "M is not positive definite: LU pivots not all clearly positive", check_spd_mass,
                    big_with_block([[1.0, 2.0], [2.0, 1.0]], at=0))
+
+
+def test_the_abstract_integrator_is_refused_as_bad_input():
+    from tissuebench.refsolvers.dynamics.base import Integrator
+    from tissuebench.refsolvers.dynamics.registry import make_integrator
+    with pytest.raises(ValueError, match=r"^Integrator is abstract \(it does not implement _advance\); valid: "):
+        make_integrator(Integrator)

@@ -39,7 +39,8 @@ def integrate(system, u0, v0, dt, t_end, method="newmark", t0=0.0, store_every=1
         Store only these full-vector dofs (monitored dofs); energies use all dofs.
     blowup_factor : float
         Stop with status ``"blow_up"`` when KE + IE + D exceeds this factor times the
-        largest energy supplied so far (KE_0 + IE_0 + |W|), or on non-finite values
+        largest energy supplied so far (the largest ``|KE_0 + IE_0 + W|`` over the steps,
+        W the work of the loads and supports), or on non-finite values
         in an explicit scheme.
     growth_tol : float, optional
         Report ``"energy_growth"`` when ``energy_growth_ratio > 1 + growth_tol``;

@@ -34,6 +34,9 @@ def make_integrator(name_or_class, **opts) -> Integrator:
             raise ValueError(f"options {sorted(opts)} given with an already configured integrator")
         return name_or_class
     if isinstance(name_or_class, type) and issubclass(name_or_class, Integrator):
+        if inspect.isabstract(name_or_class):
+            raise ValueError(f"{name_or_class.__name__} is abstract (it does not implement _advance); "
+                             f"valid: {sorted(INTEGRATORS)} or a subclass that implements it")
         cls = name_or_class
     elif isinstance(name_or_class, str) and name_or_class in INTEGRATORS:
         cls = INTEGRATORS[name_or_class]
