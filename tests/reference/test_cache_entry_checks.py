@@ -304,3 +304,43 @@ def test_a_pickle_in_the_fields_is_never_unpickled(tmp_path):
     with pytest.raises(ValueError, match="allow_pickle=False"):
         arrays_of(_npz(_arrays(steps=steps)), {"components": ["x"]})
     assert not planted.exists()
+
+
+@pytest.mark.parametrize("formulation, ok", [(None, True), ("displacement", True), ("anp", True), ("mixed", True),
+                                             ("ANP", False), ("mixed_up", False), ("", False)])
+def test_the_plans_formulation_on_both_sides(tmp_path, formulation, ok):
+    plan = {"analysis": "static", "reasons": [["model", "why"]]}
+    if formulation is not None:
+        plan["formulation"] = formulation
+    root, entry, meta = _entry(tmp_path, plan=plan)
+    got, why = check_meta(root, entry)
+    assert (got == meta, why) if ok else (got, why) == (None, "meta.json plan is malformed")
+
+
+def test_an_entry_with_a_damaged_data_file_is_a_problem_and_not_cleared_as_valid(tmp_path):
+    from tissuebench.reference.cache import _problem, clear
+    root, entry, meta = _entry(tmp_path)
+    assert _problem(root, entry) == (meta, {f: (entry / f).read_bytes() for f in FILES}, "")
+    (entry / "table.parquet").write_bytes(b"damaged")
+    got = _problem(root, entry)
+    assert got[:2] == (None, {}) and got[2].startswith("table.parquet")
+    assert _problem(root, root.references() / ("cd" * 32)) == (None, {}, "not a folder")
+    # a second valid entry and a link named like one: clear counts the two real entries, leaves the link
+    _entry(tmp_path, key="ef" * 32)
+    os.symlink(root.references() / ("ef" * 32), root.references() / ("01" * 32))
+    assert clear(tmp_path) == 2
+    assert sorted(p.name for p in root.references().iterdir()) == ["01" * 32]
+
+
+def test_the_cached_table_is_found_under_its_scenes_key_and_the_default_backend(tmp_path):
+    import inspect
+
+    from tissuebench.cases.scene import load
+    from tissuebench.reference.cache import cached_solve, cached_table, reference_key
+    scene = load("cube_tension_twist", resolution="ci", variant="tension")  # a finite-element scene: backend in the key
+    for f in (cached_table, cached_solve):
+        assert inspect.signature(f).parameters["backend"].default == "skfem"
+    _entry(tmp_path, key=reference_key(scene, "skfem", "auto"))
+    table = cached_table(scene, cache=tmp_path)
+    assert table is not None and table["load_factor"].tolist() == [0.0, 1.0]
+    assert cached_table(scene, "ngsolve", cache=tmp_path) is None
