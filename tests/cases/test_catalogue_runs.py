@@ -256,7 +256,7 @@ def test_left_ventricle_converges_under_refinement():
 
 
 @pytest.mark.ngsolve
-@pytest.mark.parametrize("case,variant", [("land_beam", None),
+@pytest.mark.parametrize("case,variant", [pytest.param("land_beam", None, marks=pytest.mark.slow),  # ~16 s
                                           pytest.param("left_ventricle", "guccione", marks=pytest.mark.slow),  # ~20 s
                                           ("cornea_pinch", None), ("wave_block", "svk")])
 def test_backends_agree_on_the_catalogue(case, variant):
