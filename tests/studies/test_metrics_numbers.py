@@ -437,3 +437,12 @@ def test_relative_l2_and_max_displacement_by_hand():
         relative_l2([1, 2, 3], [1, 2])
     assert max_displacement([3, 4, 0, 0, 0, 4.5]) == 5.0
     assert max_displacement([0, 0, -6, 3, 4, 0]) == 6.0
+
+
+def test_relative_l2_of_two_zero_fields_is_inf_not_nan():
+    assert relative_l2([0.0, 0.0], [0.0, 0.0]) == np.inf
+
+
+def test_p99_tail_counts_the_samples_beyond_the_p99():
+    from tissuebench.studies.timing import p99_tail
+    assert [p99_tail(n) for n in (0, 1, 2, 3, 100, 101, 200, 2000)] == [0, 0, 1, 1, 1, 1, 2, 20]
