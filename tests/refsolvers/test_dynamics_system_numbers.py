@@ -645,3 +645,16 @@ def test_step_passes_a_failure_through_and_takes_a_good_state():
     integ.out = (StepReport(), (0.2, one, two, one, two, one, np.array([5.0]), np.array([6.0]), np.array([7.0])))
     integ.step()
     assert integ.uc.tolist() == [5.0] and integ.vc.tolist() == [6.0] and integ.ac.tolist() == [7.0]
+
+
+@pytest.mark.parametrize("name, index", [("u", 1), ("v", 2), ("uc", 4), ("vc", 5), ("ac", 6)])
+def test_set_state_names_the_vector_of_a_wrong_shape(name, index):
+    from tissuebench.refsolvers.dynamics.implicit import Newmark
+    s = SecondOrderSystem.linear_system(np.diag([2.0, 1.0]), np.array([[60.0, -20.0], [-20.0, 30.0]]),
+                                        np.array([1.0, 0.0]), free=[0], prescribed=lambda t: np.array([0.1 * t]))
+    integ = Newmark().start(s, None, None, 0.1)
+    args = [0.0, np.zeros(1), np.zeros(1), None, np.zeros(1), np.zeros(1), np.zeros(1)]
+    args[index] = np.zeros(3)
+    with pytest.raises(ValueError) as err:
+        integ.set_state(*args)
+    assert str(err.value) == f"{name} must have shape (1,), got (3,)"
