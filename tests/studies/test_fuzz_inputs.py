@@ -111,7 +111,12 @@ def _scene_call(path, data, variants):
     return call
 
 
-@pytest.mark.parametrize("case", sorted(SCENES))
+#: the two scenes whose mutated loads cost the most (13-15 s each) are fuzzed with the slow tests
+_SLOW_FUZZ = {"left_ventricle", "liver_dynamic"}
+
+
+@pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in _SLOW_FUZZ else c
+                                  for c in sorted(SCENES)])
 @FUZZ
 @given(data=st.data())
 def test_mutated_scenes_load_or_name_the_key(case, folder, data):
