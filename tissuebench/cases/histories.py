@@ -8,6 +8,12 @@ Every load of a scene follows one history (:func:`shared_history`): the referenc
 reduced model drive all loads by one load factor (a static path scales them together, a
 trajectory model steps with ``history(t)``), so a scene whose loads differ (gravity held
 constant while a probe ramps) is refused when it loads, by every command alike.
+
+A dynamic analysis samples its history at its time steps, so a sine whose period is not
+resolved by ``dt`` (:func:`check_history_resolution`: 2 steps a period or fewer, Nyquist) is
+refused when the scene loads too: its samples are another, slower sine (aliased), or at 1e12 Hz
+noise of the size of the round-off of ``2 pi f t``, which the reference then failed to follow
+below round-off rather than the scene saying what it models.
 """
 from __future__ import annotations
 
@@ -17,7 +23,8 @@ import numpy as np
 
 from .schema import accepts, c_nonneg, c_num, c_numlist, c_pos, c_str, c_table, check_table, fail
 
-__all__ = ["DEFAULT_HISTORY", "History", "check_history", "check_history_values", "shared_history"]
+__all__ = ["DEFAULT_HISTORY", "History", "check_history", "check_history_resolution", "check_history_values",
+           "shared_history"]
 
 # a load without a history is ramped from 0 at t = 0 to full at t = 1
 DEFAULT_HISTORY = {"type": "ramp", "t1": 1.0}
@@ -36,7 +43,9 @@ HISTORY_DOC = {
     "ramp": ("0 until `t0`, linear to 1 at `t1`, then 1", {"t0": "start (default 0)", "t1": "end of the ramp"}),
     "step": ("0 before `t0`, 1 from `t0` on", {"t0": "the time of the step (default 0)"}),
     "sine": ("`amplitude` sin(2 pi `frequency` t + `phase`)",
-             {"amplitude": "default 1", "frequency": "[1 / time unit]", "phase": "[rad] (default 0)"}),
+             {"amplitude": "default 1", "frequency": "[1 / time unit]; in a dynamic analysis below 1 / (2 `dt`): "
+                                                  "more than 2 time steps a period (Nyquist)",
+              "phase": "[rad] (default 0)"}),
     "ramp_hold_release": ("up to 1 over `t_ramp`, held for `t_hold`, back to 0 over `t_release`",
                           {"t_ramp": "ramp time", "t_hold": "hold time (default 0)", "t_release": "release time"}),
     "tabulated": ("piecewise linear through the points (`t`, `values`)",
@@ -106,6 +115,29 @@ def check_history_values(path, spec: dict, horizon: float, dt: float | None = No
         k = int(bad[0])
         fail(path, spec, f"the load factor it gives is {v[k]} at t = {t[k]:g} (not a finite number: a parameter "
              "too large, whose products overflow)")
+
+
+#: the highest ``frequency x dt`` a sine history may have: below 1/2, more than 2 time steps a period
+#: (Nyquist). At 1/2 the steps sample the sine at the same phase every period but one sign (phase 0:
+#: zero at every step, no load at all); above it they sample a slower sine than the one written.
+MAX_CYCLES_PER_STEP = 0.5
+
+
+def check_history_resolution(path, spec: dict, dt: float, dt_path: str = "analysis.dt", time_unit: str = "") -> None:
+    """Refuse a history that the time step ``dt`` (named ``dt_path``) cannot sample: a sine
+    of ``frequency x dt >= 1/2`` (:data:`MAX_CYCLES_PER_STEP`), naming ``<path>.frequency``, its
+    value, the step and the highest frequency the step resolves. The other histories are not
+    periodic: a ramp or a release shorter than ``dt`` is a step, which the integrators take as such."""
+    if spec.get("type") != "sine":
+        return
+    f = spec["frequency"]
+    if f * dt < MAX_CYCLES_PER_STEP:
+        return
+    unit = f" {time_unit}" if time_unit else ""
+    fail(f"{path}.frequency", f, f"its period {1.0 / f:.3g}{unit} is not resolved by the time step {dt_path} = "
+         f"{dt:g}{unit} ({f * dt:.3g} periods a step): a dynamic analysis samples the load at its steps, and "
+         f"below 2 steps a period (Nyquist) those samples are another, slower sine; expected a frequency below "
+         f"1 / (2 dt) = {MAX_CYCLES_PER_STEP / dt:.6g} (or a smaller dt)")
 
 
 @dataclass(frozen=True)

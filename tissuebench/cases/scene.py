@@ -83,7 +83,7 @@ from . import assembly
 from .assembly import LineModel
 from .builder_params import check_builder_params, require_regular_file
 from .cutting import check_cut
-from .histories import History, check_history_values, shared_history
+from .histories import History, check_history_resolution, check_history_values, shared_history
 from .monitors import check_monitor, evaluate_monitors
 from .parameters import apply_mu, check_parameters_table
 from .regions import MeshGeometry, compile_region
@@ -132,6 +132,12 @@ class Scene:
             return self
         fields = apply_mu({"loads": self.loads, "analysis": self.analysis, "material": self.material},
                           self.parameters, dict(mu), self.name)
+        a = fields["analysis"]
+        if a.get("type") == "dynamic" and ("t_end" in mu or "dt" in mu) and not a["t_end"] >= a["dt"]:
+            # t_end < dt: no step at all (the run's arrays were empty, 'zero-size array' far downstream)
+            key = "t_end" if "t_end" in mu else "dt"
+            fail(f"{self.name}: mu.{key}", mu[key], f"t_end = {a['t_end']:g} is below dt = {a['dt']:g}: a dynamic "
+                 "run needs at least one time step (t_end >= dt)")
         return self.with_loads(fields.pop("loads"), mu, **fields)
 
     def with_loads(self, loads: list, mu: dict, **fields) -> "Scene":
@@ -139,7 +145,8 @@ class Scene:
         replaced, ``mu`` recorded (it enters :meth:`content_hash`). The mesh is shared, not rebuilt."""
         loads = [check_load(f"load[{i}]", ld, self.model) for i, ld in enumerate(loads)]
         shared_history(loads)
-        _check_histories(loads, fields.get("analysis", self.analysis))
+        _check_histories(loads, fields.get("analysis", self.analysis), "mu.dt" if "dt" in mu else "analysis.dt",
+                         self.units.get("time", ""))
         new = dataclasses.replace(self, mu={**self.mu, **dict(mu)}, loads=loads, **fields)
         if "built" in self.__dict__:  # cached_property: reuse the mesh already built
             new.__dict__["built"] = self.__dict__["built"]
@@ -523,7 +530,7 @@ def load(name_or_path, resolution: str = "ci", variant: str | None = None) -> Sc
     dirichlet, loads, monitors = _check_entries(raw, model, path)
     shared_history(loads)  # refused here, so that every command refuses it alike
     analysis = check_analysis("analysis", raw["analysis"])
-    _check_histories(loads, analysis)
+    _check_histories(loads, analysis, time_unit=units.get("time", ""))
     if model == "fe":
         check_formulation(mesh.get("element"), analysis, material)
     return Scene(name=case["name"], path=path, resolution=resolution, variant=variant, variants=all_variants,
@@ -534,15 +541,22 @@ def load(name_or_path, resolution: str = "ci", variant: str | None = None) -> Sc
                  parameters=check_parameters_table("parameters", raw.get("parameters", {}), loads))
 
 
-def _check_histories(loads, analysis) -> None:
+def _check_histories(loads, analysis, dt_path: str = "analysis.dt", time_unit: str = "") -> None:
     """Every load's history a finite number over the analysis: the time of a dynamic one (at its
-    half steps), the load factor of a static one (its pseudo-time)."""
+    half steps), the load factor of a static one (its pseudo-time); and a dynamic one's resolved
+    by its time step ``dt`` (named ``dt_path``) and by each of its ``dt_sweep``
+    (:func:`~.histories.check_history_resolution`)."""
+    steps = []  # (name, dt) of every time step the history is sampled at
     if analysis["type"] == "dynamic":
         horizon, dt = float(analysis["t_end"]), float(analysis["dt"])
+        steps = [(dt_path, dt)] + [(f"analysis.dt_sweep[{j}]", float(d))
+                                   for j, d in enumerate(analysis.get("dt_sweep", ()))]
     else:
         horizon, dt = float(analysis.get("max_load_factor", 1.0)), None
     for i, ld in enumerate(loads):
         check_history_values(f"load[{i}].history", ld["history"], horizon, dt)
+        for name, step in steps:
+            check_history_resolution(f"load[{i}].history", ld["history"], step, name, time_unit)
 
 
 def _jsonable(obj):

@@ -69,8 +69,9 @@ from ..refsolvers.backends import make_backend
 from ..reference.cut import cut_references
 from .energy import EnergyDrift, conservative_window, reference_drift
 from .kinds import Kind, no_references
-from .limits import (check_contact_nodes_evaluation, check_cut_lengths_evaluation, check_map_evaluation,
-                     check_path_evaluation, check_positions_evaluation, check_trajectory_evaluation)
+from .limits import (MAX_LOAD_SCALE, check_contact_nodes_evaluation, check_cut_lengths_evaluation,
+                     check_map_evaluation, check_path_evaluation, check_positions_evaluation,
+                     check_trajectory_evaluation)
 from ..reference import cached_solve
 from .path_range import DEFAULT_REFINE, beyond_scene, interval_every, range_scenes, range_states
 from .training import lattice_positions, positional_reference, positional_scene, reference_states, training_indices
@@ -349,7 +350,9 @@ EVALUATION_KIND_DOCS = {
     "positions": ("held-out load positions, each with its reference path",
                   {"held_out": "how many (midpoints and quarter points of the training lattice), or a list"}),
     "trajectory": ("the scene's reference time integration, the model stepped from the start",
-                   {"t_end": "a longer horizon than the scene's", "load_scale": "another load amplitude",
+                   {"t_end": "a longer horizon than the scene's (at least its `dt`: one step)",
+                    "load_scale": f"another load amplitude: not 0, at most {MAX_LOAD_SCALE:g} in magnitude "
+                                  "(`MAX_LOAD_SCALE`)",
                     "from_time": "measure only from this time on (a window after the training's)"}),
     "map": ("the reference at each listed parameter", {"mus": "the parameters: `[{ position = 0.5 }, ...]`"}),
     "cut_lengths": ("a scalpel advancing along the scene's `[cut]` incision, against the linear FE of each cut mesh",

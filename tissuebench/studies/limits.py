@@ -4,10 +4,12 @@ Every count of a spec has a named maximum (:data:`LIMITS`), so a typo cannot ask
 latency steps or reference samples and run for ever; every other value is checked as the
 code that uses it will read it (``training.every = 0`` would be a slice step of zero,
 ``evaluation.mus = []`` an evaluation without a point, ``training.positions = 1`` a lattice
-without a spacing). The options of a method are checked against its constructor: the type
-its signature declares (an integer option is an integer: not ``1.5``, ``"3"`` or ``true``),
-finite numbers, integers at most :data:`MAX_OPTION_INT`, then the constructor itself runs
-(its own range checks: ``n_modes >= 1`` ...). :data:`MAX_UNITS` bounds the units one spec
+without a spacing, ``load_scale = 0`` a reference at rest, which no relative error measures,
+``evaluation.t_end`` below the scene's ``dt`` a trajectory without a step). The options of a
+method are checked against its constructor: the type its signature declares (an integer option
+is an integer: not ``1.5``, ``"3"`` or ``true``), finite numbers, integers at most
+:data:`MAX_OPTION_INT`, then the constructor itself runs (its own range checks:
+``n_modes >= 1`` ...). :data:`MAX_UNITS` bounds the units one spec
 expands to (``--max-units`` overrides it); it is counted before the grid is expanded.
 
 Every error is a ValueError ``"<key path> = <value>: <what is expected>"``.
@@ -20,8 +22,8 @@ import math
 
 from ..cases.schema import is_num, value_text
 
-__all__ = ["LIMITS", "MAX_UNITS", "MAX_BEYOND_FACTOR", "MAX_OPTION_INT", "check_count", "check_protocol",
-           "check_option_values"]
+__all__ = ["LIMITS", "MAX_UNITS", "MAX_BEYOND_FACTOR", "MAX_LOAD_SCALE", "MAX_OPTION_INT", "check_count",
+           "check_load_scale", "check_protocol", "check_option_values"]
 
 LIMITS = {
     # protocol
@@ -40,6 +42,13 @@ MAX_UNITS = 10_000
 #: from it stays finite: factor x load_steps (the continuation's increments, at most 1e6 x 1e5),
 #: factor x top, and a model's powers of it (an ANM series: 1e300 x the top overflowed there)
 MAX_BEYOND_FACTOR = 1e6
+#: the largest ``load_scale`` in magnitude (times the scene's loads: an evaluation's, a training run's,
+#: a case's ``mu``), for the reason of MAX_BEYOND_FACTOR: every number derived from the loads (the
+#: load factor, its square in an energy, a model's powers of it) stays far inside the float range
+#: for a scene whose own loads do. Far past it they overflow: at 1e306 the clamped beam's reference
+#: solved (linear), then the model's state was NaN at its second step; at 1e308 the 20 N load is inf. At 1e6 a
+#: model that cannot follow says so (pgd_direct: "outside the vademecum; linearly extrapolated").
+MAX_LOAD_SCALE = 1e6
 MAX_OPTION_INT = 1_000_000  # an integer option (modes, segments, iterations) beyond it is a typo
 _PROTOCOL_MIN = {"latency_steps": 1, "warmup": 0, "blas_threads": 0, "reference_samples": 1, "seed": 0}
 
@@ -54,6 +63,22 @@ def check_count(path, value, name, lo=1):
     if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
         _fail(path, value, f"expected an integer from {lo} to {hi} (the maximum LIMITS[{name!r}] of "
               "tissuebench.studies.limits)")
+    return value
+
+
+def check_load_scale(path, value) -> float:
+    """``value`` a ``load_scale``: a finite number, not 0 (a zero load leaves the reference at rest:
+    every relative error is inf), at most :data:`MAX_LOAD_SCALE` in magnitude. A negative scale
+    reverses the loads (a push for a pull): a load like another."""
+    if not is_num(value):
+        _fail(path, value, "expected a finite number (the factor on every load of the scene)")
+    if value == 0:
+        _fail(path, value, "must not be 0 (a zero load has no relative error: the reference stays at rest; a "
+              "negative scale reverses the loads)")
+    if abs(value) > MAX_LOAD_SCALE:
+        _fail(path, value, f"expected at most {MAX_LOAD_SCALE:g} in magnitude (MAX_LOAD_SCALE of "
+              "tissuebench.studies.limits): far past it the loads, and the products the models form of them, "
+              "overflow the float range (a NaN deep inside a run, after its references)")
     return value
 
 
@@ -86,6 +111,8 @@ def _mu_tables(path, value, name, scene, lo=1):
     for i, mu in enumerate(value):
         if not isinstance(mu, dict):
             _fail(f"{path}[{i}]", mu, "expected a table of scene parameters")
+        if "load_scale" in mu:
+            check_load_scale(f"{path}[{i}].load_scale", mu["load_scale"])
         _at(f"{path}[{i}]", scene, mu)
     return value
 
@@ -183,6 +210,13 @@ def check_positions_evaluation(path, evaluation: dict, scene, training: dict | N
 
 def check_trajectory_evaluation(path, evaluation: dict, scene, training: dict | None = None) -> None:
     _needs_dynamics(path, "trajectory", scene)
+    if "load_scale" in evaluation:
+        check_load_scale(f"{path}.load_scale", evaluation["load_scale"])
+    t_end, dt = evaluation.get("t_end"), scene.analysis["dt"]
+    if is_num(t_end) and 0 < t_end < dt:  # no step to measure (the run's arrays were empty downstream)
+        unit = scene.units.get("time", "s")
+        _fail(f"{path}.t_end", t_end, f"below the scene's time step dt = {dt:g} {unit}: a trajectory needs at "
+              "least one step (t_end >= dt)")
     mu = {k: evaluation[k] for k in ("t_end", "load_scale") if k in evaluation}
     run = _at(path, scene, mu)
     steps = run.analysis["t_end"] / run.analysis["dt"]

@@ -61,7 +61,7 @@ from ..rom.plugins import source_of
 from .applicability import evaluation_why_not, why_not
 from .case_entry import CaseEntry, fill_evaluation_kind, fill_training_kind
 from .evaluation import EVALUATION_KINDS
-from .limits import MAX_UNITS, check_option_values, check_protocol
+from .limits import MAX_UNITS, check_load_scale, check_option_values, check_protocol
 from .scaling import check_group_name, check_scaling_groups
 from .training import TRAINING_KINDS, case_scene
 from .units import DEFAULT_PROTOCOL, WorkUnit, options_text, unit_key
@@ -205,6 +205,8 @@ def _check_case(i, c, resolution, default_resolution, folder: Path | None = None
              "resolution": res, "backend": backend, "training": training, "evaluation": evaluation}
     if "mu" in c:
         entry["mu"] = _table(f"{path}.mu", c["mu"], set(c["mu"]) if isinstance(c["mu"], dict) else set())
+        if "load_scale" in entry["mu"]:  # the case's loads: at rest or overflowing, no error measures them
+            check_load_scale(f"{path}.mu.load_scale", entry["mu"]["load_scale"])
     if "mesh" in c:  # builder parameters per resolution: {paper = {divisions = [40, 7, 7]}}
         mesh = _table(f"{path}.mesh", c["mesh"], set(RESOLUTIONS))
         entry["mesh"] = {r: dict(_table(f"{path}.mesh.{r}", t, set(t) if isinstance(t, dict) else set()))
