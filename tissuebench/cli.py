@@ -25,14 +25,17 @@ command loads only what it runs (``tissuebench --help`` and ``cache ls`` need no
 Exit codes: 0 success, 1 the run finished with a numerical failure (stored) or its results
 could not be written (a full disk: nothing stored), 2 bad input (including an output location
 that cannot be written, checked before any work or found read-only during it), 130
-interrupted (Ctrl-C). Every error is one line naming the key, value or path, never a
-traceback (``TISSUEBENCH_DEBUG=1`` shows the traceback of an unexpected error).
+interrupted (Ctrl-C), 143 a sweep stopped by SIGTERM (``timeout``: resumable as after Ctrl-C).
+A ``SystemExit`` or ``KeyboardInterrupt`` raised by a plugin method's code fails that plugin or
+unit, never the command (:mod:`.exits`). Every error is one line naming the key, value or path,
+never a traceback (``TISSUEBENCH_DEBUG=1`` shows the traceback of an unexpected error).
 """
 from __future__ import annotations
 
 import argparse
 import errno
 import os
+import signal
 import sys
 import time
 import warnings
@@ -100,6 +103,9 @@ def _parser():
     ver.add_argument("--no-backends", action="store_true",
                      help="skip the backend agreement (with RESULTS: every FE scene of the sweep on both backends, "
                           "written to RESULTS/_backends.parquet)")
+    ver.add_argument("--quiet", action="store_true",
+                     help="no progress on stderr (the convergence check's meshes and load increments, the "
+                          "anchors computed, the references solved for the backend agreement)")
     desc = sub.add_parser("describe", help="what a run of CASE models, and why")
     desc.add_argument("case")
     desc.add_argument("--variant", default=None)
@@ -271,10 +277,12 @@ def _sweep(args, preset=None) -> int:
     try:
         summary = run_sweep(spec, out, args.executor, args.workers, args.scheduler, args.resume,
                             progress=not args.quiet, log=log, figures=draw_derived, cache=args.cache)
-    except KeyboardInterrupt:
-        print(f"tissuebench: interrupted; finished units are stored in {out}. Resume with: {resume_hint}",
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (exits.Terminated): the manifest says interrupted
+        signum = getattr(exc, "signum", signal.SIGINT)
+        said = "" if signum == signal.SIGINT else f" ({signal.Signals(signum).name})"
+        print(f"tissuebench: interrupted{said}; finished units are stored in {out}. Resume with: {resume_hint}",
               file=sys.stderr)
-        return 130
+        return 128 + signum
     except (FileExistsError, FileNotFoundError):
         raise
     except OSError as exc:  # the folder turned read-only, a full disk: the finished units are kept
@@ -283,13 +291,16 @@ def _sweep(args, preset=None) -> int:
               f"{resume_hint}", file=sys.stderr)
         return code
     _print_pareto(out)
-    print(f"{summary.planned} units: {len(summary.computed)} computed ({len(summary.failed)} failed), "
+    steps = sum(summary.failed_steps.values())  # ok units some of whose steps failed (a NaN state included)
+    with_steps = (f"; {len(summary.failed_steps)} with failed steps ({steps} step{'s' if steps != 1 else ''})"
+                  if summary.failed_steps else "")
+    print(f"{summary.planned} units: {len(summary.computed)} computed ({len(summary.failed)} failed{with_steps}), "
           f"{len(summary.skipped)} kept from before, {len(summary.recomputed)} recomputed; results in {out}")
     for why, n in summary.why_recomputed.items():
         print(f"recomputed {n} unit{'s' if n != 1 else ''}: {why}")
     failed = 1 if summary.failed else 0
     if getattr(args, "convergence", False):
-        failed |= _convergence(args.scene, args.variant, spec.resolution, "skfem", out)
+        failed |= _convergence(args.scene, args.variant, spec.resolution, "skfem", out, quiet=args.quiet)
     return failed
 
 
@@ -367,7 +378,8 @@ they move 2-3x between runs of identical code for microsecond steps.
 REF is found in the repository of the project under test: --project PATH, else the repository
 of the sweep's plugin methods' package, else the working directory's (said in the output). Its
 packages are exported at REF and come first on the path of REF's processes; tissuebench and
-every other package are the same on both sides.
+every other package are the same on both sides. A project that holds none of the sweep's
+methods is refused (exit 2): each would be compared with itself.
 
 latency_floor_s [s] (default 1e-5: 10 us, 1 % of a 1 kHz haptic step) is the least increase
 of the step that counts as slower: a 1.5x slowdown of a 6 us step adds 3 us and passes it. For
@@ -422,11 +434,10 @@ def _ab_settings(args):
 
 
 def _check(args) -> int:
-    from .reports.gate import GateOutputError, baseline_rows, check, update_baseline, write_junit
-    from .studies.atomic_files import output_file
+    from .reports.gate import GateOutputError, baseline_rows, check, check_outputs, update_baseline, write_junit
 
-    if args.junit:  # before the A/B's minutes: a folder, a device, a FIFO, a loop of links is refused
-        output_file(args.junit, "--junit")
+    # before REF's sweep and the A/B's minutes: a folder, a device, a FIFO, a loop of links, a missing folder
+    check_outputs(args.results, junit=args.junit)
     if args.update_baseline:
         if args.baseline is None:
             raise ValueError("--update-baseline needs --baseline FILE")
@@ -478,6 +489,24 @@ def _print_check(result, args) -> None:
     print(f"check: {len(result.regressions)} regressions in {units} units ({what}):")
     for f in result.regressions:
         print("  " + f.line())
+    if any(f.metric in ("error", "flagged_steps") for f in result.regressions):
+        print(_accept_hint(args))
+
+
+def _accept_hint(args) -> str:
+    """What to run to accept an intended change of errors: the baseline file written from these
+    results and committed with the change (the gate then notes the entries the commit edits as
+    declared, :mod:`.reports.gate`)."""
+    import shlex
+
+    results = shlex.quote(str(args.results))
+    if args.baseline is not None:
+        base = shlex.quote(str(args.baseline))
+        return (f"check: if the change is intended, record it in the baseline and commit that file with the change: "
+                f"tissuebench check {results} --baseline {base} --update-baseline")
+    return ("check: if the change is intended, record it in a baseline file of the repository, commit that file with "
+            f"the change and pass it to this check (--baseline FILE): tissuebench check {results} --baseline FILE "
+            "--update-baseline")
 
 
 def _cache(args) -> int:
@@ -511,8 +540,13 @@ def _verify(args) -> int:
             raise FileNotFoundError(f"results: {args.results} is not a folder")
         check_output_location(args.results, overwrite=True)  # writable, before minutes of solves
     if args.convergence is not None:
-        return _convergence(args.convergence, args.variant, args.resolution, args.backend, args.results)
-    table = external_anchors(args.resolution, args.backend, _id_list(args.cases, "--cases"))
+        return _convergence(args.convergence, args.variant, args.resolution, args.backend, args.results,
+                            quiet=args.quiet)
+
+    def anchor_line(case, quantity):
+        _progress_line(f"verify: anchor {case}: {quantity} ({args.backend}, {args.resolution})")
+    table = external_anchors(args.resolution, args.backend, _id_list(args.cases, "--cases"),
+                             progress=None if args.quiet else anchor_line)
     with _pd_display():
         print(table[["case", "quantity", "unit", "ours", "anchor", "low", "high", "verdict"]].to_string(index=False))
     if args.results is not None:
@@ -525,22 +559,24 @@ def _verify(args) -> int:
     disagree = 0
     if args.results is not None and not args.no_backends:
         if (args.results / "_sweep.json").is_file():
-            disagree = _verify_backends(args.results)
+            disagree = _verify_backends(args.results, args.quiet)
         else:
             print(f"verify: {args.results} holds no sweep (_sweep.json): no scenes for the backend agreement")
     return 1 if len(bad) or disagree else 0
 
 
-def _convergence(case, variant, resolution, backend, results) -> int:
+def _convergence(case, variant, resolution, backend, results, quiet=False) -> int:
     """The h/2 check of a scene (:mod:`.reference.convergence`), printed and, with ``results``,
-    written to ``results/_convergence.parquet`` (the report's verification section shows it)."""
+    written to ``results/_convergence.parquet`` (the report's verification section shows it).
+    Unless ``quiet``, each mesh, load increment and mesh's end is a line on stderr as it happens
+    (stdout keeps the table only: two meshes of an organ take hours)."""
     from .cases.scene import load
     from .reference.convergence import convergence_check
     from .studies.results import write_table
 
     scene = load(case, resolution=resolution, variant=variant)
     print(f"verify: {scene.name}: the reference at h and h/2 ({backend})", flush=True)
-    table = convergence_check(scene, backend)
+    table = convergence_check(scene, backend, log=None if quiet else _progress_line)
     with _pd_display():
         print(table[["case", "quantity", "h", "h_half", "rel_diff", "dofs_h", "dofs_h_half", "status_h",
                      "status_h_half"]].to_string(index=False))
@@ -552,14 +588,30 @@ def _convergence(case, variant, resolution, backend, results) -> int:
     return 1 if len(bad) else 0
 
 
-def _verify_backends(results) -> int:
-    """Backend agreement of every scene of the sweep in ``results``; the number that disagree."""
+def _progress_line(text: str) -> None:
+    """A progress line of ``verify``: on stderr, at once (a log read while the check runs)."""
+    print(text, file=sys.stderr, flush=True)
+
+
+def _verify_backends(results, quiet=False) -> int:
+    """Backend agreement of every scene of the sweep in ``results``; the number that disagree.
+    Unless ``quiet``, each scene is a line on stderr and each reference not in the cache a bar
+    naming it (as in a sweep: :data:`~.reference.cache.PROGRESS_ENV`)."""
     from .reference.backend_comparison import backend_agreement
+    from .reference.cache import PROGRESS_ENV
     from .reports.backends import scenes_of_results
     from .studies.results import write_table
 
-    table = backend_agreement(scenes_of_results(results), progress=lambda c: print(f"verify: {c} on both backends",
-                                                                                    flush=True))
+    previous = os.environ.get(PROGRESS_ENV)
+    os.environ[PROGRESS_ENV] = "0" if quiet else "1"  # --quiet wins over a "1" exported by the user
+    try:
+        table = backend_agreement(scenes_of_results(results), progress=None if quiet else (
+            lambda c: _progress_line(f"verify: {c} on both backends")))
+    finally:  # the variable is the process's: as it was before
+        if previous is None:
+            os.environ.pop(PROGRESS_ENV, None)
+        else:
+            os.environ[PROGRESS_ENV] = previous
     with _pd_display():
         print(table[["case", "ndof", "field_rel_diff", "worst_monitor", "monitor_rel_diff", "verdict"]]
               .to_string(index=False))
@@ -679,10 +731,13 @@ def _one_line_warning(message, category, filename, lineno, line=None) -> str:
 def main(argv=None) -> int:
     from .studies.results import SweepLocked
 
+    from .exits import user_signals
+
     args = _parser().parse_args(argv)
     formatwarning, warnings.formatwarning = warnings.formatwarning, _one_line_warning
     try:
-        return _dispatch(args)
+        with user_signals():  # a plugin's import that raises KeyboardInterrupt fails that plugin, not the command
+            return _dispatch(args)
     except (ValueError, TypeError, FileExistsError, FileNotFoundError, SweepLocked) as exc:
         return _error(exc)
     except KeyboardInterrupt:

@@ -2,9 +2,11 @@
 package (examples/bring_your_own_method) in a git repository of its own, installed editable into
 a fresh venv, gated by its CI recipe (``ci/gate.sh``: sweep, then ``check --against`` the merge
 base, JUnit) on three commits on top of a base: (a) a slower step, (b) an error regression, (c)
-a comment. Expected: (a) flagged slower, (b) exit 1 naming the error, (c) holds. And REF's
-processes run REF's copy of a package an editable install serves through an import hook
-(setuptools' finder, a flat layout), or name the copy they were handed instead.
+a comment. Expected: (a) flagged slower, (b) exit 1 naming the error, and the same commit with
+the baseline file written by the command that failure prints passes (an intended change,
+declared), (c) holds. And REF's processes run REF's copy of a package an editable install
+serves through an import hook (setuptools' finder, a flat layout), or name the copy they were
+handed instead.
 
 Each gate runs REF's sweep and an A/B of both versions (about a minute or two here): slow."""
 from __future__ import annotations
@@ -110,13 +112,33 @@ def test_a_slower_step_of_the_users_package_is_flagged(user_repo):
 
 
 @pytest.mark.slow
-def test_an_error_regression_of_the_users_package_exits_1_naming_the_error(user_repo):
+def test_an_error_regression_of_the_users_package_exits_1_naming_the_error_then_its_baseline_accepts_it(user_repo):
+    """The recipe once could not land an intended change (its failure said "update the baseline"
+    and it passed none): the command the failed gate prints writes ``ci/baseline.toml``, and the
+    same commit with that file passes, the change noted as declared."""
     repo, python, base = user_repo
     proc, _ = _gate(repo, python, "worse")
     assert proc.returncode == 1, proc.stdout + proc.stderr
     _said_sides(proc.stdout, repo, base)
     assert re.search(r"cornea_pinch\s+pod_polyreg\s+error\s+was\s+\S+\s+now\s+\S+\s+\(changed against "
                      rf"{base} \({base[:12]}\) by more than", proc.stdout), proc.stdout
+    said = ("gate:     tissuebench check out/tissuebench-gate --baseline ci/baseline.toml --update-baseline && "
+            "git add ci/baseline.toml\n")
+    assert "gate: if an error changed on purpose, record it in ci/baseline.toml and commit that file with the " \
+           "change:\n" + said in proc.stdout
+    # the intended change: the printed command, its file amended into the same commit
+    git(repo, "checkout", "-q", "-b", "worse-accepted", "worse")
+    accept = subprocess.run(["bash", "-c", said.split("gate:", 1)[1]], cwd=repo, capture_output=True, text=True,
+                            env=_env(python))
+    assert accept.returncode == 0, accept.stdout + accept.stderr
+    git(repo, "commit", "-q", "--amend", "--no-edit")
+    assert "ci/baseline.toml" in git(repo, "show", "--name-only", "--format=", "HEAD").split()
+    proc, _ = _gate(repo, python, "worse-accepted")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert f"against {base[:7]} (merge base with main), baseline ci/baseline.toml" in proc.stdout
+    assert re.search(r"note: cornea_pinch pod_polyreg \S+: error \S+ -> \S+, declared by the baseline update of this "
+                     "commit", proc.stdout), proc.stdout
+    assert f"check: 1 units hold (errors against {base}, latency A/B against {base})" in proc.stdout
 
 
 @pytest.mark.slow

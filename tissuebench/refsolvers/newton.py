@@ -316,7 +316,10 @@ def newton_solve(backend, load_factor: float = 1.0, options: NewtonOptions | Non
     options : NewtonOptions, optional
         Tolerances and stepping; keyword arguments override its fields.
     progress : callable, optional
-        Called as ``progress(load_factor, target)`` after each accepted increment.
+        Called as ``progress(load_factor, target)`` after each accepted increment. When it also
+        has an ``increment`` method, that is called as ``progress.increment(inc, target)`` after
+        every attempted increment, accepted or cut (its :class:`Increment`: Newton iterations,
+        residuals, time), before ``progress`` itself: a log of a long solve says how each went.
     """
     if not (isinstance(load_factor, (int, float)) and math.isfinite(load_factor)):
         raise ValueError(f"load_factor must be finite, got {load_factor!r}")
@@ -331,6 +334,7 @@ def newton_solve(backend, load_factor: float = 1.0, options: NewtonOptions | Non
         solver_opts.setdefault("coords", backend.problem.nodes)
         solver_opts.setdefault("free_dofs", backend.problem.free_dofs)
     solver = backend.make_linear_solver(opts.linear_solver, **solver_opts)
+    on_increment = getattr(progress, "increment", None)
     lam, target = 0.0, float(load_factor)
     d_lam = target / opts.n_increments
     d_max = abs(opts.max_increment * target) if opts.max_increment else abs(target)
@@ -340,6 +344,8 @@ def newton_solve(backend, load_factor: float = 1.0, options: NewtonOptions | Non
         lam_try = lam + d_lam if abs(target - lam - d_lam) > 1e-12 * abs(target) else target
         inc, u_try = _newton_increment(backend, solver, u, lam_try, opts)
         increments.append(inc)
+        if on_increment is not None:
+            on_increment(inc, target)
         if inc.converged:
             lam, u = lam_try, u_try
             if store_states:

@@ -132,7 +132,7 @@ ANCHORS = [
 ]
 
 
-def external_anchors(resolution: str = "ci", backend: str = "ngsolve", cases=None) -> pd.DataFrame:
+def external_anchors(resolution: str = "ci", backend: str = "ngsolve", cases=None, progress=None) -> pd.DataFrame:
     """The table of external anchors.
 
     Parameters
@@ -142,6 +142,8 @@ def external_anchors(resolution: str = "ci", backend: str = "ngsolve", cases=Non
     backend : {"ngsolve", "skfem"}
     cases : iterable of str, optional
         Restrict to these case names (default: all of :data:`ANCHORS`).
+    progress : callable, optional
+        ``progress(case, quantity)`` before each anchor is computed (minutes in all: say which).
 
     Returns
     -------
@@ -167,6 +169,8 @@ def external_anchors(resolution: str = "ci", backend: str = "ngsolve", cases=Non
     for a in ANCHORS:
         if a.case not in chosen:
             continue
+        if progress:
+            progress(a.case, a.quantity)
         t0 = time.perf_counter()
         try:
             ours, how = a.compute(resolution, backend)

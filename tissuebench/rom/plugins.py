@@ -15,9 +15,11 @@ Two ways in, as pytest (``pytest11``), Dask and fsspec find their third-party ba
 A plugin's ``name`` must be new: one that a shipped method (or another plugin) holds is
 refused, naming both. A plugin that fails to load is named with its error
 (:data:`FAILURES`, a :class:`PluginWarning`, a line of ``tissuebench methods``); the other
-methods work. :func:`third_party` is what the unit key and the results store record of a
-method's code outside tissuebench: its distribution, version and a hash of its package's
-``.py`` files, so a resumed sweep recomputes a plugin's units after its code changed.
+methods work; a ``SystemExit`` or ``KeyboardInterrupt`` its import raises fails it the same way
+(:mod:`tissuebench.exits`: a real Ctrl-C still stops the command). :func:`third_party` is what
+the unit key and the results store record of a method's code outside tissuebench: its
+distribution, version and a hash of its package's ``.py`` files, so a resumed sweep recomputes
+a plugin's units after its code changed.
 """
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..exits import EXIT_TYPES, exit_text, raised_by_code
 from .registry import METHODS, check_method_class
 
 __all__ = ["GROUP", "Plugin", "PLUGINS", "FAILURES", "PluginWarning", "load_entry_points", "load_source",
@@ -125,8 +128,10 @@ def load_entry_points(registry=METHODS) -> None:
                 raise ValueError(f"the entry point is named {ep.name!r} but {cls.__qualname__}.name = {cls.name!r}; "
                                  "give both the same name")
             _add(cls, plugin)
-        except Exception as exc:  # noqa: BLE001 - a broken plugin is named; the other methods work
-            error = f"{type(exc).__name__}: {exc}"
+        except (Exception, *EXIT_TYPES) as exc:  # noqa: BLE001 - a broken plugin is named; the other methods work
+            if not isinstance(exc, Exception) and not raised_by_code(exc):
+                raise  # the user's Ctrl-C while the plugin loaded (tissuebench.exits)
+            error = f"{type(exc).__name__}: {exc}" if isinstance(exc, Exception) else exit_text(exc, "its code")
             FAILURES[ep.name] = (plugin.describe(), error)
             warnings.warn(f"plugin method {ep.name!r} of {plugin.describe()} could not be loaded: {error}; the other "
                           "methods are unaffected", PluginWarning, stacklevel=3)
@@ -144,8 +149,11 @@ def load_source(source: str) -> type:
     except ModuleNotFoundError as exc:
         raise ValueError(f"method {source!r}: cannot import {module!r} ({exc}); install its package (pip install -e "
                          "FOLDER) or put its folder on PYTHONPATH") from None
-    except Exception as exc:  # noqa: BLE001 - the plugin's own import error, named
-        raise ValueError(f"method {source!r}: importing {module!r} failed: {type(exc).__name__}: {exc}") from None
+    except (Exception, *EXIT_TYPES) as exc:  # noqa: BLE001 - the plugin's own import error, named
+        if not isinstance(exc, Exception) and not raised_by_code(exc):
+            raise  # the user's Ctrl-C while it was imported (tissuebench.exits)
+        error = f"{type(exc).__name__}: {exc}" if isinstance(exc, Exception) else exit_text(exc, "its code")
+        raise ValueError(f"method {source!r}: importing {module!r} failed: {error}") from None
     for part in qualname.split("."):
         if not hasattr(obj, part):
             raise ValueError(f"method {source!r}: {obj.__name__ if hasattr(obj, '__name__') else module!r} has no "

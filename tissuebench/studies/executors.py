@@ -26,7 +26,9 @@ result could not be gathered (lost with its worker after it ended, or cancelled)
 again, at most :data:`RESUBMITS` times (:func:`_dask_units`). The ``processes`` pool breaks
 as a whole when one worker dies, losing every unit in flight: they are run again in a
 fresh pool, one at a time (so the unit that kills its worker is known); a unit whose worker
-dies while it runs alone is stored as failed, saying so, and the sweep goes on.
+dies while it runs alone is stored as failed, saying so, and the sweep goes on. A ``SystemExit``
+(or a ``KeyboardInterrupt`` no signal sent) that a unit's code raises is its stored failure in
+every executor (:func:`_in_cache`): no worker dies of it and no other unit is lost.
 """
 from __future__ import annotations
 
@@ -40,6 +42,7 @@ import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
+from ..exits import EXIT_TYPES, exit_text, raised_by_code, user_signals
 from ..reference.cache import cache_url, cached_solve
 from ..reference.location import CACHE_ENV, check_cache_url, using_cache
 from .units import failed_outcome, run_unit, unit_references
@@ -124,9 +127,20 @@ def execute(units, name: str = "serial", workers: int | None = None, scheduler: 
 
 def _in_cache(run, cache, unit, *references):
     """``run(unit)`` with the reference cache at ``cache``; ``references``: what the unit's
-    reference tasks returned (their runs are in the cache: the arguments only order the tasks)."""
-    with using_cache(cache):
-        return run(unit)
+    reference tasks returned (their runs are in the cache: the arguments only order the tasks).
+
+    In every executor and worker, the user's SIGINT is recorded meanwhile
+    (:func:`~tissuebench.exits.user_signals`), so that a ``SystemExit`` or ``KeyboardInterrupt``
+    raised by code, not sent by the user, that ``run`` lets through (:func:`~.units.run_unit`
+    catches the method's own) fails this unit only: from a ``processes`` worker it would come back
+    as the unit's result and end the sweep."""
+    with using_cache(cache), user_signals():
+        try:
+            return run(unit)
+        except EXIT_TYPES as exc:
+            if not raised_by_code(exc):
+                raise  # the user's Ctrl-C: the sweep stops, resumably
+            return failed_outcome(unit, f"{exit_text(exc, 'the code running this unit')}; the sweep went on")
 
 
 def reference_task(scene, backend: str, cache) -> str:

@@ -38,10 +38,11 @@ import numpy as np
 from threadpoolctl import threadpool_info
 
 from ..reference.step_timing import reference_step_seconds as step_seconds
+from ..rom.base import StepResult
 from .timing import TAIL_STEPS, latency_stats
 
-__all__ = ["Driven", "drive", "time_latency", "calibration_seconds", "reference_step_seconds", "blas_info",
-           "HAPTIC_HZ", "DISPLAY_HZ", "DISPLAY_EVERY"]
+__all__ = ["Driven", "drive", "NON_FINITE", "non_finite_note", "time_latency", "calibration_seconds",
+           "reference_step_seconds", "blas_info", "HAPTIC_HZ", "DISPLAY_HZ", "DISPLAY_EVERY"]
 
 
 @dataclass
@@ -63,14 +64,67 @@ def _trajectory_mus(evaluation, history):
     return [{"time": t0 + k * dt, "load_factor": float(history(t0 + k * dt))} for k in range(1, n + 1)]
 
 
+#: the start of the message of a step recorded as failed for a NaN or inf (:func:`drive`)
+NON_FINITE = "the step returned a non-finite state"
+
+
+def non_finite_note(driven: Driven) -> str:
+    """The unit's note on its steps that returned a non-finite state (``""``: none): how many,
+    and the first one's message."""
+    bad = [r for r in driven.results if r is not None and r.status == "failed" and r.message.startswith(NON_FINITE)]
+    if not bad:
+        return ""
+    steps = sum(r is not None for r in driven.results)
+    return f"{len(bad)} of {steps} evaluation steps failed: {bad[0].message}"
+
+
+def _non_finite(what: str, values) -> str:
+    """``""`` when every number of ``values`` is finite, else what is not (``"q has 3 NaN"``); a
+    value that is no array of numbers (None: nothing asked) is left to the code that reads it."""
+    if values is None:
+        return ""
+    try:
+        a = np.asarray(values, dtype=complex if np.iscomplexobj(values) else float)
+    except (TypeError, ValueError):
+        return ""
+    nan, inf = int(np.isnan(a).sum()), int(np.isinf(a).sum())
+    if not nan and not inf:
+        return ""
+    return f"{what} has " + " and ".join(f"{n} {kind}" for n, kind in ((nan, "NaN"), (inf, "inf")) if n)
+
+
+def _finite_or_failed(res, field=None, outputs=None):
+    """``res``, or when its state ``q``, its reconstructed ``field`` or its ``outputs`` hold a NaN or
+    an inf, a failed step saying which (whatever the status the model gave: a NaN is no
+    extrapolation). One place for every method, shipped or plugin: a step that returned no number
+    is never an "ok" step with an infinite error."""
+    if res.q is None:
+        return res
+    bad = [b for b in (_non_finite("q", res.q), _non_finite("the reconstructed field", field),
+                       *(_non_finite(f"output {k!r}", [v]) for k, v in (outputs or {}).items())) if b]
+    if not bad:
+        return res
+    said = f"; the model said {res.status}: {res.message}" if res.status != "ok" else ""
+    return StepResult(None, "failed", f"{NON_FINITE} ({', '.join(bad)}){said}",
+                      info=res.info, mu=res.mu)
+
+
 def drive(model, evaluation, history=None) -> Driven:
-    """Evaluation pass (module docstring, 1)."""
+    """Evaluation pass (module docstring, 1). A step whose state, field or outputs are not finite
+    is recorded as failed (:func:`_finite_or_failed`): counted with the unit's failed steps."""
     results, fields, outputs = [], [], []
 
     def record(res):
+        res = _finite_or_failed(res)
+        out = model.outputs(res)
+        field = model.reconstruct(res) if res.q is not None else None
+        checked = _finite_or_failed(res, field, out)
+        if checked is not res:  # the field or an output is not finite: nothing of the step is kept
+            res, field, out = checked, None, {k: float("nan") for k in out}
         results.append(res)
-        outputs.append(model.outputs(res))
-        fields.append(model.reconstruct(res) if res.q is not None else None)
+        outputs.append(out)
+        fields.append(field)
+        return res
 
     if evaluation.kind == "trajectory":
         p0 = evaluation.points[0]
@@ -87,9 +141,15 @@ def drive(model, evaluation, history=None) -> Driven:
                 res.mu = mu
             k = round(mu["time"] / evaluation.dt)
             if k in wanted:
-                record(res)
+                res = record(res)
+            else:
+                res = _finite_or_failed(res)  # a NaN between the stored steps ends the trajectory too
             if k in around and res.q is not None:
-                neighbours[k] = fields[-1] if k in wanted else model.reconstruct(res)
+                u = fields[-1] if k in wanted else model.reconstruct(res)
+                checked = res if k in wanted else _finite_or_failed(res, u)
+                if checked is res:
+                    neighbours[k] = u
+                res = checked
             if res.status == "failed":
                 if k not in wanted:  # between stored steps: the next stored point carries it
                     record(res)

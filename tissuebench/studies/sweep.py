@@ -8,8 +8,10 @@ runs the rest on an executor, writes each unit as it finishes, and finally write
 tables (Pareto front, validity radii, fidelity ladder) into ``_derived/``, with the figures
 drawn by the ``figures`` callable the caller passes (the reports layer's
 :func:`~tissuebench.reports.derived_figures.draw_derived`: the CLI passes it; this layer never
-imports ``reports``). A unit that raises is a failed row, and the sweep goes on. Ctrl-C stops
-after releasing the lock, saying how to resume.
+imports ``reports``). A unit that raises is a failed row, and the sweep goes on (a ``SystemExit``
+or ``KeyboardInterrupt`` its method's code raises included: :mod:`~tissuebench.exits`). Ctrl-C
+and SIGTERM stop after marking the manifest "interrupted" and releasing the lock, saying how to
+resume.
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from ..exits import user_signals
 from .executors import check_executor, execute
 from ..reference.cache import PROGRESS_ENV
 from ..reference.location import CACHE_ENV, cache_url, check_cache_url, probe_cache
@@ -46,6 +49,9 @@ class SweepSummary:
     wall_s: float = 0.0
     # why the recomputed units were (resume_reasons.why_stale) -> how many
     why_recomputed: dict = field(default_factory=dict)
+    # unit key -> failed steps, of the computed units that ran to their end with failed steps
+    # (a step that failed or returned a non-finite state: protocol.drive); their unit_status is "ok"
+    failed_steps: dict = field(default_factory=dict)
 
 
 def check_output_folder(out: Path, resume: bool) -> None:
@@ -119,43 +125,46 @@ def run_sweep(spec: SweepSpec, out, executor: str = "serial", workers: int | Non
     units = expand_units(spec)
     if not units:
         raise ValueError(f"spec {spec.name!r}: plans no unit (no method runs on the selected cases)")
-    t_start = time.perf_counter()
-    store = ResultsStore(out)
-    store.acquire()
-    state = None  # the folder's manifest is this sweep's once written: then failed until it finishes
-    # the reference runs a unit computes show their own bar (which one, load factor or time, ETA);
-    # an environment variable, so that the worker processes of an executor see it too
-    previous = os.environ.get(PROGRESS_ENV)
-    if progress:
-        os.environ[PROGRESS_ENV] = "1"
-    try:
-        store.clean_temporaries()
-        if resume:
-            check_same_spec(out, spec, units, store)
-        pending, skipped, stale = _plan(units, store, resume, log if progress else (lambda *_: None))
-        summary = SweepSummary(out, len(units), skipped=[u.key for u in skipped],
-                               recomputed=[u.key for u, _, _ in stale])
-        for _, _, why in stale:
-            summary.why_recomputed[why] = summary.why_recomputed.get(why, 0) + 1
-        store.write_manifest(_manifest(spec, units, executor, "running", cache=cache))
-        state = "failed"
-        _execute(spec, pending, skipped, stale, store, summary, (executor, workers, scheduler, cache), progress)
-        write_derived(out, spec.error_metric, figures)
-        summary.wall_s = time.perf_counter() - t_start
-        state = "finished"
-        store.write_manifest(_manifest(spec, units, executor, state, summary, cache))
-        return summary
-    except KeyboardInterrupt:
-        state = state and "interrupted"
-        raise
-    finally:
-        if progress and previous is None:
-            os.environ.pop(PROGRESS_ENV, None)
-        elif progress:
-            os.environ[PROGRESS_ENV] = previous
-        if state in ("failed", "interrupted"):
-            _mark(store, spec, units, executor, state, cache)
-        store.release()
+    # SIGTERM (timeout, a batch system) stops the sweep as Ctrl-C does; a SystemExit or KeyboardInterrupt a
+    # method's code raises fails its unit only (tissuebench.exits)
+    with user_signals(terminate=True):
+        t_start = time.perf_counter()
+        store = ResultsStore(out)
+        store.acquire()
+        state = None  # the folder's manifest is this sweep's once written: then failed until it finishes
+        # the reference runs a unit computes show their own bar (which one, load factor or time, ETA);
+        # an environment variable, so that the worker processes of an executor see it too
+        previous = os.environ.get(PROGRESS_ENV)
+        if progress:
+            os.environ[PROGRESS_ENV] = "1"
+        try:
+            store.clean_temporaries()
+            if resume:
+                check_same_spec(out, spec, units, store)
+            pending, skipped, stale = _plan(units, store, resume, log if progress else (lambda *_: None))
+            summary = SweepSummary(out, len(units), skipped=[u.key for u in skipped],
+                                   recomputed=[u.key for u, _, _ in stale])
+            for _, _, why in stale:
+                summary.why_recomputed[why] = summary.why_recomputed.get(why, 0) + 1
+            store.write_manifest(_manifest(spec, units, executor, "running", cache=cache))
+            state = "failed"
+            _execute(spec, pending, skipped, stale, store, summary, (executor, workers, scheduler, cache), progress)
+            write_derived(out, spec.error_metric, figures)
+            summary.wall_s = time.perf_counter() - t_start
+            state = "finished"
+            store.write_manifest(_manifest(spec, units, executor, state, summary, cache))
+            return summary
+        except KeyboardInterrupt:
+            state = state and "interrupted"
+            raise
+        finally:
+            if progress and previous is None:
+                os.environ.pop(PROGRESS_ENV, None)
+            elif progress:
+                os.environ[PROGRESS_ENV] = previous
+            if state in ("failed", "interrupted"):
+                _mark(store, spec, units, executor, state, cache)
+            store.release()
 
 
 def _execute(spec, pending, skipped, stale, store, summary, where, progress):
@@ -171,6 +180,8 @@ def _execute(spec, pending, skipped, stale, store, summary, where, progress):
             summary.computed.append(unit.key)
             if outcome.row.get("unit_status") != "ok":
                 summary.failed.append(unit.key)
+            elif (outcome.row.get("n_failed") or 0) > 0:  # an ok unit some of whose steps failed (NaN state)
+                summary.failed_steps[unit.key] = int(outcome.row["n_failed"])
             if bar is not None:
                 bar.update(1)
                 bar.write(_line(len(summary.computed) + len(skipped), total, unit, outcome.row,

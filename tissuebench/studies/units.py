@@ -6,7 +6,9 @@ SHA-256 of everything that changes its result: the case entry, the scene's conte
 and the package versions, and for a method from another package its distribution, version and
 code hash (:func:`~tissuebench.rom.plugins.third_party`). :func:`run_unit` runs in whatever
 process an executor picks and returns plain rows; it never raises for a failure of the method (the unit's row says
-``unit_status = "failed"`` with the message), so a sweep goes on.
+``unit_status = "failed"`` with the message), so a sweep goes on: a ``SystemExit`` or ``KeyboardInterrupt``
+the method's code raises included (``"SystemExit(7) raised by the method's code"``); a real Ctrl-C or
+SIGTERM is told from those (:mod:`~tissuebench.exits`) and stops the sweep.
 """
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ import numpy as np
 import pandas as pd
 from threadpoolctl import threadpool_limits
 
+from ..exits import EXIT_TYPES, exit_text, raised_by_code
 from ..rom import make_method, method_class
 from ..rom.plugins import third_party
 from .applicability import evaluation_why_not, why_not
@@ -31,7 +34,8 @@ from .case_entry import CaseEntry
 from .energy import EnergyDrift, model_drift
 from .evaluation import NEEDS_MODEL, build_evaluation, evaluation_references
 from .metrics import output_rows, point_rows, seen_points, summarise_points
-from .protocol import _timing_sequence, blas_info, calibration_seconds, drive, reference_step_seconds, time_latency
+from .protocol import (_timing_sequence, blas_info, calibration_seconds, drive, non_finite_note,
+                       reference_step_seconds, time_latency)
 from .timing import TAIL_STEPS
 from ..reference.provenance import code_hash, git_commit, package_versions
 from ..reference import cached_dynamics_system, reference_key
@@ -167,8 +171,11 @@ def run_unit(unit: WorkUnit) -> UnitOutcome:
             row.update(_measure(unit, row))
             row.update(unit_status="ok", message="; ".join(row.pop("_notes")), unit_wall_s=time.perf_counter() - t0)
             return UnitOutcome(row, row.pop("_points"), row.pop("_outputs"), row.pop("_latency"))
-    except Exception as exc:  # a method that raises is a stored result, not the end of the sweep
-        tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
+    except (Exception, *EXIT_TYPES) as exc:  # a method that raises is a stored result, not the end of the sweep
+        if not isinstance(exc, Exception) and not raised_by_code(exc):
+            raise  # the user's Ctrl-C (or SIGTERM): the sweep stops, resumably (tissuebench.exits)
+        tb = (traceback.format_exception_only(type(exc), exc)[-1].strip() if isinstance(exc, Exception)
+              else exit_text(exc))  # SystemExit(7): the method's sys.exit fails its unit only
         for side in ("_points", "_outputs", "_latency", "_notes"):
             row.pop(side, None)
         row.update(unit_status="failed", message=f"{tb} (in {_where(exc)})", unit_wall_s=time.perf_counter() - t0)
@@ -229,6 +236,7 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
     lat = time_latency(model, evaluation, history, int(p["latency_steps"]), int(p["warmup"]), int(p["seed"]),
                        budget_s=p.get("latency_budget_s"))
     notes, label = _asked_versus_done(unit, model, evaluation, history, training.info)
+    notes += [n for n in (non_finite_note(driven),) if n]  # NaN steps: failed steps, said on the unit's row too
     h = lat["haptic"]
     if h.n < int(p["latency_steps"]):  # the budget ran out before the steps asked (a slow step)
         notes.append(f"latency_budget_s = {p.get('latency_budget_s'):g} s reached: {h.n} of {p['latency_steps']} "

@@ -17,15 +17,22 @@ harness itself (:mod:`.cases`: references from the content-hashed cache, kept in
 or on a [[case]] table of a spec given as ``training``. The checks (:data:`CHECKS`, in the order
 they run) are the rules the sweep relies on, each named, each saying what is wrong:
 ``options_are_constructor_keywords``, ``applies_is_declared_and_consistent``,
-``builds_an_online_model``, ``build_does_not_mutate_training``,
+``builds_an_online_model``, ``build_does_not_mutate_training``, ``step_does_not_mutate_mu``,
+``steps_return_reduced_states`` (a finite ``(n_reduced,)`` array, or status failed),
 ``reconstruct_is_the_full_field`` (shape ``(n_dof,)``, prescribed values included),
-``outputs_agree_with_reconstruct``, ``steps_inside_are_ok``, ``floor_ops_runs``,
+``outputs_agree_with_reconstruct``, ``steps_inside_are_ok`` (status ok, finite), ``floor_ops_runs``,
 ``step_is_deterministic``, ``extrapolation_is_flagged``, ``failure_is_reported``,
 ``harness_hooks_answer`` and ``parameters_are_honoured`` (every evaluation parameter,
 ``load_scale`` included, changes the result, is flagged, or is refused when the spec loads; and
 through the Python API, a misspelt key or a scene parameter given at a step is refused naming
-it, flagged, or changes the answer).
+it, flagged, or changes the answer; a non-finite answer with status ok is none of these).
 The shipped methods' contract test runs this battery (``tests/rom/test_rom_contract.py``).
+
+An exception the method's code raises fails the check it was raised in, naming it, and the
+battery goes on: ``SystemExit`` and ``KeyboardInterrupt`` too (``raised SystemExit(7)``; a
+plugin is third-party code, and a sweep fails its unit the same way). A real Ctrl-C still
+stops ``check_method``: while it runs, SIGINT's handler records the signal first
+(:func:`tissuebench.exits.user_signals`).
 """
 from __future__ import annotations
 
@@ -34,7 +41,7 @@ from dataclasses import dataclass
 from ..rom import RomMethod, method_class
 from .cases import CONTRACT_CASES
 from .checks import CHECK_FUNCTIONS, Context
-from .subject import CheckFailure, CheckSkipped, raised
+from .subject import CheckFailure, CheckSkipped, raised, stops, user_signals
 
 __all__ = ["check_method", "parametrize_with_checks", "CHECKS", "CONTRACT_CASES", "CheckResult", "MethodCheckError",
            "MethodCheck"]
@@ -72,7 +79,9 @@ def _run(ctx: Context, name: str) -> CheckResult:
         return CheckResult(name, "skipped", str(why))
     except CheckFailure as exc:
         return CheckResult(name, "failed", str(exc))
-    except Exception as exc:  # noqa: BLE001 - the method's code raised inside a check: that check fails
+    except BaseException as exc:  # noqa: BLE001 - the method's code raised inside a check (an exit too): it fails
+        if stops(exc):  # a real Ctrl-C, a test runner's own exception
+            raise
         return CheckResult(name, "failed", f"raised {raised(exc)}")
     return CheckResult(name, "passed")
 
@@ -117,6 +126,13 @@ def check_method(method, training=None, options: dict | None = None, checks=None
     -------
     list of CheckResult
         One per check run, in order.
+
+    Notes
+    -----
+    An exception the method's code raises fails the check it was raised in (``raised
+    SystemExit(7) (in method.py:12)``) and the next checks run: ``SystemExit`` and a
+    ``KeyboardInterrupt`` raised by the code included. A real Ctrl-C (SIGINT) stops the checks
+    with ``KeyboardInterrupt``.
     """
     cls = _class(method)
     names = list(CHECKS if checks is None else checks)
@@ -127,7 +143,8 @@ def check_method(method, training=None, options: dict | None = None, checks=None
         raise TypeError(f"options = {options!r}: expected a dict of the method's options")
     _check_training(training)
     ctx = Context(cls, options, training)
-    results = [_run(ctx, n) for n in names]
+    with user_signals():
+        results = [_run(ctx, n) for n in names]
     failures = [r for r in results if r.status == "failed"]
     if failures and raise_on_failure:
         raise MethodCheckError(cls.name, failures)
@@ -143,7 +160,8 @@ class MethodCheck:
         self.name, self.options, self.training = name, dict(options or {}), training
 
     def __call__(self, method) -> None:
-        result = _run(Context(_class(method), self.options, self.training), self.name)
+        with user_signals():
+            result = _run(Context(_class(method), self.options, self.training), self.name)
         if result.status == "skipped":
             import pytest  # lazy: only a pytest run skips
 

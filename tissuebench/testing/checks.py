@@ -22,7 +22,7 @@ from ..rom.pgd.strip import IncisionStrip
 from ..studies.training import TRAINING_KINDS
 from ..studies.units import _jsonable
 from .cases import CONTRACT_CASES, applies_to, contract_case, primary_case, scene_of, user_case
-from .subject import CheckFailure, CheckSkipped, raised, subject
+from .subject import CheckFailure, CheckSkipped, raised, stops, subject
 
 __all__ = ["Context", "CHECK_FUNCTIONS"]
 
@@ -173,6 +173,56 @@ def build_does_not_mutate_training(ctx: Context) -> None:
                            "training: copy what you change)")
 
 
+def step_does_not_mutate_mu(ctx: Context) -> None:
+    """``start`` and ``step`` leave the mapping of parameters they are given as they found it (the
+    harness keeps stepping with the evaluation's points and reports a result's ``mu``: a step
+    that writes into it moves every later step and message; the checks after this one judge the
+    asked values, put back)."""
+    s = ctx.primary()
+    s.driven()
+    if s.watched.changed:
+        call, asked, left = s.watched.changed[0]
+        what = "start(mu0)" if call == "start" else "step(mu)"
+        keys = sorted({*asked, *left} - {k for k in asked if k in left and repr(asked[k]) == repr(left[k])})
+        more = f" (and {len(s.watched.changed) - 1} more call(s))" if len(s.watched.changed) > 1 else ""
+        raise CheckFailure(f"{what} changed the parameters it was given at {asked}: left {left} ({', '.join(keys)} "
+                           f"changed){more}; the harness steps with and reports the mapping it passed: copy mu "
+                           "before changing it")
+
+
+def steps_return_reduced_states(ctx: Context) -> None:
+    """Every step of the drive that does not fail returns its reduced state: a finite floating
+    numpy array of shape ``(n_reduced,)``, ``n_reduced`` read right after that step (a cut model's
+    grows as it cuts); a step that cannot answer returns status ``"failed"`` (``q`` None) saying
+    why."""
+    s = ctx.primary()
+    s.driven()
+    for mu, res, n in s.watched.steps:  # as the model returned them (the harness fails a non-finite one)
+        if not isinstance(res, StepResult):
+            raise CheckFailure(f"the step at {mu} (case {s.case.name!r}) returned a {type(res).__name__}: expected "
+                               "a tissuebench.rom.StepResult")
+        q, at = res.q, f"at {mu} (case {s.case.name!r}, status {res.status!r})"
+        if q is None:
+            if res.status != "failed":
+                raise CheckFailure(f"the step {at} returned no state (q None): only a failed step has none")
+            continue
+        if isinstance(n, BaseException):
+            raise CheckFailure(f"n_reduced, read after the step {at}, raised {raised(n)}")
+        if not isinstance(q, np.ndarray):
+            raise CheckFailure(f"the state returned {at} is a {type(q).__name__}: expected a numpy array of shape "
+                               f"(n_reduced,) = ({n},)")
+        if not np.issubdtype(q.dtype, np.floating):
+            raise CheckFailure(f"the state returned {at} has dtype {q.dtype}: expected a floating array")
+        if q.shape != (n,):
+            raise CheckFailure(f"the state returned {at} has shape {q.shape}; n_reduced = {n!r} after that step: a "
+                               "step returns the (n_reduced,) reduced state")
+        bad = np.flatnonzero(~np.isfinite(q))
+        if len(bad):
+            raise CheckFailure(f"the state returned {at} is not finite: q[{bad[0]}] = {q[bad[0]]} ({len(bad)} of "
+                               f"{q.size} entries); a step that cannot answer returns status 'failed' (q None) "
+                               "saying why")
+
+
 def reconstruct_is_the_full_field(ctx: Context) -> None:
     """``reconstruct`` returns a finite ``(n_dof,)`` field, the prescribed (Dirichlet) values of its
     step included (to 1e-3 of their size: :data:`_PRESCRIBED_RTOL`), at every evaluation point of
@@ -231,18 +281,44 @@ def outputs_agree_with_reconstruct(ctx: Context) -> None:
 
 def steps_inside_are_ok(ctx: Context) -> None:
     """Every step at parameters inside the training's range (a model without snapshots: its
-    ``envelope``) returns status ``"ok"``; a trajectory model's every step."""
+    ``envelope``) returns status ``"ok"`` with a finite state and finite outputs; a trajectory
+    model's every step."""
     s = ctx.primary()
     evaluation, driven, _ = s.driven()
     ranges = _envelope(s.training, s.model())
-    for p, res in zip(evaluation.points, driven.results):
+    for p, res, y in zip(evaluation.points, driven.results, driven.outputs):
         if res is None:
             continue
         inside = evaluation.kind == "trajectory" or all(
             k in ranges and ranges[k][0] <= v <= ranges[k][1] for k, v in p.mu.items())
+        where = f"a step inside the training ({dict(p.mu)}, case {s.case.name!r})"
         if inside and res.status != "ok":
-            raise CheckFailure(f"a step inside the training ({dict(p.mu)}, case {s.case.name!r}) returned status "
-                               f"{res.status!r}: {res.message}")
+            raise CheckFailure(f"{where} returned status {res.status!r}: {res.message}")
+        if inside:
+            bad = _non_finite(res.q, y)
+            if bad:
+                raise CheckFailure(f"{where} returned status 'ok' with {bad}: a step that cannot answer returns "
+                                   "status 'failed' saying why")
+
+
+def _non_finite(q, outputs) -> str:
+    """What is not finite in a state ``q`` and its ``outputs`` (``"a non-finite state (q[2] = nan)"``),
+    or "" (a state that is no array of numbers: :func:`steps_return_reduced_states` names it)."""
+    try:
+        values = np.asarray(q, dtype=float).ravel() if q is not None else np.zeros(0)
+    except (TypeError, ValueError):
+        values = np.zeros(0)
+    bad = np.flatnonzero(~np.isfinite(values))
+    if len(bad):
+        return f"a non-finite state (q[{bad[0]}] = {values[bad[0]]})"
+    wrong = {}
+    for k, v in (outputs or {}).items():
+        try:
+            if not math.isfinite(float(v)):
+                wrong[k] = float(v)
+        except (TypeError, ValueError):
+            wrong[k] = v
+    return f"non-finite outputs {wrong}" if wrong else ""
 
 
 def _envelope(training, model) -> dict:
@@ -263,14 +339,18 @@ def floor_ops_runs(ctx: Context) -> None:
     model = s.model()
     try:
         floor = model.floor_ops()
-    except Exception as exc:  # noqa: BLE001
+    except BaseException as exc:  # noqa: BLE001 - the method's code (an exit too)
+        if stops(exc):
+            raise
         raise CheckFailure(f"floor_ops() raised {raised(exc)}") from None
     if not callable(floor):
         raise CheckFailure(f"floor_ops() returned {type(floor).__name__}, not a zero-argument callable")
     try:
         floor()
         floor()
-    except Exception as exc:  # noqa: BLE001
+    except BaseException as exc:  # noqa: BLE001
+        if stops(exc):
+            raise
         raise CheckFailure(f"the callable floor_ops() returned raised {raised(exc)}") from None
 
 
@@ -282,7 +362,9 @@ def step_is_deterministic(ctx: Context) -> None:
     owners = {}
     for res in first.results:  # one array per step: a buffer handed out twice is rewritten under its first holder
         if res is not None and res.q is not None and np.size(res.q):
-            where = np.asarray(res.q).__array_interface__["data"][0]
+            # an array by its buffer (views of one buffer too); anything else by identity (np.asarray
+            # of a list is a new array whose address a later one may reuse)
+            where = res.q.__array_interface__["data"][0] if isinstance(res.q, np.ndarray) else ("object", id(res.q))
             if where in owners:
                 raise CheckFailure(f"the state returned at {res.mu} is the array returned at {owners[where]}: the "
                                    "model changed the state it returned after returning it (a StepResult's q belongs "
@@ -298,13 +380,25 @@ def step_is_deterministic(ctx: Context) -> None:
                                f"{getattr(a, 'status', None)!r}, then {getattr(b, 'status', None)!r}")
         if a.q is None:
             continue
-        if not np.array_equal(np.asarray(a.q), kept):
+        if not _same(np.asarray(a.q), kept):
             raise CheckFailure(f"the model changed the state it returned at {mu} after returning it (a StepResult's q "
                                "belongs to the result: return a new array each step)")
-        scale = max(float(np.abs(kept).max()), 1e-300)
-        if np.shape(b.q) != kept.shape or float(np.abs(np.asarray(b.q) - kept).max()) > 1e-12 * scale:
+        if np.shape(b.q) != kept.shape or not _same(np.asarray(b.q), kept, 1e-12):
             raise CheckFailure(f"two drives from the same start gave different states at {mu} (no seeded randomness "
                                "and no state kept from one run to the next: start() must reset it)")
+
+
+def _same(a: np.ndarray, b: np.ndarray, tol: float = 0.0) -> bool:
+    """``a`` equals ``b`` to ``tol`` times the largest finite entry of ``b``, NaN equal to NaN (a
+    non-finite state is :func:`steps_return_reduced_states`' to name, not a changed one)."""
+    if a.shape != b.shape:
+        return False
+    if not (np.issubdtype(a.dtype, np.number) and np.issubdtype(b.dtype, np.number)):
+        return bool(np.array_equal(a, b))
+    finite = np.abs(b[np.isfinite(b)])
+    scale = max(float(finite.max()) if finite.size else 0.0, 1e-300)
+    return bool(np.allclose(a, b, rtol=0.0, atol=tol * scale, equal_nan=True)) if tol else \
+        bool(np.array_equal(a, b, equal_nan=True))
 
 
 def extrapolation_is_flagged(ctx: Context) -> None:
@@ -322,10 +416,10 @@ def extrapolation_is_flagged(ctx: Context) -> None:
         ints = isinstance(lo, (int, np.integer)) and isinstance(hi, (int, np.integer))
         inside[k] = (lo + hi) // 2 if ints else 0.5 * (lo + hi)
         outside[k] = hi + 10 * (hi - lo) + 1
-    try:
-        model.start(inside)
-        model.step(inside)
-        far = model.step(outside)
+    try:  # copies: a model that writes into its mu must not change what the message quotes
+        model.start(dict(inside))
+        model.step(dict(inside))
+        far = model.step(dict(outside))
     except (ValueError, TypeError) as exc:
         if not any(k in str(exc) for k in outside):
             raise CheckFailure(f"a step at {outside} raised without naming the parameter: {exc}") from None
@@ -406,6 +500,7 @@ def parameters_are_honoured(ctx: Context) -> None:
 #: name -> check function, in the order :func:`~tissuebench.testing.check_method` runs them
 CHECK_FUNCTIONS = {f.__name__: f for f in (
     options_are_constructor_keywords, applies_is_declared_and_consistent, builds_an_online_model,
-    build_does_not_mutate_training, reconstruct_is_the_full_field, outputs_agree_with_reconstruct,
+    build_does_not_mutate_training, step_does_not_mutate_mu, steps_return_reduced_states,
+    reconstruct_is_the_full_field, outputs_agree_with_reconstruct,
     steps_inside_are_ok, floor_ops_runs, step_is_deterministic, extrapolation_is_flagged, failure_is_reported,
     harness_hooks_answer, parameters_are_honoured)}

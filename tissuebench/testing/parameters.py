@@ -13,6 +13,9 @@ returned the state at 0.3, status ok): the model built on the base case is start
 with the base step's parameters plus one more, a misspelt key or a scene parameter
 (:func:`api_parameters_problems`); it must refuse it naming it (at ``start`` or at the step),
 flag it, or answer differently.
+
+A non-finite answer with status ok is none of these (NaN is no "same result" and no changed
+one): the check names it, at the base case or at the changed parameter.
 """
 from __future__ import annotations
 
@@ -28,7 +31,7 @@ from ..studies.protocol import drive
 from ..studies.spec import check_pair
 from ..studies.training import build_training, case_scene
 from .cases import applies_to, entry_dict, parameter_base
-from .subject import CheckFailure, CheckSkipped, raised
+from .subject import CheckFailure, CheckSkipped, raised, stops
 
 __all__ = ["check_parameters_honoured", "run_entry", "api_parameters_problems"]
 
@@ -58,10 +61,13 @@ def run_entry(cls, entry: dict, options: dict):
     try:
         model, ev, history = _built(cls, case, scene, options)
         driven = drive(model, ev, history)
-    except Exception as exc:  # noqa: BLE001 - a unit that raises is stored as failed: flagged
+    except BaseException as exc:  # noqa: BLE001 - a unit that raises (an exit too) is stored as failed: flagged
+        if stops(exc):
+            raise
         return None, [f"failed: {raised(exc)}"]
-    statuses = ["initial" if r is None and k == 0 else "not_reached" if r is None else r.status
-                for k, r in enumerate(driven.results)]
+    # a failed step with its message: "does not run" says why
+    statuses = ["initial" if r is None and k == 0 else "not_reached" if r is None else
+                f"failed: {r.message}" if r.status == "failed" else r.status for k, r in enumerate(driven.results)]
     return driven.fields, statuses
 
 
@@ -93,6 +99,19 @@ def _differs(a, b) -> bool:
                               np.linalg.norm(u - v) > 1e-9 * max(np.linalg.norm(v), 1e-300)):
             return True
     return False
+
+
+def _non_finite(fields) -> str:
+    """Where the first non-finite value of ``fields`` (a drive's fields, None where no step) is
+    (``"field 2 (u[14] = nan)"``), or ""."""
+    for n, u in enumerate(fields or []):
+        if u is None:
+            continue
+        values = np.asarray(u, dtype=float).ravel()
+        bad = np.flatnonzero(~np.isfinite(values))
+        if len(bad):
+            return f"field {n} (u[{bad[0]}] = {values[bad[0]]})"
+    return ""
 
 
 def _refused(entry: dict, cls, options) -> bool:
@@ -133,6 +152,10 @@ def check_parameters_honoured(ctx) -> None:
     if not all(s in ("ok", "initial") for s in statuses):
         raise CheckFailure(f"the base case {entry['name']!r} ({evaluation['kind']} evaluation) does not run: "
                            f"{statuses[:3]}")
+    if _non_finite(base_fields):
+        raise CheckFailure(f"the base case {entry['name']!r} ({evaluation['kind']} evaluation) returned a non-finite "
+                           f"{_non_finite(base_fields)}, every step ok: no changed parameter can be compared with it "
+                           "(a step that cannot answer returns status 'failed' saying why)")
     problems = []
     for key in _scene_parameters(scene):
         value = _changed(scene, key)
@@ -145,7 +168,9 @@ def check_parameters_honoured(ctx) -> None:
             continue
         fields, statuses = run_entry(cls, trial, options)
         flagged = any(s not in ("ok", "initial") for s in statuses)
-        if not flagged and not (comparable and _differs(fields, base_fields)):
+        if not flagged and _non_finite(fields):
+            problems.append(f"{key} = {value!r}: a non-finite {_non_finite(fields)}, every step ok")
+        elif not flagged and not (comparable and _differs(fields, base_fields)):
             problems.append(f"{key} = {value!r}: the same result, every step ok")
     problems += _trajectory_load_scale(ctx, evaluation["kind"])
     problems += api_parameters_problems(cls, {**entry, "evaluation": evaluation}, options)
@@ -168,8 +193,16 @@ def _trajectory_load_scale(ctx, base_kind: str) -> list:
     base_fields, statuses = run_entry(cls, base, options)
     if not all(s in ("ok", "initial") for s in statuses):
         return [f"the trajectory base {table['name']!r} does not run: {statuses[:3]}"]
+    if _non_finite(base_fields):
+        return [f"the trajectory base {table['name']!r} returned a non-finite {_non_finite(base_fields)}, every step "
+                "ok"]
     fields, statuses = run_entry(cls, {**base, "evaluation": {"kind": "trajectory", "load_scale": 0.5}}, options)
-    if any(s not in ("ok", "initial") for s in statuses) or _differs(fields, base_fields):
+    if any(s not in ("ok", "initial") for s in statuses):
+        return []
+    if _non_finite(fields):
+        return [f"on trajectory case {table['name']!r}: load_scale 0.5 returned a non-finite {_non_finite(fields)}, "
+                "every step ok"]
+    if _differs(fields, base_fields):
         return []
     return [f"on trajectory case {table['name']!r}: load_scale 0.5 returned the training's answer, every step ok"]
 
@@ -208,6 +241,8 @@ def api_parameters_problems(cls, entry: dict, options: dict) -> list:
     base, base_field = _answer(model, start, mu0, {})
     if isinstance(base, Exception):
         return [f"the first step of the base case at {mu0} raised {type(base).__name__}: {base}"]
+    if base.status == "ok" and _non_finite([base_field]):
+        return [f"the first step of the base case at {mu0} (Python API): a non-finite answer, status ok"]
     harness = {"load_factor", "time", "node", "cut_length"} | set(mu0)
     keys = ["bogus_parameter"] + [k for k in _scene_parameters(scene) if k not in harness]
     problems = []
@@ -217,6 +252,9 @@ def api_parameters_problems(cls, entry: dict, options: dict) -> list:
         if isinstance(res, Exception):
             if key not in str(res):
                 problems.append(f"{key} = {value!r} at a step: refused without naming it ({res})")
+            continue
+        if res.status == "ok" and _non_finite([field]):
+            problems.append(f"{key} = {value!r} at a step (Python API): accepted, a non-finite answer, status ok")
             continue
         same = res.status == base.status and not _differs([field], [base_field])
         if res.status == "ok" and same:

@@ -34,8 +34,11 @@ Three checks of a sweep's results folder, at least one asked for:
   p99 rule, :mod:`tissuebench.reports.recommend`): every case needs a unit that meets them.
 
 Nothing passes vacuously: a baseline without units, results that share no unit with what
-they are compared with, or an A/B that compared no unit are errors (exit 2); a sweep whose
-units all failed is a regression (exit 1).
+they are compared with, an A/B that compared no unit, or a project under test that holds none
+of the sweep's methods (each would run the same code on both sides,
+:mod:`tissuebench.studies.ab_scope`) are errors (exit 2); a sweep whose units all failed is a
+regression (exit 1). Every path the check writes (``--junit``, ``RESULTS/_gate/``) is checked
+before any work (:func:`.io.check_outputs`).
 """
 from __future__ import annotations
 
@@ -48,18 +51,19 @@ import tomlkit
 from ...studies.ab_project import describe_head, export_project, find_project, head_code
 from ...studies.ab_ref import (check_ref_text, file_at_ref, portable_spec_text, ref_import_error, resolve_ref,
                                run_ref_sweep)
+from ...studies.ab_scope import check_scope
 from ...studies.ref_scratch import ref_scratch
 from ..recommend import parse_requirement
 from . import checks
 from .baseline import DEFAULTS, BaselineError, load_baseline, unit_identity, update_baseline
-from .io import GateOutputError, read_gate_results, write_ab_artifacts, write_junit
+from .io import GateOutputError, check_outputs, read_gate_results, write_ab_artifacts, write_junit
 from .result import ABSettings, CheckResult, Finding
 
 # the folder holding the tissuebench package this process runs: HEAD's side of every A/B
 HEAD_ROOT = Path(__file__).resolve().parents[3]
 
 __all__ = ["check", "baseline_rows", "ABSettings", "CheckResult", "Finding", "BaselineError", "GateOutputError",
-           "load_baseline", "update_baseline", "write_junit"]
+           "check_outputs", "load_baseline", "update_baseline", "write_junit"]
 
 
 def baseline_rows(results_dir) -> tuple[dict, list]:
@@ -109,9 +113,13 @@ def check(results_dir, baseline=None, against: str | None = None, require: str |
                                          f"all {len(rows)} units of the sweep failed"))
     proj = None
     if against is not None:
+        check_outputs(results_dir, ab=True)  # RESULTS/_gate/, written at the end: refused before REF's minutes
         proj = find_project([(r.get("method_source"), r.get("method_distribution")) for r in rows.values()],
                             HEAD_ROOT, project)
         out.project = f"{proj.repo} ({proj.how})"
+        # a project that holds none of the methods would compare each with itself: refused before any work
+        out.notes += check_scope([(r.get("method"), r.get("method_source"), r.get("method_distribution"),
+                                   r.get("method_version")) for r in rows.values()], proj, against)
     # a REF git cannot resolve is an error (a typo must not pass on the file), save in a shallow clone
     sha, why = _resolve(proj, against) if against is not None else (None, "")
     if against is not None and sha is None:

@@ -4,7 +4,9 @@
 ``RESULTS/_gate/ab_samples.parquet`` holds every timed step of the A/B (uid, side, round,
 block, sample, haptic_s, plus case, method, options); ``ab_verdicts.parquet`` one row per
 unit (ratio, interval, medians, verdict) and ``ab_ratios.png`` plots the ratios with their
-intervals beside the threshold. All written atomically.
+intervals beside the threshold. All written atomically, and every path checked before any
+work (:func:`check_outputs`): a gate must not run REF's sweep and the A/B for minutes and then
+find that it cannot write what it found.
 """
 from __future__ import annotations
 
@@ -14,15 +16,41 @@ from pathlib import Path
 
 import pandas as pd
 
-from ...studies.atomic_files import replacing
+from ...studies.atomic_files import OutputPathError, output_file, replacing
 from ...studies.results import read_units, write_table
 from ...studies.sweep_manifest import read_sweep_manifest
 
-__all__ = ["GateOutputError", "read_gate_results", "write_ab_artifacts", "write_junit"]
+__all__ = ["GateOutputError", "AB_FILES", "check_outputs", "read_gate_results", "write_ab_artifacts", "write_junit"]
 
 
 class GateOutputError(OSError):
     """A gate output (JUnit, baseline) that cannot be written (the message names the path)."""
+
+
+#: the A/B's files, in ``RESULTS/_gate/``
+AB_FILES = ("ab_samples.parquet", "ab_verdicts.parquet", "ab_ratios.png")
+
+
+def check_outputs(results_dir, junit=None, ab: bool = False) -> None:
+    """Refuse, before any work, an output the check would fail to write at its end
+    (:class:`~tissuebench.studies.atomic_files.OutputPathError`, naming the argument and the path):
+    ``junit`` (``--junit``) that is a folder, a device, a FIFO, a loop of links, under a file, in
+    an unwritable folder or in a folder that does not exist (a new folder is not made for it);
+    with ``ab``, the A/B's files in ``RESULTS/_gate/`` (:data:`AB_FILES`): ``_gate`` that is not
+    a folder, a file of it that is not a regular file, an unwritable folder."""
+    if junit is not None:
+        target = output_file(junit, "--junit")
+        if not target.parent.is_dir():
+            raise OutputPathError(f"--junit {junit}: the folder {target.parent} does not exist (create it first, "
+                                  f"e.g. mkdir -p {target.parent})")
+    if ab:
+        folder = Path(results_dir) / "_gate"
+        try:
+            for name in AB_FILES:
+                output_file(folder / name, "results")
+        except OutputPathError as exc:
+            raise OutputPathError(f"{exc} (the A/B's samples, verdicts and plot are written to {folder}/ at the "
+                                  "end of the check)") from None
 
 
 def read_gate_results(results_dir) -> tuple[dict, str]:
@@ -64,14 +92,14 @@ def write_ab_artifacts(results_dir, samples: pd.DataFrame, verdicts: dict, again
                           for k, v in verdicts.items()])
     try:
         folder.mkdir(exist_ok=True)
-        write_table(samples, folder / "ab_samples.parquet")
-        write_table(table, folder / "ab_verdicts.parquet")
+        write_table(samples, folder / AB_FILES[0])
+        write_table(table, folder / AB_FILES[1])
     except OSError as exc:
         return f"the A/B samples could not be written to {folder}: {exc.strerror or exc}"
     try:
-        _plot(table, folder / "ab_ratios.png", against)
+        _plot(table, folder / AB_FILES[2], against)
     except Exception as exc:  # noqa: BLE001 - a picture must never cost the verdict (it is computed and kept)
-        return f"the A/B plot {folder / 'ab_ratios.png'} could not be drawn: {type(exc).__name__}: {exc}"
+        return f"the A/B plot {folder / AB_FILES[2]} could not be drawn: {type(exc).__name__}: {exc}"
     return ""
 
 
