@@ -4,6 +4,8 @@ applied, the gravity lumped onto the clamped nodes dropped). Each load below als
 the clamped face (the top face's edge, the body's clamped layer), where the old monitor lost it."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -123,3 +125,91 @@ def test_the_mixed_formulation_balances_gravity_too(tmp_path):
     weight = 9810.0 * 0.04 * 0.02 * 0.02
     np.testing.assert_allclose([row["rx"], row["ry"], row["rz"]], [0.0, 0.0, weight], rtol=1e-6,
                                atol=1e-9 * weight)
+
+
+# ---------------------------------------------------------------- dynamics (issue 54)
+def _dynamic_scene(tmp_path, integrator, dt, extra=""):
+    """The block under the top-face traction applied at once (a step), integrated for 20 steps, with a
+    displacement monitor beside the reactions (the trajectory training's output functional)."""
+    load_toml = LOADS["traction"] + '\nhistory = { type = "step", t0 = 0.0 }'
+    text = _SCENE.format(load=load_toml, element="P1", divisions="4, 2, 2", formulation="")
+    text = text.replace('name = "neo_hookean"', 'name = "linear"').replace(
+        'type = "static"\nload_steps = 2', f'type = "dynamic"\nintegrator = "{integrator}"\ndt = {dt}\n'
+                                           f't_end = {20 * dt}\n{extra}')
+    text += '[[monitor]]\nname = "tip_ux"\nquantity = "displacement"\npoint = [0.04, 0.01, 0.02]\ncomponent = "x"\n'
+    path = tmp_path / "block_dynamic.toml"
+    path.write_text(text, encoding="utf-8")
+    return load(path)
+
+
+@pytest.mark.parametrize("integrator, dt", [("newmark", 1e-3), ("central_difference", 2e-5)])
+def test_dynamic_reactions_are_the_load_plus_the_inertia(tmp_path, integrator, dt):
+    """Momentum balance of the whole block: the supports' reactions plus the applied load are the rate of
+    momentum, sum_j m_j a_j with m_j the row sums of the mass (sum m_j = rho V), K's rows summing to zero
+    on a translation; a24e7fa raised "monitor 'rx' needs the support reactions"."""
+    from tissuebench.studies.trajectories import reference_run, run_monitors, scene_system, trajectory_training
+
+    scene = _dynamic_scene(tmp_path, integrator, dt)
+    ss = scene_system(scene)
+    res = reference_run(ss)
+    assert res.success, res.message
+    rows = run_monitors(ss, res)
+    assert len(rows) == 21 and set(rows[0]) == {"rx", "ry", "rz", "tip_ux"}
+    nodal_mass = np.asarray(ss.system.M.sum(axis=1)).ravel().reshape(-1, 3)
+    np.testing.assert_allclose(nodal_mass.sum(axis=0), 1000.0 * 0.04 * 0.02 * 0.02, rtol=1e-12)
+    be = ss.backend
+    inertia_seen = 0.0
+    for row, t, u, a in zip(rows, res.t_stored, res.u, res.a):
+        applied = be.external_force(u, float(scene.history(t))).reshape(-1, 3).sum(axis=0)
+        inertia = (nodal_mass * a.reshape(-1, 3)).sum(axis=0)
+        reactions = np.array([row["rx"], row["ry"], row["rz"]])
+        np.testing.assert_allclose(reactions + applied, inertia, rtol=0, atol=1e-9 * np.abs(applied).max())
+        inertia_seen = max(inertia_seen, np.abs(inertia).max() / np.abs(applied).max())
+    assert inertia_seen > 0.1   # the inertia is a real part of the reactions here, not round-off
+    # the training builds its output functional beside the reaction monitors
+    training = trajectory_training(ss)
+    assert set(training.outputs) == {"tip_ux"}
+    np.testing.assert_allclose(training.outputs["tip_ux"] @ res.u[-1], rows[-1]["tip_ux"], rtol=1e-12)
+
+
+def test_dynamic_reactions_at_rest_are_the_static_ones(tmp_path):
+    """v = a = 0: the reaction of the static path, f_int - f_ext on the fixed dofs; in motion the supports'
+    inertia and damping come on top (here M a: a consistent mass couples the clamped rows)."""
+    from tissuebench.studies.trajectories import scene_system
+
+    ss = scene_system(_dynamic_scene(tmp_path, "newmark", 1e-3))
+    pb, be, n = ss.backend.problem, ss.backend, ss.system.n
+    u = np.random.default_rng(0).normal(scale=1e-4, size=n)
+    u[pb.fixed_dofs] = 0.0
+    static = pb.support_reactions(be.internal_force(u), be.external_force(u, 1.0))
+    np.testing.assert_allclose(ss.system.reactions(0.01, u, np.zeros(n), np.zeros(n)), static, rtol=1e-13,
+                               atol=1e-15)
+    a = np.zeros(n)
+    a[pb.free_dofs] = 1.0
+    moving = ss.system.reactions(0.01, u, np.zeros(n), a)
+    np.testing.assert_allclose(moving - static, (ss.system.M @ a) * np.isin(np.arange(n), pb.fixed_dofs),
+                               rtol=1e-13, atol=1e-15)
+    assert np.abs(moving - static).max() > 1e-6
+
+
+def test_dynamic_reaction_monitors_need_the_state(tmp_path):
+    """Both sides: the reaction monitors need t, v and a (named when missing), and a run's monitors its full state;
+    a scene without them evaluates from u alone."""
+    from tissuebench.refsolvers.dynamics import integrate
+    from tissuebench.studies.trajectories import run_monitors, scene_system
+
+    ss = scene_system(_dynamic_scene(tmp_path, "newmark", 1e-3))
+    n = ss.system.n
+    u = np.zeros(n)
+    with pytest.raises(ValueError, match=r"^reaction_block: monitors \['rx', 'ry', 'rz'\] read the support "
+                                         r"reactions of a dynamic state, which need t, v, a \("):
+        ss.monitors(u)
+    with pytest.raises(ValueError, match=r"which need a \("):
+        ss.monitors(u, 0.0, np.zeros(n))
+    assert ss.monitors(u, 0.0, np.zeros(n), np.zeros(n))["tip_ux"] == 0.0
+    part = integrate(ss.system, None, None, 1e-3, 2e-3, method="newmark", dofs=[0, 1])
+    with pytest.raises(ValueError, match=rf"^res stores 2 of the {n} dofs: the monitors need the full state "):
+        run_monitors(ss, part)
+    scene = _dynamic_scene(tmp_path, "newmark", 1e-3)
+    scene = dataclasses.replace(scene, monitors=[m for m in scene.monitors if m["name"] == "tip_ux"])
+    assert scene_system(scene).monitors(u) == {"tip_ux": 0.0}

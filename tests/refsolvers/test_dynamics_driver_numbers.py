@@ -145,6 +145,8 @@ def test_central_difference_blow_up_by_hand():
                            f"{factor:.1e} x the energy supplied ({supplied:.3e} J)")
     assert res.message == "step 3 (t=0.63): energy 6.260e+02 J exceeds 1.0e+01 x the energy supplied (5.000e+01 J)"
     assert res.n_steps == n and len(res.t) == n + 1 and list(res.stored_steps) == [0, 1, 2, 3]
+    # issue 54: the step that blew up was computed and is the last in the arrays; none was rejected
+    assert res.blow_up_step == n == res.n_steps and res.rejected_step is None
     np.testing.assert_allclose(res.u[:, 0], us, rtol=1e-13)
     np.testing.assert_allclose(res.total_energy, es, rtol=1e-13)
     assert res.method == "central_difference" and res.options == {"force": True}
@@ -156,6 +158,21 @@ def test_central_difference_blow_up_by_hand():
     sparse = integrate(one_dof(m, k), [1.0], None, dt, 40 * dt, method="central_difference", force=True,
                        blowup_factor=factor, store_every=100)
     assert list(sparse.stored_steps) == [0, n] and sparse.u[:, 0] == pytest.approx([us[0], us[n]], rel=1e-13)
+
+
+def test_failed_step_kinds_in_the_result_and_the_reference_info():
+    """Issue 54: one step index, two meanings, now two names beside the kept ``failed_step``; a success
+    has none; the reference's info (stored with the cache) carries all three."""
+    from tissuebench.reference.result import dynamics_output
+
+    ok = integrate(one_dof(), [1.0], None, 1.0, 2.0, method="forward_euler", growth_tol=100.0)
+    blown = integrate(one_dof(), [1.0], None, 1.0, 10.0, method="forward_euler", blowup_factor=4.0)
+    assert (ok.failed_step, ok.rejected_step, ok.blow_up_step) == (None, None, None)
+    assert (blown.failed_step, blown.rejected_step, blown.blow_up_step) == (3, None, 3) and blown.n_steps == 3
+    for res in (ok, blown):
+        info = dynamics_output(res, [{}] * len(res.t), {}, 1)["info"]
+        assert (info["failed_step"], info["rejected_step"], info["blow_up_step"]) == \
+            (res.failed_step, res.rejected_step, res.blow_up_step)
 
 
 def test_blow_up_threshold_is_strict_forward_euler_doubling():
@@ -305,6 +322,8 @@ def test_newton_failure_message_by_hand():
     assert res.message.endswith("tolerance 1.100e-13 N)")
     assert res.n_steps == 0 and list(res.stored_steps) == [0] and res.u.shape == (1, 1) and res.u[0, 0] == 1.0
     assert seen == [0.0] and res.observations == [{"t": 0.0}]
+    # issue 54: the failed step was not computed: the arrays end before it
+    assert res.rejected_step == 1 == res.n_steps + 1 and res.blow_up_step is None
     # the same options, enough iterations: success
     ok = integrate(cubic, [1.0], [0.0], 0.1, 0.2, method="newmark", newton_rtol=1e-10)
     assert ok.success and ok.n_steps == 2
@@ -324,6 +343,8 @@ def test_non_finite_explicit_step_is_a_blow_up(method):
     assert res.status == "blow_up" and res.failed_step == 1
     assert res.message == "step 1: non-finite state at t=0.1"
     assert res.n_steps == 0 and list(res.u[:, 0]) == [1.0] and list(res.v[:, 0]) == [10.0]
+    # a blow_up status, but of a step that was never recorded: rejected, not an energy blow-up (issue 54)
+    assert res.rejected_step == 1 and res.blow_up_step is None
 
 
 # ------------------------------------------------------------------ 5. observe
@@ -434,7 +455,10 @@ def test_check_spd_mass_cheap_checks():
                    check_spd_mass, csr(np.diag([1.0, 2.0, -0.5])))
     raises_exactly(ValueError, "M is not positive definite: diagonal entry M[1,1] = -1.0 <= 0",
                    check_spd_mass, csr(np.diag([1.0, -1.0, -2.0])))
-    assert check_spd_mass(csr(np.diag([1.0, 1e-300]))) is None   # tiny but positive passes (dense path)
+    # tiny but positive: refused as on the sparse path (issue 54; a24e7fa's Cholesky accepted it)
+    raises_exactly(ValueError, "M is not positive definite: Cholesky pivots not all clearly positive (smallest "
+                   "1.000e-300, largest 1.000e+00: below 1e-14 x the largest)", check_spd_mass,
+                   csr(np.diag([1.0, 1e-300])))
     assert check_spd_mass(csr([[2.0, 1.0], [1.0, 2.0]])) is None
 
 
@@ -467,16 +491,18 @@ def test_check_spd_mass_dense_indefinite(a, shown):
 
 def test_dense_limit_boundary(monkeypatch):
     assert DENSE_LIMIT == 1500
-    indefinite = csr([[2.0, 1.5], [1.5, 1.0]])        # LU without row swap: pivots 2, 1 - 1.5^2 / 2 = -0.125
+    indefinite = csr([[2.0, 1.5], [1.5, 1.0]])        # eigenvalues (3 -+ sqrt(10)) / 2: one negative
     monkeypatch.setattr(checks, "DENSE_LIMIT", 2)     # n == limit: dense (eigenvalue message)
     raises_exactly(ValueError, "M is not positive definite: smallest eigenvalue -8.114e-02", check_spd_mass,
                    indefinite)
     monkeypatch.setattr(checks, "DENSE_LIMIT", 1)     # n > limit: sparse LU (pivot message)
-    raises_exactly(ValueError, "M is not positive definite: LU pivots not all clearly positive", check_spd_mass,
-                   indefinite)
+    # the ordering takes dof 1 first: pivots 1 and 2 - 1.5^2 / 1 = -0.25
+    raises_exactly(ValueError, LU_MSG.format("-2.500e-01", "1.000e+00"), check_spd_mass, indefinite)
 
 
 N_BIG = DENSE_LIMIT + 100
+LU_MSG = ("M is not positive definite: LU pivots not all clearly positive (smallest {}, largest {}: below 1e-14 x "
+          "the largest)")
 
 
 def big_with_block(block, at=700, n=N_BIG):
@@ -490,15 +516,14 @@ def test_check_spd_mass_sparse_path():
     tri = sp.diags([-np.ones(N_BIG - 1), 4.0 * np.ones(N_BIG), -np.ones(N_BIG - 1)], [-1, 0, 1], format="csr")
     assert check_spd_mass(tri) is None
     assert check_spd_mass(big_with_block([[1.0, 0.5], [0.5, 1.0]])) is None
-    raises_exactly(ValueError, "M is not positive definite: LU pivots not all clearly positive", check_spd_mass,
+    raises_exactly(ValueError, LU_MSG.format("-2.500e-01", "1.000e+00"), check_spd_mass,   # dof 701 first, as above
                    big_with_block([[2.0, 1.5], [1.5, 1.0]]))
     raises_exactly(ValueError, "M is singular: Factor is exactly singular", check_spd_mass,
                    big_with_block([[1.0, 1.0], [1.0, 1.0]]))
-    # tiny positive diagonal: accepted by the dense Cholesky, refused by the sparse pivot test
+    # tiny positive diagonal: refused by the sparse pivot test, as by the dense one (test_check_spd_mass_cheap_checks)
     d = np.ones(DENSE_LIMIT + 1)
     d[-1] = 1e-300
-    raises_exactly(ValueError, "M is not positive definite: LU pivots not all clearly positive", check_spd_mass,
-                   sp.diags(d, format="csr"))
+    raises_exactly(ValueError, LU_MSG.format("1.000e-300", "1.000e+00"), check_spd_mass, sp.diags(d, format="csr"))
 
 
 def test_check_spd_mass_sparse_pivot_ratio_boundary():
@@ -506,18 +531,42 @@ def test_check_spd_mass_sparse_pivot_ratio_boundary():
     d[900] = 1e-14 * 4.0
     assert check_spd_mass(sp.diags(d, format="csr")) is None
     d[900] = np.nextafter(1e-14 * 4.0, 0.0)
-    raises_exactly(ValueError, "M is not positive definite: LU pivots not all clearly positive", check_spd_mass,
-                   sp.diags(d, format="csr"))
+    raises_exactly(ValueError, LU_MSG.format("4.000e-14", "4.000e+00"), check_spd_mass, sp.diags(d, format="csr"))
     d[900] = 3e-14
     with pytest.raises(ValueError, match="LU pivots"):
         check_spd_mass(sp.diags(d, format="csr"))
 
 
+@pytest.mark.parametrize("n, factorisation", [(2, "Cholesky"), (N_BIG, "LU")])
+def test_check_spd_mass_pivot_ratio_is_the_same_on_both_paths(n, factorisation):
+    """Issue 54: a24e7fa's dense path took any positive definite M (a 1e-300 diagonal beside 4), its sparse
+    path refused pivots below 1e-14 x the largest; both refuse now, on both sides of the same ratio (the
+    Cholesky pivots are L's squared diagonal: a relative margin of 1e-12 is far above its round-off)."""
+    d = 4.0 * np.ones(n)
+    d[1] = 4e-14 * (1 + 1e-12)
+    assert check_spd_mass(sp.diags(d, format="csr")) is None
+    msg = ("M is not positive definite: {} pivots not all clearly positive (smallest {}, largest 4.000e+00: below "
+           "1e-14 x the largest)")
+    d[1] = 4e-14 * (1 - 1e-12)
+    raises_exactly(ValueError, msg.format(factorisation, "4.000e-14"), check_spd_mass, sp.diags(d, format="csr"))
+    d[1] = 1e-300
+    raises_exactly(ValueError, msg.format(factorisation, "1.000e-300"), check_spd_mass, sp.diags(d, format="csr"))
+
+
+def test_check_spd_mass_dense_refuses_a_mass_singular_to_round_off():
+    # [[1, 1], [1, 1 + 2^-50]]: Cholesky succeeds with pivots 1 and 2^-50 = 8.9e-16 < 1e-14
+    e = 2.0 ** -50
+    raises_exactly(ValueError, "M is not positive definite: Cholesky pivots not all clearly positive (smallest "
+                   "8.882e-16, largest 1.000e+00: below 1e-14 x the largest)", check_spd_mass,
+                   csr([[1.0, 1.0], [1.0, 1.0 + e]]))
+    assert check_spd_mass(csr([[1.0, 1.0], [1.0, 1.0 + 2.0 ** -46]])) is None   # 1.4e-14 is clear
+
+
 def test_sparse_path_refuses_an_indefinite_block_row_pivoting_would_hide():
     # [[1, 2], [2, 1]] (eigenvalues 3, -1): diagonal pivots 1 and 1 - 4 = -3; a row swap would give 2 and 1.5
-    raises_exactly(ValueError, "M is not positive definite: LU pivots not all clearly positive", check_spd_mass,
+    raises_exactly(ValueError, LU_MSG.format("-3.000e+00", "3.000e+00"), check_spd_mass,
                    big_with_block([[1.0, 2.0], [2.0, 1.0]]))
-    raises_exactly(ValueError, "M is not positive definite: LU pivots not all clearly positive", check_spd_mass,
+    raises_exactly(ValueError, LU_MSG.format("-3.000e+00", "3.000e+00"), check_spd_mass,
                    big_with_block([[1.0, 2.0], [2.0, 1.0]], at=0))
 
 

@@ -95,3 +95,26 @@ def test_a_nonlinear_system_with_a_follower_load_and_a_moving_support():
     assert be.calls[-1][2] == 0.75
     assert s.energy(u, uc) == pytest.approx(0.5 * full @ K3 @ full, rel=1e-14)
     np.testing.assert_allclose(s.C_ff.toarray(), 0.1 * M3[np.ix_([0, 2], [0, 2])] + 0.003 * K3[np.ix_([0, 2], [0, 2])])
+
+
+def test_the_round_off_floor_of_an_fe_system_is_the_static_newtons():
+    """Issue 54: the step Newton's round-off floor is statics' (eps x the free rows of the tangent at rest times a
+    unit dilation of the nodes about their centre); a linear system and a backend without nodes have none."""
+    from tissuebench.cases.meshes import box_mesh
+    from tissuebench.refsolvers import Dirichlet, PointLoad, Problem, make_backend, make_material
+    from tissuebench.refsolvers.newton import _Equilibrium
+
+    mesh = box_mesh((1.0, 0.1, 0.1), (4, 1, 1), "tetra")
+    problem = Problem(mesh, make_material("neo_hookean", E=1e4, nu=0.45), "P1",
+                      dirichlet=[Dirichlet(lambda x: x[:, 0] < 1e-9)],
+                      loads=[PointLoad(lambda x: x[:, 0] > 1 - 1e-9, np.array([0.0, -0.01, 0.0]))])
+    be = make_backend("skfem", problem)
+    s = SecondOrderSystem.from_backend(be, lambda t: 1.0)
+    nodes = np.asarray(problem.nodes)
+    np.testing.assert_array_equal(s.unit_strain, (nodes - nodes.mean(axis=0)).ravel())
+    K_f = be.tangent(np.zeros(be.ndof))[problem.free_dofs]
+    assert s.round_off_floor == pytest.approx(_Equilibrium(be, 1.0).round_off_floor(K_f), rel=1e-12)
+    assert 0.0 < s.round_off_floor < 1e-9
+    assert SecondOrderSystem.from_backend(be, lambda t: 1.0, linear=True).round_off_floor == 0.0
+    spring = SecondOrderSystem.from_backend(SpringBackend(), history)
+    assert spring.unit_strain is None and spring.round_off_floor == 0.0

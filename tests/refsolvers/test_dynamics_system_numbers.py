@@ -101,6 +101,38 @@ def test_support_force_by_hand():
     np.testing.assert_allclose(s.support_force(u_f, u_c, v, a, mass=sp.csr_matrix(Md)),
                                (Md @ a + C3 @ v + K3 @ u)[C], rtol=1e-14)
     np.testing.assert_allclose(_sys3(damped=False).support_force(u_f, u_c, v, a), (M3 @ a + K3 @ u)[C], rtol=1e-14)
+    # the scheme's own damping (a lumped scheme's C_L) replaces C_full
+    Cd = np.diag([0.5, 0.25, 2.0]) + BK * K3
+    np.testing.assert_allclose(s.support_force(u_f, u_c, v, a, mass=sp.csr_matrix(Md), damping=sp.csr_matrix(Cd)),
+                               (Md @ a + Cd @ v + K3 @ u)[C], rtol=1e-14)
+
+
+def _loaded3(load, **kw):
+    return SecondOrderSystem.linear_system(M3, K3, load, free=F, alpha_m=AM, beta_k=BK,
+                                           prescribed=lambda t: np.array([2.0 * t]), **kw)
+
+
+def test_reactions_by_hand():
+    # (M a + C v + K u - f)[C] on the fixed dof 1, zero on the free ones: f = (1, 7, -2) + t (0, 1, 0)
+    u, v, a = np.array([0.1, 0.3, -0.2]), np.array([1.0, 2.0, 3.0]), np.array([-1.0, 0.5, 2.0])
+    f = np.array([1.0, 7.5, -2.0])
+    load = _loaded3(lambda t: np.array([1.0, 7.0 + t, -2.0]))
+    want = np.zeros(3)
+    want[C] = (M3 @ a + C3 @ v + K3 @ u - f)[C]
+    np.testing.assert_allclose(load.reactions(0.5, u, v, a), want, rtol=1e-14, atol=0)
+    assert load.reactions(0.5, u, v, a)[F].tolist() == [0.0, 0.0]
+    # at rest: f_int - f_ext, as the static path (Problem.support_reactions)
+    rest = load.reactions(0.5, u, np.zeros(3), np.zeros(3))
+    assert rest[1] == pytest.approx((K3 @ u - f)[1], rel=1e-14)
+    # a follower load is called with (t, u); the scheme's mass and damping replace M and C_full
+    follower = _loaded3(lambda t, x: np.array([0.0, 2.0 * x[1] + t, 0.0]), load_depends_on_u=True)
+    Md, Cd = np.diag([1.0, 2.0, 3.0]), np.diag([0.5, 0.25, 2.0])
+    got = follower.reactions(0.5, u, v, a, mass=sp.csr_matrix(Md), damping=sp.csr_matrix(Cd))
+    assert got[1] == pytest.approx((Md @ a + Cd @ v + K3 @ u)[1] - (0.6 + 0.5), rel=1e-14)
+    with pytest.raises(ValueError, match=_msg("a must have shape (3,), got (2,)")):
+        load.reactions(0.5, u, v, a[:2])
+    with pytest.raises(ValueError, match=_msg("load(t) at t=0.5 must have shape (3,), got (2,)")):
+        _loaded3(lambda t: np.zeros(2)).reactions(0.5, u, v, a)
 
 
 def test_expand_f_int_and_energy_with_the_fixed_values():
@@ -409,6 +441,16 @@ def test_recorder_with_a_prescribed_motion_and_its_own_mass_by_hand():
     np.testing.assert_allclose(res.damping_dissipation, [0.0, d], rtol=1e-14)
     np.testing.assert_allclose(res.u, uf, rtol=0)
     assert res.options == {"x": 1} and res.method == "hand" and res.dt == 0.1
+    # the scheme's own damping on all dofs: in the support force and in the dissipation (issue 54)
+    Cd = np.array([[0.6, -0.02], [-0.02, 0.19]])
+    rec = Recorder(s, sp.csr_matrix([[3.0]]), 1, mass_full=sp.csr_matrix(Md), damping_full=sp.csr_matrix(Cd))
+    for t, u, v, a, f, c in states:
+        rec.record(t, np.array(u), np.array(v), np.array(a), np.array(f), constrained=c)
+    res = rec.finish("hand", 0.1, "success", "", None, {})
+    r = (af @ Md.T + vf @ Cd.T + uf @ K2.T)[:, 1]
+    np.testing.assert_allclose(res.reaction_work, [0.0, 0.5 * (r[0] + r[1]) * (0.09 - 0.05)], rtol=1e-14)
+    np.testing.assert_allclose(res.damping_dissipation,
+                               [0.0, 0.5 * float((Cd @ (vf[0] + vf[1])) @ (uf[1] - uf[0]))], rtol=1e-14)
 
 
 def _one_dof_recorder(damping_force=None, store_every=1):
@@ -433,6 +475,11 @@ def test_recorder_without_strain_energy_accumulates_the_internal_work():
     assert res.newton_iterations.tolist() == [0, 2, 0] and res.converged.tolist() == [True, True, False]
     assert res.wall_time.tolist() == [0.0, 0.25, 0.0] and res.reaction_work is None
     assert res.status == "newton_failed" and res.failed_step == 2 and not res.success and res.n_steps == 2
+    assert res.rejected_step == 2 and res.blow_up_step is None    # blown_up=False: the step was rejected
+    blown = _one_dof_recorder()
+    blown.record(0.0, np.array([0.5]), z, z, z)
+    out = blown.finish("hand", 0.1, "blow_up", "m", 0, {}, blown_up=True)
+    assert (out.failed_step, out.rejected_step, out.blow_up_step) == (0, None, 0)
     mech = np.array([0.0, 1.0 + 0.28125 + 0.75, 4.28125 + 2.25])
     supplied = np.array([0.0, 1.0, 5.0])
     np.testing.assert_allclose(res.energy_error, mech - supplied, rtol=1e-15)
@@ -658,3 +705,74 @@ def test_set_state_names_the_vector_of_a_wrong_shape(name, index):
     with pytest.raises(ValueError) as err:
         integ.set_state(*args)
     assert str(err.value) == f"{name} must have shape (1,), got (3,)"
+
+
+# ---------------------------------------------------------------- round-off floor, tiny loads (issue 54)
+EPS = np.finfo(float).eps
+
+
+def test_round_off_floor_by_hand():
+    # K0 = K3 at u = 0; its free rows (0, 2) times X = (1, -2, 0.5): 10 + 6 + 0.5 = 16.5 and 1 + 10 + 3.5 = 14.5
+    X = np.array([1.0, -2.0, 0.5])
+    assert _nonlinear(unit_strain=X).round_off_floor == pytest.approx(EPS * np.sqrt(16.5 ** 2 + 14.5 ** 2), rel=1e-15)
+    assert _nonlinear().round_off_floor == 0.0                       # no unit strain: no floor
+    linear = SecondOrderSystem.linear_system(M3, K3, np.zeros(3), free=F, unit_strain=X)
+    assert linear.round_off_floor == 0.0                             # K u: its round-off shrinks with u
+    with pytest.raises(ValueError, match=_msg("unit_strain must have shape (3,), got (2,)")):
+        _nonlinear(unit_strain=[1.0, 2.0])
+
+
+def _cubic(load, unit_strain=None):
+    """M = 1, f_int = 4 u + u^3: a 1-dof nonlinear spring (Newton iterates, no single linear solve)."""
+    return SecondOrderSystem(M=[[1.0]], internal_force=lambda u: 4.0 * u + u ** 3,
+                             tangent=lambda u: sp.csr_matrix([[4.0 + 3.0 * u[0] ** 2]]), load=load,
+                             unit_strain=unit_strain)
+
+
+def test_a_load_below_the_round_off_floor_fails_the_step_saying_so():
+    # X = 0.5: floor = eps |4 x 0.5| = 2 eps. Newmark from rest under a constant f: r_ref = max(|f|, |M a0| = f) = f
+    floor = 2.0 * EPS
+    assert _cubic([1.0], [0.5]).round_off_floor == floor
+    below = integrate(_cubic([0.5 * floor], [0.5]), None, None, 0.5, 1.0, method="newmark")
+    assert below.status == "newton_failed" and below.rejected_step == 1 and below.n_steps == 0
+    assert below.message == (f"step 1: t=0.5: the step's forces are below round-off: the largest, {0.5 * floor:.3e} "
+                             f"N, is under the round-off floor {floor:.3e} N of the internal force (machine epsilon x "
+                             "the force of a unit strain of the body), so the strains they cause are below double "
+                             "precision: a load far too small for the body's stiffness (is its length or load unit "
+                             "right?)")
+    above = integrate(_cubic([4.0 * floor], [0.5]), None, None, 0.5, 1.0, method="newmark")
+    assert above.success and above.n_steps == 2 and np.all(above.newton_iterations[1:] >= 1)
+    # without a unit strain (no floor) the tiny load is solved as any other
+    assert integrate(_cubic([0.5 * floor]), None, None, 0.5, 1.0, method="newmark").success
+
+
+@pytest.mark.parametrize("method", ["newmark", "hht", "bathe"])
+def test_a_1e_200_n_load_is_solved_exactly_as_a_1_n_one_scaled(method):
+    """A linear spring (M = 1, K = 4) under 2^-664 N = 1e-200 N: every number of the run is the 1 N run's times
+    2^-664, exactly (binary scaling). a24e7fa: ||r|| underflowed to 0 and each step "converged" at its predictor."""
+    tiny = 2.0 ** -664
+    one = integrate(SecondOrderSystem.linear_system([[1.0]], [[4.0]], [1.0]), None, None, 0.5, 2.0, method=method)
+    small = integrate(SecondOrderSystem.linear_system([[1.0]], [[4.0]], [tiny]), None, None, 0.5, 2.0, method=method)
+    assert one.success and small.success and small.n_steps == 4
+    np.testing.assert_array_equal(small.u, one.u * tiny)
+    np.testing.assert_array_equal(small.a, one.a * tiny)
+    assert np.all(small.newton_iterations[1:] >= 1) and small.u[-1, 0] != 0.0
+
+
+@pytest.mark.parametrize("method", ["newmark", "bathe"])
+def test_a_motion_that_decays_below_the_floor_goes_on(method):
+    """A damped nonlinear spring from u0 = 1e-10 (forces 4e-10 N, 900 x the floor eps |4 x 500| = 4.4e-13 N) decays
+    below the floor within the run: those steps converge at the floor and the run succeeds; a run that starts
+    there (its load below round-off, as in test_a_load_below_the_round_off_floor_fails_the_step_saying_so) is
+    refused at its first step."""
+    spring = SecondOrderSystem(M=[[1.0]], internal_force=lambda u: 4.0 * u + u ** 3,
+                               tangent=lambda u: sp.csr_matrix([[4.0 + 3.0 * u[0] ** 2]]), load=[0.0],
+                               alpha_m=3.0, unit_strain=[500.0])
+    floor = spring.round_off_floor
+    assert floor == 2000.0 * EPS
+    res = integrate(spring, [1e-10], None, 0.25, 10.0, method=method)
+    assert res.success, res.message
+    forces = np.maximum(np.abs(4.0 * res.u[:, 0] + res.u[:, 0] ** 3), np.abs(res.a[:, 0]))   # |f_int|, |M a|
+    assert forces[0] > 100 * floor and np.sum(forces[1:-1] <= floor) >= 5
+    late = integrate(spring, [res.u[-1, 0]], [res.v[-1, 0]], 0.25, 0.5, method=method)
+    assert late.status == "newton_failed" and late.rejected_step == 1 and "below round-off" in late.message

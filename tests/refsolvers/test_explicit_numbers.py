@@ -164,9 +164,35 @@ def test_central_difference_step_limit_boundary():
 def test_central_difference_lumped_operators():
     integ = CentralDifference().start(sys3(), None, None, 0.01)
     np.testing.assert_array_equal(integ.mass_ff.toarray(), np.diag([3.0, 4.0]))
-    # all dofs, the fixed one included, with row sums over all columns
-    np.testing.assert_array_equal(integ.mass_full.toarray(), np.diag([3.5, 4.0, 1.5]))
+    # all dofs: the free ones as the steps lump them (M_ff's rows: 3, 4, not the full rows' 3.5, 4),
+    # the fixed one over M_cc (1.0, not the full row's 1.5); the energy balance uses this one mass
+    np.testing.assert_array_equal(integ.mass_full.toarray(), np.diag([3.0, 4.0, 1.0]))
     np.testing.assert_array_equal(integ.solve_mass(np.array([3.0, 2.0])), [1.0, 0.5])
+    assert integ.damping_full is None and integ.coupling_force(np.array([0.1]), np.array([2.0])) == 0.0
+
+
+@pytest.mark.parametrize("alpha_m, beta_k", [(0.0, 0.0), (0.7, 0.0), (0.0, 0.02), (0.7, 0.02)])
+def test_lumped_damping_on_all_dofs_by_hand(alpha_m, beta_k):
+    # C_L = alpha_m diag(3, 4, 1) + beta_k K3; its free-fixed block is beta_k K3[(0, 1), 2] = beta_k (-100, 0)
+    # (the consistent C_fc would add alpha_m M_fc = alpha_m (0.5, 0)); a_c exerts nothing (no M_fc)
+    system = SecondOrderSystem.linear_system(M3, K3, np.zeros(3), free=[0, 1], alpha_m=alpha_m, beta_k=beta_k,
+                                             prescribed=lambda t: np.array([0.0]))
+    for integ in (CentralDifference().start(system, None, None, 0.01),
+                  ForwardEuler(lumped=True).start(system, None, None, 0.01)):
+        if alpha_m == beta_k == 0.0:
+            assert integ.damping_full is None
+        else:
+            np.testing.assert_allclose(integ.damping_full.toarray(), alpha_m * np.diag([3.0, 4.0, 1.0]) + beta_k * K3,
+                                       rtol=1e-15, atol=0)
+        vc, ac = np.array([0.1]), np.array([2.0])
+        expected = beta_k * np.array([-10.0, 0.0])
+        np.testing.assert_allclose(integ.coupling_force(vc, ac), expected if beta_k else 0.0, rtol=1e-15, atol=0)
+        v = np.array([0.3, -0.2])
+        np.testing.assert_allclose(integ.damping_force(v), alpha_m * np.array([0.9, -0.8]) + beta_k *
+                                   np.array([11.4, -11.6]), rtol=1e-14, atol=0)
+    # the consistent forward Euler keeps the system's C_full
+    held = SecondOrderSystem.linear_system(M3, K3, np.zeros(3), free=[0, 1], alpha_m=alpha_m, beta_k=beta_k)
+    assert ForwardEuler().start(held, None, None, 0.01).damping_full is held.C_full
 
 
 @pytest.mark.parametrize("alpha_m, beta_k", [(0.0, 0.0), (0.7, 0.0), (0.0, 0.02), (0.7, 0.02)])
@@ -251,6 +277,12 @@ def by_hand(method, M, alpha_m, beta_k, vc0):
     ("forward_euler", MA, 0.0, 0.004, 0.01),
     ("forward_euler", MA, 0.0, 0.0, 0.01),
     ("forward_euler", MB, 0.3, 0.004, 0.0),
+    # issue 54: mass-proportional damping with a moving support (a0 took alpha_m M_fc v_c0), and forward
+    # Euler's damping with a coupled M_ff (it took alpha_m M_ff, not alpha_m M_L)
+    ("central_difference", MA, 0.3, 0.004, 0.01),
+    ("central_difference", MA, 0.3, 0.0, 0.01),
+    ("forward_euler", MA, 0.3, 0.004, 0.01),
+    ("forward_euler", MA, 0.3, 0.0, 0.0),
 ])
 def test_prescribed_motion_steps_by_hand(method, M, alpha_m, beta_k, vc0):
     system = prescribed_system(M, alpha_m, beta_k)
@@ -278,6 +310,97 @@ def test_prescribed_motion_steps_by_hand(method, M, alpha_m, beta_k, vc0):
                                rtol=1e-12)
 
 
+# 2 dofs: dof 0 free, dof 1 follows g(t) = 0.1 t; M = [[2, 1], [1, 4]] lumps to M_L = diag(2, 4) (M_ff, M_cc; the
+# full rows would give 3, 5), K = [[10, -4], [-4, 8]], no load, alpha_m = 0.5, beta_k = 0.01: C_L = diag(1, 2) +
+# 0.01 K, C_L,ff = 1.1, C_L,fc = -0.04 (the consistent C_fc = 0.5 - 0.04 = 0.46). u0 = (0.02, 0), v0 = (0.3, 0.1).
+M2, K2 = np.array([[2.0, 1.0], [1.0, 4.0]]), np.array([[10.0, -4.0], [-4.0, 8.0]])
+
+
+def two_dof():
+    return SecondOrderSystem.linear_system(M2, K2, np.zeros(2), free=[0], alpha_m=0.5, beta_k=0.01,
+                                           prescribed=lambda t: np.array([0.1 * t]))
+
+
+@pytest.mark.parametrize("method", ["central_difference", "forward_euler"])
+def test_starting_acceleration_with_a_moving_support_by_hand(method):
+    # a0 = (-10 (0.02) - 1.1 (0.3) + 0.04 (0.1)) / 2 = (-0.2 - 0.33 + 0.004) / 2 = -0.263; with the consistent
+    # coupling 0.46 (0.1) the numerator loses alpha_m M_fc v_c0 = 0.05 more: -0.288 (a24e7fa), the same as the steps'
+    integ = CentralDifference() if method == "central_difference" else ForwardEuler(lumped=True)
+    integ.start(two_dof(), [0.02, 0.0], [0.3, 0.1], 0.1)
+    assert integ.a[0] == pytest.approx(-0.263, rel=1e-14)
+    assert integ.a[0] != pytest.approx(-0.288, rel=1e-3)
+    assert (integ.uc.tolist(), integ.vc.tolist(), integ.ac.tolist()) == ([0.0], [0.1], [0.0])
+
+
+def test_central_difference_step_with_a_moving_support_by_hand():
+    # v_half = 0.3 + 0.05 (-0.263) = 0.28685, u1 = 0.02 + 0.1 v_half = 0.048685, u_c1 = 0.01, v_c1 = 0.1, a_c1 = 0;
+    # a1 = (-10 u1 + 4 (0.01) + 0.04 (0.1) - 1.1 v_half) / 2 = (-0.48685 + 0.044 - 0.315535) / 2 = -0.3791925,
+    # v1 = v_half + 0.05 a1 = 0.267890375
+    integ = CentralDifference().start(two_dof(), [0.02, 0.0], [0.3, 0.1], 0.1)
+    assert integ.step().converged
+    assert integ.u[0] == pytest.approx(0.048685, rel=1e-14)
+    assert integ.a[0] == pytest.approx(-0.3791925, rel=1e-14)
+    assert integ.v[0] == pytest.approx(0.267890375, rel=1e-14)
+    assert (integ.uc[0], integ.vc[0], integ.ac[0]) == pytest.approx((0.01, 0.1, 0.0), rel=1e-14, abs=1e-15)
+
+
+def test_forward_euler_step_with_a_moving_support_by_hand():
+    # u1 = 0.02 + 0.1 (0.3) = 0.05, v1 = 0.3 + 0.1 (-0.263) = 0.2737;
+    # a1 = (-10 (0.05) + 4 (0.01) + 0.04 (0.1) - 1.1 (0.2737)) / 2 = (-0.5 + 0.044 - 0.30107) / 2 = -0.378535
+    integ = ForwardEuler(lumped=True).start(two_dof(), [0.02, 0.0], [0.3, 0.1], 0.1)
+    assert integ.step().converged
+    assert (integ.u[0], integ.v[0], integ.a[0]) == pytest.approx((0.05, 0.2737, -0.378535), rel=1e-14)
+
+
+@pytest.mark.parametrize("method", ["central_difference", "forward_euler"])
+def test_energy_bookkeeping_with_a_moving_support_by_hand(method):
+    # step 0: KE = 1/2 (2 (0.3)^2 + 4 (0.1)^2) = 0.11 (the full rows' diag(3, 5) gave 0.16), IE = 1/2 10 (0.02)^2
+    # = 0.002; the support force R_c = 4 a_c + (C_L v)_c + (K u)_c = 0 + (-0.04 (0.3) + (2 + 0.08) 0.1) - 0.08
+    # = -0.012 + 0.208 - 0.08 = 0.116 N
+    opts = {"lumped": True} if method == "forward_euler" else {}
+    res = integrate(two_dof(), [0.02, 0.0], [0.3, 0.1], 0.1, 0.1, method=method, growth_tol=10.0, **opts)
+    assert res.success, res.message
+    assert res.kinetic_energy[0] == pytest.approx(0.11, rel=1e-14)
+    assert res.strain_energy[0] == pytest.approx(0.002, rel=1e-14)
+    # step 1: the support force with the step's state; the reaction work by the trapezoidal rule on du_c = 0.01
+    u1, v1, a1 = res.u[1], res.v[1], res.a[1]
+    r1 = 4.0 * a1[1] + (-0.04 * v1[0] + 2.08 * v1[1]) + (-4.0 * u1[0] + 8.0 * u1[1])
+    assert res.reaction_work[1] == pytest.approx(0.5 * (0.116 + r1) * 0.01, rel=1e-13)
+    assert res.kinetic_energy[1] == pytest.approx(0.5 * (2 * v1[0] ** 2 + 4 * v1[1] ** 2), rel=1e-14)
+    # the dissipation: 1/2 (C_L v0 + C_L v1) . du over both dofs
+    C_L = np.diag([1.0, 2.0]) + 0.01 * K2
+    du = u1 - np.array([0.02, 0.0])
+    d = 0.5 * float((C_L @ (np.array([0.3, 0.1]) + v1)) @ du)
+    assert res.damping_dissipation[1] == pytest.approx(d, rel=1e-13)
+
+
+def energy_errors(method, dts, alpha_m, beta_k):
+    """Largest |energy_error| over [0, 1] s on the prescribed 3-dof system, started on the motion (v_c0 = g'(0))."""
+    opts = {"lumped": True} if method == "forward_euler" else {}
+    out = []
+    for dt in dts:
+        u0, v0 = initial_full(0.01)
+        res = integrate(prescribed_system(MA, alpha_m, beta_k), u0, v0, dt, 1.0, method=method, growth_tol=10.0,
+                        **opts)
+        assert res.success, res.message
+        out.append(np.abs(res.energy_error).max())
+    return np.array(out)
+
+
+@pytest.mark.parametrize("method", ["central_difference", "forward_euler"])
+@pytest.mark.parametrize("alpha_m, beta_k", [(0.0, 0.0), (0.3, 0.004)])
+def test_energy_error_with_a_moving_support_shrinks_with_dt(method, alpha_m, beta_k):
+    # both schemes are first order in the balance here (the fixed dofs' velocity is a backward difference
+    # quotient): halving dt halves the error. a24e7fa: 0.11-0.18 J at every dt (the kinetic energy took the
+    # full rows' lumped mass, 3.5 for dof 0 where the steps use 2.25); the energies are ~1.3 J
+    dts = np.array([0.01, 0.005, 0.0025])
+    err = energy_errors(method, dts, alpha_m, beta_k)
+    order = np.polyfit(np.log(dts), np.log(err), 1)[0]
+    assert order > 0.9, (err, order)
+    assert err[-1] < 0.3 * err[0], err      # two halvings: 0.25 at order 1, ~1 on a24e7fa
+    assert err[0] < (3e-3 if method == "central_difference" else 6e-2), err
+
+
 def test_forward_euler_prescribed_motion_needs_lumped():
     system = prescribed_system(MA, 0.0, 0.0)
     raises_exactly(ValueError, "forward_euler: a prescribed motion needs lumped=True (the consistent mass "
@@ -293,7 +416,8 @@ def test_forward_euler_prescribed_motion_needs_lumped():
 def test_forward_euler_lumped_operators():
     integ = ForwardEuler(lumped=True).start(prescribed_system(MA, 0.0, 0.0), None, None, DT)
     np.testing.assert_array_equal(integ.mass_ff.toarray(), np.diag([2.25, 1.75]))
-    np.testing.assert_array_equal(integ.mass_full.toarray(), np.diag([2.75, 4.0, 2.25]))
+    # one mass on all dofs: M_ff's row sums on the free dofs (not the full rows' 2.75, 2.25), M_cc on dof 1
+    np.testing.assert_array_equal(integ.mass_full.toarray(), np.diag([2.25, 3.0, 1.75]))
 
 
 # ------------------------------------------------------------------ 6. non-finite steps

@@ -71,3 +71,17 @@ def test_the_floor_does_not_depend_on_the_unit_of_force():
     b = newton_solve(_bar(1e3, force=0.01e6, E=1e10), 1.0, n_increments=2)
     assert b.success and [i.iterations for i in a.increments] == [i.iterations for i in b.increments]
     assert b.increments[0].round_off_floor == pytest.approx(1e6 * a.increments[0].round_off_floor, rel=1e-9)
+
+
+def test_a_load_below_the_norms_underflow_is_refused_as_below_round_off():
+    """Issue 54: np.linalg.norm squares the entries, so a 1e-200 N load had norm 0: its increment
+    "converged" at once and newton_solve divided by that zero force (ZeroDivisionError on a24e7fa).
+    With a scaled norm it is a load below round-off, said, exactly as 1e-150 N (above the
+    underflow, ~1e-154 N) was and is; the force scale is the same multiple of the load on both sides."""
+    runs = {force: newton_solve(_bar(1.0, force=force), 1.0, n_increments=2) for force in (1e-150, 1e-200)}
+    for res in runs.values():
+        inc = res.increments[0]
+        assert res.status == "stalled" and res.load_factor == 0.0 and inc.below_round_off and inc.iterations == 0
+        assert f"the load is below round-off: its force {inc.force_scale:.3g} is under" in res.message
+    assert runs[1e-200].increments[0].force_scale / 1e-200 == pytest.approx(
+        runs[1e-150].increments[0].force_scale / 1e-150, rel=1e-12)

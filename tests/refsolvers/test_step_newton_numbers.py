@@ -398,3 +398,96 @@ def test_the_step_solver_takes_ngsolve_for_cholesky():
         s = StepSolver(choice)
         s.solve(sp.csr_matrix(np.diag([2.0, 4.0])), np.ones(2))
         assert isinstance(s._solver, kind)
+
+
+# ---------------------------------------------------------------------------- scaled norms, round-off floor (issue 54)
+TINY = 2.0 ** -664   # 1.0e-200: its square underflows (np.linalg.norm([TINY]) == 0.0)
+
+
+def test_scaled_norm_by_hand():
+    from tissuebench.refsolvers.newton import scaled_norm
+
+    assert np.linalg.norm([3 * TINY, 4 * TINY]) == 0.0 and scaled_norm([3 * TINY, 4 * TINY]) == 5 * TINY
+    assert scaled_norm([3e200, -4e200]) == pytest.approx(5e200, rel=1e-15)     # np.linalg.norm: inf
+    assert scaled_norm([3.0, 4.0]) == 5.0 and scaled_norm(np.array([[3.0], [-4.0]])) == 5.0
+    assert scaled_norm([0.0, 0.0]) == 0.0 and scaled_norm([]) == 0.0
+    assert scaled_norm([1.0, np.inf]) == np.inf and np.isnan(scaled_norm([1.0, np.nan]))
+    assert scaled_norm([5e-324]) == 5e-324                                   # the smallest subnormal
+
+
+def linear_residual(f):
+    return lambda u: np.array([4.0 * u[0] - f])
+
+
+def linear_jacobian(u):
+    return sp.csr_matrix([[4.0]])
+
+
+@pytest.mark.parametrize("f", [2.0 ** -400, TINY])
+def test_a_residual_below_1e_154_n_is_iterated_like_any_other(f):
+    """Both sides of the underflow of ||r||^2 (~1e-154 N): 1e-120 N and 1e-200 N are solved by one Newton
+    iteration (u = f / 4, exact in binary). a24e7fa: ||r(0)|| = 0 for 1e-200 N, "converged" in 0 iterations
+    at u = 0."""
+    u, rep = newton(np.array([0.0]), linear_residual(f), linear_jacobian, f, opts(rtol=1e-10))
+    assert rep.converged and rep.iterations == 1 and rep.residuals == [f, 0.0] and u[0] == f / 4
+
+
+FLOOR = 1e-12
+
+
+def test_a_step_whose_forces_are_all_below_the_floor_fails_at_once_saying_so():
+    # r_ref = 5e-13 and ||r(0)|| = 4e-13 are both under the floor 1e-12: no iteration, said
+    u, rep = newton(np.array([0.0]), linear_residual(4e-13), linear_jacobian, 5e-13, opts(), floor=FLOOR)
+    assert not rep.converged and rep.iterations == 0 and rep.residuals == [4e-13] and u[0] == 0.0
+    assert rep.message == ("the step's forces are below round-off: the largest, 5.000e-13 N, is under the round-off "
+                           "floor 1.000e-12 N of the internal force (machine epsilon x the force of a unit strain of "
+                           "the body), so the strains they cause are below double precision: a load far too small "
+                           "for the body's stiffness (is its length or load unit right?)")
+    # at the floor itself: refused; a force scale just above it: a step like any other, the floor its tolerance:
+    # a residual under the floor is converged as it is (the predictor is as good as round-off allows), one
+    # just above it takes an iteration
+    assert not newton(np.array([0.0]), linear_residual(4e-13), linear_jacobian, FLOOR, opts(), floor=FLOOR)[1].converged
+    u, rep = newton(np.array([0.0]), linear_residual(4e-13), linear_jacobian, FLOOR * (1 + 1e-12), opts(), floor=FLOOR)
+    assert rep.converged and rep.iterations == 0 and u[0] == 0.0
+    f = FLOOR * (1 + 1e-12)
+    u, rep = newton(np.array([0.0]), linear_residual(f), linear_jacobian, 0.0, opts(), floor=FLOOR)
+    assert rep.converged and rep.iterations == 1 and u[0] == f / 4
+    # nothing to do (a system at rest): no residual, no failure
+    u, rep = newton(np.array([0.0]), linear_residual(0.0), linear_jacobian, 1e-300, opts(), floor=FLOOR)
+    assert rep.converged and rep.iterations == 0 and rep.message == ""
+
+
+def test_the_floor_is_the_tolerance_when_above_rtol_times_the_scale():
+    # r = u + u^3 - 2 from 0.8: |r_k| of the hand iterates; a floor between |r_2| and |r_1| stops at iteration 2,
+    # where rtol * 2 (2e-13) alone takes 4; a floor below rtol * 2 changes nothing
+    _, norms = hand_newton(0.8, 6)
+    floor = 0.5 * (norms[1] + norms[2])
+    assert newton(np.array([0.8]), residual, sparse_jacobian, 2.0, opts(utol=0.0), floor=floor)[1].iterations == 2
+    assert newton(np.array([0.8]), residual, sparse_jacobian, 2.0, opts(utol=0.0),
+                  floor=norms[2] * (1 - 1e-9))[1].iterations == 3
+    assert newton(np.array([0.8]), residual, sparse_jacobian, 2.0, opts(utol=0.0), floor=1e-14)[1].iterations == \
+        newton(np.array([0.8]), residual, sparse_jacobian, 2.0, opts(utol=0.0))[1].iterations
+    # modified Newton as well
+    _, it, _, ok = hand_modified(0.8, floor, utol=0.0)
+    rep = newton(np.array([0.8]), residual, sparse_jacobian, 2.0, opts(utol=0.0, tangent="reuse"), floor=floor)[1]
+    assert ok and rep.converged and rep.iterations == it
+
+
+@pytest.mark.parametrize("tangent, what", [("iteration", "Newton"), ("reuse", "modified Newton")])
+def test_a_failure_names_the_floor_when_there_is_one(tangent, what):
+    u, rep = newton(np.array([0.0]), residual, sparse_jacobian, 2.0, opts(max_iter=1, tangent=tangent), floor=1e-15)
+    r1 = abs(r_of(2.0))  # one full Newton step from 0: u = 2
+    assert rep.message == (f"{what} did not converge in 1 iterations (||r|| = {r1:.3e} N, tolerance 2.000e-13 N, "
+                           "round-off floor 1.000e-15 N)")
+    rep = newton(np.array([0.0]), residual, sparse_jacobian, 2.0, opts(max_iter=1, tangent=tangent))[1]
+    assert rep.message.endswith("tolerance 2.000e-13 N)")
+
+
+def test_a_run_whose_forces_were_resolved_is_converged_at_the_floor_not_refused():
+    """The other side of the refusal: the same step (r_ref 5e-13, ||r(0)|| 4e-13 under the floor) after a run whose
+    forces exceeded the floor (a motion decayed below round-off) is converged as it is."""
+    u, rep = newton(np.array([0.0]), linear_residual(4e-13), linear_jacobian, 5e-13, opts(), floor=FLOOR,
+                    peak=FLOOR * (1 + 1e-12))
+    assert rep.converged and rep.iterations == 0 and u[0] == 0.0
+    assert not newton(np.array([0.0]), linear_residual(4e-13), linear_jacobian, 5e-13, opts(), floor=FLOOR,
+                      peak=FLOOR)[1].converged

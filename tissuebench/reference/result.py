@@ -113,6 +113,7 @@ def dynamics_output(res, monitors_per_step, fields, n_comp):
     disp = res.u.reshape(len(res.stored_steps), -1, n_comp)
     vel = res.v.reshape(len(res.stored_steps), -1, n_comp)
     info = {"integrator": res.method, "dt": res.dt, "energy_growth_ratio": res.energy_growth_ratio,
-            "failed_step": res.failed_step, "options": res.options}
+            "failed_step": res.failed_step, "rejected_step": res.rejected_step, "blow_up_step": res.blow_up_step,
+            "options": res.options}
     return dict(status=res.status, message=res.message, table=table, steps=res.t[res.stored_steps],
                 displacement=disp, velocity=vel, info=info, **fields)

@@ -152,8 +152,21 @@ class StaticResult:
         return pd.DataFrame(rows)
 
 
-def _norm(x):
-    return float(np.linalg.norm(x))
+def scaled_norm(x) -> float:
+    """The Euclidean norm of ``x`` without underflow or overflow: ``s ||x / s||`` with s the
+    largest ``|x_i|``. ``np.linalg.norm`` squares the entries, so a residual of 1e-200 N has
+    norm 0 (a step would "converge" before any iteration) and one of 1e200 N norm inf; 0, inf
+    and nan come back as such."""
+    x = np.asarray(x, dtype=float).ravel()
+    if x.size == 0:
+        return 0.0
+    s = float(np.max(np.abs(x)))
+    if not 0.0 < s < math.inf:  # 0, inf or nan: the norm is that
+        return s
+    return s * float(np.linalg.norm(x / s))
+
+
+_norm = scaled_norm
 
 
 #: the round-off floor of a residual, in machine epsilons of the force of a unit strain (see

@@ -10,6 +10,12 @@ every step's displacement *and velocity*; :func:`trajectory_training` wraps it i
 :class:`~tissuebench.rom.base.Training` of kind "trajectory" (snapshots, velocities,
 ``{"time", "load_factor"}`` per column, the system, the load history, ``dt``) with the
 scene's displacement monitors as linear output functionals.
+
+The reaction monitors (``reaction_force``, ``nominal_stress``, ``moment``) of a dynamic
+state read the force the supports exert, ``[M a + C v + f_int - f_ext(t)]`` on the fixed
+dofs (:meth:`~tissuebench.refsolvers.dynamics.SecondOrderSystem.reactions`): the static
+``f_int - f_ext`` plus the inertia and damping the supports carry. :func:`run_monitors`
+evaluates every monitor along a run.
 """
 from __future__ import annotations
 
@@ -18,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..cases import load as load_scene
+from ..cases.monitors import REACTION_QUANTITIES, linear_outputs
 from ..refsolvers.dynamics import SecondOrderSystem, integrate
 from ..refsolvers.line_models import assemble_line_model
 from ..reference.line import line_monitor_fn
@@ -25,7 +32,8 @@ from ..reference.formulation import scene_backend
 from ..reference.plan import plan_for
 from ..rom.base import Training
 
-__all__ = ["SceneSystem", "output_functionals", "reference_run", "scene_system", "trajectory_training"]
+__all__ = ["SceneSystem", "output_functionals", "reference_run", "run_monitors", "scene_system",
+           "trajectory_training"]
 
 
 @dataclass
@@ -40,7 +48,10 @@ class SceneSystem:
         Load factor versus time.
     backend : Backend or None
         FE scenes only.
-    monitors : callable ``u (n_dof,) -> {name: value}``
+    monitors : callable ``(u, t=None, v=None, a=None) -> {name: value}``
+        The scene's monitors at the full displacement ``u`` (n_dof,); the reaction monitors
+        also need the time ``t`` [s] and the full velocity ``v`` and acceleration ``a`` of the
+        state (ValueError naming what is missing).
     n_comp : int
         Components per node (3 for FE, 1 or 2 for the 1D models).
     """
@@ -64,11 +75,40 @@ def scene_system(case, resolution: str = "ci", variant: str | None = None, backe
         be = scene_backend(scene, backend, pb)
         system = SecondOrderSystem.from_backend(be, scene.history, lumped=plan.mass == "lumped",
                                                 linear=plan.linear)
-        return SceneSystem(scene, system, scene.history, be, lambda u: scene.evaluate_monitors(pb, u), 3)
+        return SceneSystem(scene, system, scene.history, be, _fe_monitors(scene, pb, system), 3)
     ls = assemble_line_model(scene.line_model())
     M = ls.M_lumped if plan.mass == "lumped" else ls.M
     system = SecondOrderSystem.linear_system(M, ls.K, ls.load_vector, free=ls.free)
-    return SceneSystem(scene, system, scene.history, None, line_monitor_fn(scene, ls), ls.dofs_per_node)
+    line = line_monitor_fn(scene, ls)  # the 1D models have no reaction monitors (refused there)
+    return SceneSystem(scene, system, scene.history, None, lambda u, t=None, v=None, a=None: line(u),
+                       ls.dofs_per_node)
+
+
+def _fe_monitors(scene, pb, system):
+    """``monitors(u, t=None, v=None, a=None)`` of an FE scene; the reaction monitors read
+    ``system.reactions(t, u, v, a)`` (the support force of the dynamic state)."""
+    reading = [m["name"] for m in scene.monitors if m["quantity"] in REACTION_QUANTITIES]
+
+    def monitors(u, t=None, v=None, a=None):
+        if not reading:
+            return scene.evaluate_monitors(pb, u)
+        missing = [k for k, x in (("t", t), ("v", v), ("a", a)) if x is None]
+        if missing:
+            raise ValueError(f"{scene.name}: monitors {reading} read the support reactions of a dynamic state, "
+                             f"which need {', '.join(missing)} (the load at t, the velocity and acceleration "
+                             "for the damping and inertia the supports carry)")
+        return scene.evaluate_monitors(pb, u, system.reactions(t, u, v, a))
+    return monitors
+
+
+def run_monitors(ss: SceneSystem, res) -> list[dict]:
+    """The scene's monitors at every stored step of ``res`` (a run of ``ss.system`` storing
+    all dofs, e.g. :func:`reference_run`), reactions included: one dict per stored step."""
+    n = ss.system.n
+    if len(res.dofs) != n or np.any(res.dofs != np.arange(n)):
+        raise ValueError(f"res stores {len(res.dofs)} of the {n} dofs: the monitors need the full state "
+                         "(integrate with dofs=None)")
+    return [ss.monitors(u, t, v, a) for t, u, v, a in zip(res.t_stored, res.u, res.v, res.a)]
 
 
 def reference_run(ss: SceneSystem, dt: float | None = None, t_end: float | None = None,
@@ -94,6 +134,9 @@ def output_functionals(ss: SceneSystem) -> dict:
     specs = [m for m in ss.scene.monitors if m["quantity"] == "displacement" and m.get("component") != "norm"]
     if not specs:
         return {}
+    if ss.backend is not None:
+        # FE: the probes' weights directly (evaluating every monitor at e_i would need the reactions)
+        return linear_outputs(ss.scene, ss.backend.problem)
     names = [m["name"] for m in specs]
     C = np.zeros((len(names), n))
     for i in range(n):

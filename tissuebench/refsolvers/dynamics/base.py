@@ -135,6 +135,17 @@ class Integrator(ABC):
         """The mass the scheme uses on all dofs (kinetic energy with a prescribed motion)."""
         return self.system.M
 
+    @property
+    def damping_full(self) -> sp.csr_matrix | None:
+        """The damping matrix the scheme uses on all dofs (None undamped): the dissipation
+        and the support forces of the energy balance with a prescribed motion."""
+        return self.system.C_full
+
+    def coupling_force(self, v_c, a_c):
+        """``M_fc a_c + C_fc v_c`` [N] on the free rows with the scheme's mass and damping
+        (0.0 without a prescribed motion)."""
+        return self.system.coupling_force(v_c, a_c)
+
     def _constrained_kinematics(self, uc1, kin):
         """(v_c1, a_c1) of the fixed dofs at ``uc1`` by the scheme's kinematics ``kin``
         (zero when nothing is prescribed)."""
@@ -178,7 +189,7 @@ class Integrator(ABC):
         self.f_int = sys.f_int(self.u, self.uc)
         if a is None:
             a = self.solve_mass(self.f_ext - self.f_int - self.damping_force(self.v)
-                                - sys.coupling_force(self.vc, self.ac))
+                                - self.coupling_force(self.vc, self.ac))
         self.a = check_vector("a", a, nf).copy()
 
     # ------------------------------------------------------------------ stepping

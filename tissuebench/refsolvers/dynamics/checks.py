@@ -10,6 +10,8 @@ __all__ = ["DENSE_LIMIT", "check_vector", "check_spd_mass"]
 
 # Dense checks (Cholesky, eigvalsh) are exact and cheap below this many free dofs.
 DENSE_LIMIT = 1500
+#: the smallest pivot of a mass's factorisation, relative to the largest, that is "clearly positive"
+PIVOT_RATIO = 1e-14
 
 
 def check_vector(name: str, value, n: int) -> np.ndarray:
@@ -30,7 +32,10 @@ def check_spd_mass(M: sp.csr_matrix) -> None:
     Cheap checks first (finite, diagonal > 0, symmetric); then a Cholesky factorisation
     for small systems, for large ones a sparse LU without row pivoting (so that its pivots
     are the D of ``L D L^T`` and have the signs of M's eigenvalues, Sylvester's law of
-    inertia) with a positive-pivot check (a singular mass fails the LU).
+    inertia) with a positive-pivot check (a singular mass fails the LU). Both paths then
+    refuse a pivot below :data:`PIVOT_RATIO` times the largest (the Cholesky's are the
+    squares of L's diagonal): a mass that is positive definite only to round-off (a
+    1e-300 diagonal beside 1) is refused whatever the size of the system.
     """
     if M.shape[0] == 0:
         raise ValueError("M has no free dofs")
@@ -45,16 +50,21 @@ def check_spd_mass(M: sp.csr_matrix) -> None:
         raise ValueError(f"M is not symmetric: max |M - M^T| = {asym:.3e}")
     if M.shape[0] <= DENSE_LIMIT:
         try:
-            np.linalg.cholesky(M.toarray())
+            L = np.linalg.cholesky(M.toarray())
         except np.linalg.LinAlgError:
             lam = sla.eigvalsh(M.toarray(), subset_by_index=[0, 0])[0]
             raise ValueError(f"M is not positive definite: smallest eigenvalue {lam:.3e}") from None
-        return
+        return _clearly_positive(np.diagonal(L) ** 2, "Cholesky")
     try:  # diagonal pivots, a symmetric ordering: U's diagonal is D of M = L D L^T, whose signs are M's inertia
         lu = spla.splu(M.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                        options={"SymmetricMode": True})
     except RuntimeError as exc:  # "Factor is exactly singular"
         raise ValueError(f"M is singular: {exc}") from None
-    piv = lu.U.diagonal()
-    if np.any(piv <= 0) or np.min(np.abs(piv)) < 1e-14 * np.max(np.abs(piv)):
-        raise ValueError("M is not positive definite: LU pivots not all clearly positive")
+    _clearly_positive(lu.U.diagonal(), "LU")
+
+
+def _clearly_positive(piv: np.ndarray, factorisation: str) -> None:
+    """Refuse pivots (the D of ``M = L D L^T``) that are not all > 0 and above PIVOT_RATIO x the largest."""
+    if np.any(piv <= 0) or np.min(np.abs(piv)) < PIVOT_RATIO * np.max(np.abs(piv)):
+        raise ValueError(f"M is not positive definite: {factorisation} pivots not all clearly positive (smallest "
+                         f"{np.min(piv):.3e}, largest {np.max(np.abs(piv)):.3e}: below {PIVOT_RATIO:g} x the largest)")

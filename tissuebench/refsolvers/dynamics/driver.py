@@ -56,7 +56,9 @@ def integrate(system, u0, v0, dt, t_end, method="newmark", t0=0.0, store_every=1
     -------
     DynamicsResult
         Never raises on a numerical failure: the status says what happened and at which
-        step, and the arrays stop at the last completed step. Bad input raises ValueError.
+        step, and the arrays stop at the last completed step: the one before
+        ``rejected_step`` (a step that could not be computed) or ``blow_up_step`` itself (a
+        computed step whose energy exploded). Bad input raises ValueError.
     """
     dt = check_dt(dt)
     n = _n_steps(dt, t0, t_end)
@@ -64,12 +66,13 @@ def integrate(system, u0, v0, dt, t_end, method="newmark", t0=0.0, store_every=1
         raise ValueError(f"blowup_factor must be a finite number > 1, got {blowup_factor!r}")
     integ = make_integrator(method, **opts)
     integ.start(system, u0, v0, dt, t0)
+    moving = system.has_prescribed
     rec = Recorder(system, integ.mass_ff, n, dofs, store_every, integ.damping_force,
-                   integ.mass_full if system.has_prescribed else None)
+                   integ.mass_full if moving else None, integ.damping_full if moving else None)
     rec.record(integ.t, integ.u, integ.v, integ.a, integ.f_ext, integ.f_int,
                constrained=(integ.uc, integ.vc, integ.ac))
     observations = [] if observe is None else [observe(integ.t, integ.full_u())]
-    status, message, failed = "success", f"{n} steps completed", None
+    status, message, failed, blown_up = "success", f"{n} steps completed", None, False
     for k in range(1, n + 1):
         tic = time.perf_counter()
         rep = integ.step()
@@ -85,13 +88,13 @@ def integrate(system, u0, v0, dt, t_end, method="newmark", t0=0.0, store_every=1
         mech, supplied = rec.mechanical()
         scale = max(np.max(np.abs(supplied)), 0.0)
         if not np.isfinite(mech[-1]) or (scale > 0 and mech[-1] > blowup_factor * scale):
-            status, failed = "blow_up", k
+            status, failed, blown_up = "blow_up", k, True
             message = (f"step {k} (t={integ.t:.6g}): energy {mech[-1]:.3e} J exceeds "
                        f"{blowup_factor:.1e} x the energy supplied ({scale:.3e} J)")
             break
     rec.store(rec.k, integ.u, integ.v, integ.a, (integ.uc, integ.vc, integ.ac))  # always keep the last state
     name = getattr(integ, "name", type(integ).__name__)
-    res = rec.finish(name, dt, status, message, failed, opts)
+    res = rec.finish(name, dt, status, message, failed, opts, blown_up)
     res.observations = observations
     tol = integ.growth_tol if growth_tol is None else float(growth_tol)
     if status == "success" and tol is not None and res.energy_growth_ratio > 1.0 + tol:

@@ -17,9 +17,14 @@ the damping term). Stable for dt <= dt_cr = 2 / omega_max
 
 A prescribed motion of the fixed dofs (see :mod:`.system`) needs the lumped mass (no
 inertial coupling ``M_fc``); the fixed dofs' velocity is the difference quotient
-``(u_c,n+1 - u_c,n) / dt`` (kinetic energy and support work of the energy balance).
+``(u_c,n+1 - u_c,n) / dt`` (kinetic energy and support work of the energy balance). One
+lumped mass and damping (:class:`LumpedOperators`) serve the starting acceleration, the
+steps and the energy bookkeeping alike, so the balance's error shrinks with dt (first
+order with a moving support: the quotient is a backward difference).
 """
 from __future__ import annotations
+
+from functools import cached_property
 
 import numpy as np
 import scipy.linalg as sla
@@ -65,8 +70,62 @@ def critical_time_step(system) -> float:
     return float(2.0 / w * (np.sqrt(1.0 + xi * xi) - xi))
 
 
+class LumpedOperators:
+    """The mass and damping of a lumped scheme on a system, one set for every use.
+
+    ``M_L`` is diagonal: on the free dofs the row sums of ``M_ff`` (the mass the steps
+    use, :func:`lumped_mass`), on the fixed dofs the row sums of ``M_cc``; the
+    free-fixed blocks ``M_fc`` are dropped, so a prescribed acceleration exerts no
+    inertial force on the free dofs. The damping is ``C_L = alpha_m M_L + beta_k K0``, so
+    its free-fixed block is ``beta_k K0_fc``. The starting acceleration, the steps, the
+    kinetic energy, the dissipation and the support forces of the energy balance all use
+    these (a second mass in any of them leaves an energy error that does not shrink with dt).
+    """
+
+    def __init__(self, system):
+        self.system = system
+        self.m = lumped_mass(system.M_ff)
+        fixed = system.fixed
+        self.m_full = np.zeros(system.n)
+        self.m_full[system.free] = self.m
+        # the fixed dofs' own block (a massless or negative row is allowed: only the energy uses it)
+        self.m_full[fixed] = np.asarray(sp.csr_matrix(system.M)[fixed][:, fixed].sum(axis=1)).ravel()
+
+    @property
+    def mass_ff(self) -> sp.dia_matrix:
+        return sp.diags(self.m)
+
+    @property
+    def mass_full(self) -> sp.dia_matrix:
+        return sp.diags(self.m_full)
+
+    @cached_property
+    def damping_full(self) -> sp.csr_matrix | None:
+        """C_L on all dofs [N s/m], None undamped."""
+        sys = self.system
+        if not sys.damped:
+            return None
+        K0 = sp.csr_matrix(sys.tangent(np.zeros(sys.n)))
+        return sp.csr_matrix(sys.alpha_m * sp.diags(self.m_full) + sys.beta_k * K0)
+
+    def damping_force(self, v):
+        """C_L v [N] on the free dofs."""
+        sys = self.system
+        if not sys.damped:
+            return np.zeros_like(v)
+        out = sys.alpha_m * self.m * v
+        return out + sys.beta_k * (sys.K0_ff @ v) if sys.beta_k else out
+
+    def coupling_force(self, v_c, a_c):
+        """C_L,fc v_c = beta_k K0_fc v_c [N] on the free rows: M_L has no M_fc, so a_c exerts none."""
+        sys = self.system
+        if not (sys.has_prescribed and sys.beta_k):
+            return 0.0
+        return sys.beta_k * (sys.K0_fc @ v_c)
+
+
 class CentralDifference(Integrator):
-    """Explicit central difference with the row-sum lumped mass.
+    """Explicit central difference with the row-sum lumped mass (:class:`LumpedOperators`).
 
     Parameters
     ----------
@@ -84,15 +143,19 @@ class CentralDifference(Integrator):
 
     @property
     def mass_ff(self):
-        return sp.diags(self._m)
+        return self._lumped.mass_ff
 
     @property
     def mass_full(self):
-        # row sums of all dofs (a massless fixed dof is allowed here: only kinetic energy uses it)
-        return sp.diags(np.asarray(sp.csr_matrix(self.system.M).sum(axis=1)).ravel())
+        return self._lumped.mass_full
+
+    @property
+    def damping_full(self):
+        return self._lumped.damping_full
 
     def _setup(self):
-        self._m = lumped_mass(self.system.M_ff)
+        self._lumped = LumpedOperators(self.system)
+        self._m = self._lumped.m
         self.dt_critical = critical_time_step(self.system)
         if self.dt > self.dt_critical and not self.force:
             raise ValueError(f"dt = {self.dt!r} exceeds the critical time step dt_cr = "
@@ -103,11 +166,10 @@ class CentralDifference(Integrator):
 
     def damping_force(self, v):
         """C_L v [N] with the scheme's damping matrix (lumped mass part)."""
-        sys = self.system
-        if not sys.damped:
-            return np.zeros_like(v)
-        out = sys.alpha_m * self._m * v
-        return out + sys.beta_k * (sys.K0_ff @ v) if sys.beta_k else out
+        return self._lumped.damping_force(v)
+
+    def coupling_force(self, v_c, a_c):
+        return self._lumped.coupling_force(v_c, a_c)
 
     def _advance(self):
         sys, dt = self.system, self.dt
@@ -117,22 +179,14 @@ class CentralDifference(Integrator):
         if not np.all(np.isfinite(u1)):
             return StepReport(False, 0, f"non-finite displacement at t={t1:.6g}")
         uc1, vc1, ac1 = _prescribed_step(self, t1)
-        coupling = _lumped_damping_coupling(sys, vc1)
         f_ext, f_int = sys.f_ext(t1, u1, uc1), sys.f_int(u1, uc1)
         if sys.beta_k == 0:
-            # diagonal C_L = alpha_m M_L: (M_L + dt/2 C_L) a1 = f - f_int - C_L v_half
+            # diagonal C_L = alpha_m M_L (no coupling to v_c either): (M_L + dt/2 C_L) a1 = f - f_int - C_L v_half
             c = sys.alpha_m * self._m
             a1 = (f_ext - f_int - c * v_half) / (self._m + 0.5 * dt * c)
         else:
-            a1 = (f_ext - f_int - coupling - self.damping_force(v_half)) / self._m
+            a1 = (f_ext - f_int - self.coupling_force(vc1, ac1) - self.damping_force(v_half)) / self._m
         return StepReport(), (t1, u1, v_half + 0.5 * dt * a1, a1, f_ext, f_int, uc1, vc1, ac1)
-
-
-def _lumped_damping_coupling(sys, vc):
-    """C_fc v_c of the lumped schemes: the diagonal M_L has no M_fc, so only beta_k K0_fc."""
-    if not (sys.has_prescribed and sys.beta_k):
-        return 0.0
-    return sys.beta_k * (sys.K0_fc @ vc)
 
 
 def _prescribed_step(integ, t1):
@@ -164,15 +218,27 @@ class ForwardEuler(Integrator):
         super().__init__()
         self.lumped = bool(lumped)
 
+    def _setup(self):
+        self._lumped = LumpedOperators(self.system) if self.lumped else None
+
     @property
     def mass_ff(self):
-        return sp.diags(lumped_mass(self.system.M_ff)) if self.lumped else self.system.M_ff
+        return self._lumped.mass_ff if self.lumped else self.system.M_ff
 
     @property
     def mass_full(self):
-        if not self.lumped:
-            return self.system.M
-        return sp.diags(np.asarray(sp.csr_matrix(self.system.M).sum(axis=1)).ravel())
+        return self._lumped.mass_full if self.lumped else self.system.M
+
+    @property
+    def damping_full(self):
+        return self._lumped.damping_full if self.lumped else self.system.C_full
+
+    def damping_force(self, v):
+        """C v [N] on the free dofs: the lumped C_L with ``lumped=True``, the system's otherwise."""
+        return self._lumped.damping_force(v) if self.lumped else self.system.damping_force(v)
+
+    def coupling_force(self, v_c, a_c):
+        return self._lumped.coupling_force(v_c, a_c) if self.lumped else self.system.coupling_force(v_c, a_c)
 
     def _check_prescribed_support(self):
         if self.system.has_prescribed and not self.lumped:
@@ -188,6 +254,5 @@ class ForwardEuler(Integrator):
             return StepReport(False, 0, f"non-finite state at t={t1:.6g}")
         uc1, vc1, ac1 = _prescribed_step(self, t1)
         f_ext, f_int = sys.f_ext(t1, u1, uc1), sys.f_int(u1, uc1)
-        coupling = _lumped_damping_coupling(sys, vc1) if self.lumped else sys.damping_coupling(vc1)
-        a1 = self.solve_mass(f_ext - f_int - sys.damping_force(v1) - coupling)
+        a1 = self.solve_mass(f_ext - f_int - self.damping_force(v1) - self.coupling_force(vc1, ac1))
         return StepReport(), (t1, u1, v1, a1, f_ext, f_int, uc1, vc1, ac1)

@@ -15,7 +15,19 @@ from __future__ import annotations
 import numpy as np
 
 from .base import Integrator, StepReport
+from ..newton import scaled_norm
 from .step_newton import StepSolver, newton, newton_options
+
+
+def _force_scale(integ, sys) -> float:
+    """r_ref of a step [N]: the largest of |f_ext|, |f_int| and |M a| at t_n (scaled norms: a
+    1e-200 N load is not 0; all zero at rest, where the predictor's residual is the scale).
+    Keeps the run's largest in ``integ._force_peak``: the step Newton refuses a step whose
+    forces lie below round-off only while the whole run's have (a load below round-off), not
+    once a resolved motion has decayed there."""
+    r_ref = max(scaled_norm(integ.f_ext), scaled_norm(integ.f_int), scaled_norm(sys.M_ff @ integ.a))
+    integ._force_peak = max(integ._force_peak, r_ref)
+    return r_ref
 
 
 class NewmarkFamily(Integrator):
@@ -46,6 +58,7 @@ class NewmarkFamily(Integrator):
 
     def _setup(self):
         self._lu = StepSolver(self.newton_opts.linear_solver)  # a new system or dt invalidates the factorisation
+        self._force_peak = 0.0
 
     def _kin(self, u1, u0, v0, a0):
         """(v_{n+1}, a_{n+1}) from the candidate u_{n+1} and the state (u0, v0, a0) at t_n."""
@@ -81,9 +94,9 @@ class NewmarkFamily(Integrator):
 
         # predictor: constant acceleration over the step
         u_pred = self.u + dt * self.v + 0.5 * dt * dt * self.a
-        r_ref = max(np.linalg.norm(self.f_ext), np.linalg.norm(self.f_int),
-                    np.linalg.norm(sys.M_ff @ self.a), 1e-300)
-        u1, rep = newton(u_pred, residual, jacobian, r_ref, self.newton_opts, sys.linear, self._lu)
+        r_ref = _force_scale(self, sys)
+        u1, rep = newton(u_pred, residual, jacobian, r_ref, self.newton_opts, sys.linear, self._lu,
+                         sys.round_off_floor, self._force_peak)
         if not rep.converged:
             rep.message = f"t={t1:.6g}: {rep.message}"
             return rep
@@ -142,6 +155,7 @@ class Bathe(Integrator):
 
     def _setup(self):
         self._lu1, self._lu2 = (StepSolver(self.newton_opts.linear_solver) for _ in range(2))
+        self._force_peak = 0.0
 
     def _solve(self, t1, u_pred, kin, c_m, c_c, lu, r_ref, uc1, kin_c):
         """One sub-step: Newton on M a(u) + C v(u) + f_int(u) - f_ext(t1, u) = 0, the fixed
@@ -159,7 +173,8 @@ class Bathe(Integrator):
             J = c_m * sys.M_ff + sys.K_t(u1, t1, uc1)
             return J if sys.C_ff is None else J + c_c * sys.C_ff
 
-        u1, rep = newton(u_pred, residual, jacobian, r_ref, self.newton_opts, sys.linear, lu)
+        u1, rep = newton(u_pred, residual, jacobian, r_ref, self.newton_opts, sys.linear, lu, sys.round_off_floor,
+                         self._force_peak)
         if rep.converged and sys.linear:
             cache["f_ext"], cache["f_int"] = sys.f_ext(t1, u1, uc1), sys.f_int(u1, uc1)
         v1, a1 = kin(u1)
@@ -167,8 +182,7 @@ class Bathe(Integrator):
 
     def _advance(self):
         sys, dt, h = self.system, self.dt, 0.5 * self.dt
-        r_ref = max(np.linalg.norm(self.f_ext), np.linalg.norm(self.f_int),
-                    np.linalg.norm(sys.M_ff @ self.a), 1e-300)
+        r_ref = _force_scale(self, sys)
 
         def trapezoidal(u0, v0, a0):  # over h
             def kin(u):

@@ -14,7 +14,8 @@ error) or growth (forward Euler: positive error) in it.
 With a prescribed motion of the fixed dofs the balance runs over all dofs: KE uses the
 full velocity, D the full ``C v``, and W also holds the work of the support forces
 ``R_c = [M a + C v + f_int]_c`` on the prescribed displacements (``reaction_work``,
-trapezoidal rule as well).
+trapezoidal rule as well). M and C are the scheme's own on all dofs (the lumped ones of
+the explicit schemes), the ones its steps balance.
 """
 from __future__ import annotations
 
@@ -55,7 +56,14 @@ class DynamicsResult:
     message : str
         Human-readable account of the status.
     failed_step : int or None
-        Index of the step that failed (blow-up, Newton failure) or None.
+        The step at which the run stopped, whichever way (kept for the readers of stored
+        results): ``rejected_step`` or ``blow_up_step``, the one that is set; None on success.
+    rejected_step : int or None
+        The step that could not be computed (Newton failure, a non-finite state of an
+        explicit step): it is not in the arrays, which end at step ``rejected_step - 1``.
+    blow_up_step : int or None
+        The step that was computed and recorded but whose energy exceeded ``blowup_factor``
+        times the energy supplied: the arrays end with it (``n_steps == blow_up_step``).
     observations : list of dict
         What ``integrate(observe=...)`` returned at every completed step (empty without it).
     energy_growth_ratio : float
@@ -89,6 +97,8 @@ class DynamicsResult:
     options: dict = field(default_factory=dict)
     observations: list = field(default_factory=list)
     reaction_work: np.ndarray | None = None
+    rejected_step: int | None = None
+    blow_up_step: int | None = None
 
     @property
     def success(self) -> bool:
@@ -134,12 +144,17 @@ class Recorder:
         The scheme's C v [N] (default the system's).
     mass_full : sparse (n, n), optional
         The scheme's mass on all dofs (kinetic energy with a prescribed motion; default M).
+    damping_full : sparse (n, n), optional
+        The scheme's damping on all dofs (dissipation and support forces with a prescribed
+        motion; default the system's ``C_full``).
     """
 
-    def __init__(self, system, mass_ff, n_steps, dofs=None, store_every=1, damping_force=None, mass_full=None):
+    def __init__(self, system, mass_ff, n_steps, dofs=None, store_every=1, damping_force=None, mass_full=None,
+                 damping_full=None):
         self.system, self.M = system, mass_ff
         self.prescribed = system.has_prescribed
         self.M_full = system.M if mass_full is None else mass_full
+        self.C_full = system.C_full if damping_full is None else damping_full
         self.damping_force = system.damping_force if damping_force is None else damping_force
         n = system.n
         self.dofs = np.arange(n) if dofs is None else np.asarray(dofs, dtype=np.int64).ravel()
@@ -178,7 +193,7 @@ class Recorder:
         else:
             v_full = sys.expand(v, vc)
             self.ke[k] = 0.5 * float(v_full @ (self.M_full @ v_full))
-            support = sys.support_force(u, uc, v_full, sys.expand(a, ac), self.M_full)
+            support = sys.support_force(u, uc, v_full, sys.expand(a, ac), self.M_full, self.C_full)
         energy = sys.energy(u, uc)
         if energy is None:
             # the internal work is accumulated instead; with a prescribed motion the fixed dofs move
@@ -200,9 +215,9 @@ class Recorder:
                 uc0, vc0, support0 = c0
                 self.rw[k] = self.rw[k - 1] + 0.5 * float((support0 + support) @ (uc - uc0))
                 self.w[k] += self.rw[k] - self.rw[k - 1]
-                if sys.C_full is not None:
+                if self.C_full is not None:
                     du_full = sys.expand(du, uc - uc0)
-                    cv = sys.C_full @ (sys.expand(v0, vc0) + sys.expand(v, vc))
+                    cv = self.C_full @ (sys.expand(v0, vc0) + sys.expand(v, vc))
                     self.d[k] = self.d[k - 1] + 0.5 * float(cv @ du_full)
             if energy is None:  # the internal work by the trapezoidal rule, on all dofs that move
                 du_int = du if uc is None else sys.expand(du, uc - c0[0])
@@ -235,7 +250,9 @@ class Recorder:
             return 1.0 if top <= 0 else np.inf
         return float(top / ref)
 
-    def finish(self, method, dt, status, message, failed_step, options) -> DynamicsResult:
+    def finish(self, method, dt, status, message, failed_step, options, blown_up=False) -> DynamicsResult:
+        """The result; ``failed_step`` is the step that was rejected (not recorded), or with
+        ``blown_up=True`` the recorded step whose energy blew up."""
         k = self.k + 1
         mech, supplied = self.mechanical()
         u, v, a = (np.array([s[i] for s in self.states]).reshape(len(self.states), len(self.dofs))
@@ -248,4 +265,5 @@ class Recorder:
             damping_dissipation=self.d[:k].copy(), energy_error=mech - supplied,
             wall_time=self.wall[:k].copy(), status=status, message=message, failed_step=failed_step,
             energy_growth_ratio=self.growth_ratio(), options=dict(options),
-            reaction_work=self.rw[:k].copy() if self.prescribed else None)
+            reaction_work=self.rw[:k].copy() if self.prescribed else None,
+            rejected_step=None if blown_up else failed_step, blow_up_step=failed_step if blown_up else None)

@@ -33,6 +33,7 @@ import scipy.sparse as sp
 from scipy.linalg import lapack
 
 from ..linear_solvers import DirectSolver, LinearSolverError, NgsolveSparseSolver
+from ..newton import scaled_norm
 from ..sparse_direct import NGSOLVE_MIN_DOFS
 from .base import StepReport
 
@@ -52,9 +53,10 @@ REUSE_MIN_DOFS = NGSOLVE_MIN_DOFS
 class NewtonOptions:
     """Tolerances of the per-step Newton loop.
 
-    Converged when ``||r|| <= max(rtol * r_ref, atol)`` (r_ref: the largest force term
-    of the step, in N) or when ``||du|| <= utol * max(||u||, 1e-300)`` [m]. ``tangent``: when
-    the Newton matrix is formed (:data:`NEWTON_TANGENTS`).
+    Converged when ``||r|| <= max(rtol * r_ref, atol, floor)`` (r_ref: the largest force
+    term of the step, in N; floor: the system's round-off floor, see :func:`newton`) or when
+    ``||du|| <= utol * max(||u||, 1e-300)`` [m]. Norms are scaled (no underflow below 1e-154 N).
+    ``tangent``: when the Newton matrix is formed (:data:`NEWTON_TANGENTS`).
     """
 
     rtol: float = 1e-10
@@ -175,7 +177,7 @@ def _dense_factor(J):
     return lambda b: lapack.dgetrs(lu, piv, b)[0]
 
 
-def newton(u, residual, jacobian, r_ref, opts: NewtonOptions, linear=False, solver=None):
+def newton(u, residual, jacobian, r_ref, opts: NewtonOptions, linear=False, solver=None, floor=0.0, peak=0.0):
     """Solve ``residual(u) = 0`` from the predictor ``u`` (free dofs, (n,)).
 
     Parameters
@@ -189,6 +191,15 @@ def newton(u, residual, jacobian, r_ref, opts: NewtonOptions, linear=False, solv
     solver : StepSolver, optional
         Solver of the Jacobians (default: a new one for ``opts.linear_solver``); pass the
         integrator's to keep its analysis and factors from step to step.
+    floor : float
+        The residual's round-off floor [N]
+        (:attr:`~tissuebench.refsolvers.dynamics.system.SecondOrderSystem.round_off_floor`):
+        the tolerance is never below it (no iteration gets under it), and a step all of whose
+        forces lie under it, as do ``peak``'s, fails at once, said (its strains are below
+        double precision).
+    peak : float
+        The largest force [N] of the run so far: a motion that was resolved and has decayed
+        below the floor is converged at the floor, not refused.
 
     Returns
     -------
@@ -197,17 +208,20 @@ def newton(u, residual, jacobian, r_ref, opts: NewtonOptions, linear=False, solv
     solver = StepSolver(opts.linear_solver) if solver is None else solver
     u = u.copy()
     r = residual(u)
-    norms = [float(np.linalg.norm(r))]
+    norms = [scaled_norm(r)]
     # the predictor's residual joins the scale: a load switched on at t_{n+1} from rest
     # has r_ref = 0 (no force at t_n), and only r(predictor) then measures the step
-    tol = max(opts.rtol * max(r_ref, norms[0]), opts.atol)
+    scale = max(r_ref, norms[0])
+    if norms[0] > 0 and max(scale, peak) <= floor:  # iterating cannot help: the forces are round-off
+        return u, StepReport(False, 0, _below_round_off(scale, floor), norms)
+    tol = max(opts.rtol * scale, opts.atol, floor)
     if norms[0] <= tol:
         return u, StepReport(True, 0, "", norms)
     if linear:
         u += solver.solve_cached("linear", lambda: jacobian(u), -r)
         return u, StepReport(True, 1, "", norms)
     if opts.tangent == "reuse" or (opts.tangent == "auto" and len(u) >= REUSE_MIN_DOFS):
-        return _modified(u, r, norms, tol, residual, jacobian, opts, solver)
+        return _modified(u, r, norms, tol, residual, jacobian, opts, solver, floor)
     for it in range(1, opts.max_iter + 1):
         try:
             du = solver.solve(jacobian(u), -r)
@@ -215,18 +229,29 @@ def newton(u, residual, jacobian, r_ref, opts: NewtonOptions, linear=False, solv
             return u, StepReport(False, it, f"singular Newton matrix: {exc}", norms)
         u += du
         r = residual(u)
-        norms.append(float(np.linalg.norm(r)))
+        norms.append(scaled_norm(r))
         if not (np.isfinite(norms[-1]) and np.all(np.isfinite(u))):
             return u, StepReport(False, it, f"non-finite residual in Newton iteration {it}", norms)
-        small_du = np.linalg.norm(du) <= opts.utol * max(np.linalg.norm(u), 1e-300)
+        small_du = scaled_norm(du) <= opts.utol * max(scaled_norm(u), 1e-300)
         if norms[-1] <= tol or small_du:
             return u, StepReport(True, it, "", norms)
-    return u, StepReport(False, opts.max_iter,
-                         f"Newton did not converge in {opts.max_iter} iterations "
-                         f"(||r|| = {norms[-1]:.3e} N, tolerance {tol:.3e} N)", norms)
+    return u, StepReport(False, opts.max_iter, _not_converged("Newton", opts.max_iter, norms[-1], tol, floor), norms)
 
 
-def _modified(u, r, norms, tol, residual, jacobian, opts: NewtonOptions, solver: StepSolver):
+def _below_round_off(scale, floor) -> str:
+    """The message of a step whose forces all lie below the residual's round-off floor."""
+    return (f"the step's forces are below round-off: the largest, {scale:.3e} N, is under the round-off floor "
+            f"{floor:.3e} N of the internal force (machine epsilon x the force of a unit strain of the body), so "
+            "the strains they cause are below double precision: a load far too small for the body's stiffness "
+            "(is its length or load unit right?)")
+
+
+def _not_converged(what, max_iter, res, tol, floor) -> str:
+    text = f"{what} did not converge in {max_iter} iterations (||r|| = {res:.3e} N, tolerance {tol:.3e} N"
+    return text + (f", round-off floor {floor:.3e} N)" if floor > 0 else ")")
+
+
+def _modified(u, r, norms, tol, residual, jacobian, opts: NewtonOptions, solver: StepSolver, floor=0.0):
     """Modified Newton (module docstring): the factors kept in ``solver`` under the key
     ``"newton"``, formed again after a poor contraction; an iteration of kept factors that does
     not reduce the residual is discarded (it counts) and done again with fresh ones."""
@@ -241,7 +266,7 @@ def _modified(u, r, norms, tol, residual, jacobian, opts: NewtonOptions, solver:
             return u, StepReport(False, it, f"singular Newton matrix: {exc}", norms)
         u_new = u + du
         r_new = residual(u_new)
-        n_new = float(np.linalg.norm(r_new))
+        n_new = scaled_norm(r_new)
         finite = np.isfinite(n_new) and np.all(np.isfinite(u_new))
         if not fresh and not (finite and n_new < norms[-1]):
             refresh = True
@@ -251,11 +276,10 @@ def _modified(u, r, norms, tol, residual, jacobian, opts: NewtonOptions, solver:
         dr = r_new - r
         u, r = u_new, r_new
         norms.append(n_new)
-        if n_new <= tol or np.linalg.norm(du) <= opts.utol * max(np.linalg.norm(u), 1e-300):
+        if n_new <= tol or scaled_norm(du) <= opts.utol * max(scaled_norm(u), 1e-300):
             return u, StepReport(True, it, "", norms)
         refresh = n_new > (REFRESH_RATIO_SECANT if solver.dense else REFRESH_RATIO) * norms[-2]
         if not refresh:  # a kept dense matrix (a reduced model's) follows the iterates by secant updates
             solver.secant_update(du, dr)
-    return u, StepReport(False, opts.max_iter,
-                         f"modified Newton did not converge in {opts.max_iter} iterations "
-                         f"(||r|| = {norms[-1]:.3e} N, tolerance {tol:.3e} N)", norms)
+    return u, StepReport(False, opts.max_iter, _not_converged("modified Newton", opts.max_iter, norms[-1], tol, floor),
+                         norms)

@@ -25,6 +25,7 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 
+from ..newton import ROUND_OFF_FACTOR, scaled_norm
 from .checks import DENSE_LIMIT, check_spd_mass, check_vector  # noqa: F401  (re-exported)
 
 
@@ -63,6 +64,9 @@ class SecondOrderSystem:
     prescribed : callable ``t -> (n_fixed,)``, optional
         Displacements [m] of the fixed dofs (in the order of :attr:`fixed`) at time ``t``
         [s]; None holds them at zero.
+    unit_strain : (n,) array, optional
+        The displacement [m] of a unit dilation (the nodes' coordinates about their centre);
+        it sets the :attr:`round_off_floor` of a nonlinear system's residual.
     """
 
     M: sp.spmatrix
@@ -77,6 +81,7 @@ class SecondOrderSystem:
     load_depends_on_u: bool = False
     load_tangent: Callable | None = None
     prescribed: Callable | None = None
+    unit_strain: np.ndarray | None = None
 
     def __post_init__(self):
         if not sp.issparse(self.M):
@@ -98,6 +103,8 @@ class SecondOrderSystem:
             self.load = _constant_load(check_vector("load", self.load, n))
         if self.prescribed is not None and not callable(self.prescribed):
             raise TypeError(f"prescribed must be a callable t -> (n_fixed,), got {type(self.prescribed).__name__}")
+        if self.unit_strain is not None:
+            self.unit_strain = check_vector("unit_strain", self.unit_strain, n).copy()
         check_spd_mass(self.M_ff)
 
     # ---------------------------------------------------------------- constructors
@@ -146,7 +153,7 @@ class SecondOrderSystem:
             return cls.linear_system(M, K, load, free=problem.free_dofs, alpha_m=alpha_m, beta_k=beta_k, **coupling)
         return cls(M=M, internal_force=backend.internal_force, tangent=backend.tangent, load=load,
                    free=problem.free_dofs, alpha_m=alpha_m, beta_k=beta_k, strain_energy=backend.strain_energy,
-                   **coupling)
+                   unit_strain=_unit_strain(problem), **coupling)
 
     # ---------------------------------------------------------------- free-dof operators
     @property
@@ -171,6 +178,19 @@ class SecondOrderSystem:
 
     def _fc(self, A) -> sp.csr_matrix:
         return sp.csr_matrix(A)[self.free][:, self.fixed]
+
+    @cached_property
+    def round_off_floor(self) -> float:
+        """The residual norm [N] below which round-off hides the equilibrium of a nonlinear
+        system, as in statics (:meth:`tissuebench.refsolvers.newton._Equilibrium.round_off_floor`):
+        ``ROUND_OFF_FACTOR`` x eps x ``||K0_f X||``, the free rows of the tangent at rest times
+        :attr:`unit_strain` (the nodal forces of a strain of 1). Its stresses are sums of terms
+        of that size that cancel near the reference state, so their round-off does not shrink
+        with the load. 0.0 for a linear system (``K u`` shrinks with u) or without ``unit_strain``."""
+        if self.linear or self.unit_strain is None:
+            return 0.0
+        K_f = sp.csr_matrix(self.tangent(np.zeros(self.n)))[self.free]
+        return ROUND_OFF_FACTOR * float(np.finfo(float).eps) * scaled_norm(K_f @ self.unit_strain)
 
     @cached_property
     def M_fc(self) -> sp.csr_matrix:
@@ -205,17 +225,40 @@ class SecondOrderSystem:
         """``M_fc a_c + C_fc v_c`` on the free rows [N] (0.0 without a prescribed motion)."""
         return self.mass_coupling(a_c) + self.damping_coupling(v_c)
 
-    def support_force(self, u_f, u_c, v_full, a_full, mass=None) -> np.ndarray:
+    def support_force(self, u_f, u_c, v_full, a_full, mass=None, damping=None) -> np.ndarray:
         """Force the supports and loads apply on the fixed dofs, ``[M a + C v + f_int]_c`` [N].
 
-        ``mass`` is the full mass the scheme uses (default :attr:`M`); ``v_full``,
-        ``a_full`` are full vectors (n,).
+        ``mass`` and ``damping`` are the full mass and damping matrices the scheme uses
+        (default :attr:`M` and :attr:`C_full`; a lumped scheme passes its own, so the
+        reaction is the one its steps balance); ``v_full``, ``a_full`` are full vectors (n,).
         """
         M = self.M if mass is None else mass
+        C = self.C_full if damping is None else damping
         r = M @ a_full + np.asarray(self.internal_force(self.expand(u_f, u_c)), dtype=float)
-        if self.C_full is not None:
-            r = r + self.C_full @ v_full
+        if C is not None:
+            r = r + C @ v_full
         return r[self.fixed]
+
+    def reactions(self, t, u, v, a, mass=None, damping=None) -> np.ndarray:
+        """The forces the supports exert on the body at time ``t`` [s], shape (n,) [N]:
+        ``[M a + C v + f_int(u) - f_ext(t, u)]`` on the fixed dofs, zero on the free ones.
+
+        ``u``, ``v``, ``a`` are full vectors (n,) of a dynamic state. The load lumped onto a
+        supported dof is the support's to carry, as in statics
+        (:meth:`~tissuebench.refsolvers.problem.Problem.support_reactions`, ``f_int - f_ext``
+        there, which this is at rest); in motion the supports also carry the inertia and
+        damping forces of their rows (``M_cf a_f`` of a consistent mass, ``M_cc a_c`` of a
+        moving support). ``mass``, ``damping``: as in :meth:`support_force`.
+        """
+        u = check_vector("u", u, self.n)
+        v, a = check_vector("v", v, self.n), check_vector("a", a, self.n)
+        t = float(t)
+        f = self.load(t, u) if self.load_depends_on_u else self.load(t)
+        f = check_vector(f"load(t) at t={t!r}", f, self.n)
+        r = np.zeros(self.n)
+        fixed = self.fixed
+        r[fixed] = self.support_force(u[self.free], u[fixed], v, a, mass, damping) - f[fixed]
+        return r
 
     @property
     def damped(self) -> bool:
@@ -274,6 +317,18 @@ class SecondOrderSystem:
         if self.strain_energy is None:
             return None
         return float(self.strain_energy(self.expand(u_f, u_c)))
+
+
+def _unit_strain(problem) -> np.ndarray | None:
+    """The displacement of a unit dilation of ``problem``'s nodes about their centre (zero on
+    any dof beyond the nodes'), or None for a problem without nodes."""
+    nodes = getattr(problem, "nodes", None)
+    if nodes is None:
+        return None
+    nodes = np.asarray(nodes, dtype=float)
+    x = np.zeros(problem.ndof)
+    x[:nodes.size] = (nodes - nodes.mean(axis=0)).ravel()
+    return x
 
 
 def _prescribed_motion(problem, load_history):
