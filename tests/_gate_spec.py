@@ -4,6 +4,8 @@ shared by test_check.py and test_check_ab.py."""
 SPEC = """
 [sweep]
 name = "gate"
+# the tests edit this column of the stored rows to move an error (the default is claimed_error)
+error_metric = "max_rel_l2"
 [protocol]
 latency_steps = 200
 warmup = 20

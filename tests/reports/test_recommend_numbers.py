@@ -243,3 +243,100 @@ def test_a_seen_flag_read_back_as_nan_is_not_seen():
     units["seen"] = [np.nan, 1.0]
     out = rank_units(units, parse_requirement("rate>=1kHz"), "e").set_index("label")
     assert out["seen"].tolist() == [False, True] and out["meets"].tolist() == [True, False]
+
+
+# ---------------------------------------------------------------- an honest closest (issue 52)
+def test_the_load_factor_by_hand():
+    from tissuebench.reports.recommend import load_factor
+    units = pd.DataFrame({"load_average": [3.0, 3.0, 3.0, np.nan, 1.0], "n_cpus": [2, 0, -1, 2, 4]})
+    out = load_factor(units)
+    assert out[0] == 1.5 and out[4] == 0.25 and out[1:4].isna().all()
+    assert load_factor(units.drop(columns="n_cpus")).isna().all()  # a store written before issue 52
+    assert load_factor(units.drop(columns="load_average")).isna().all()
+
+
+def _loaded(load):
+    # req 1 kHz, 5 %: "galerkin" misses only the rate (p99 5 ms: 0.2), timed at `load` on 2 CPUs;
+    # "table" meets the rate and is 3.8x over the error (0.05 / 0.19 = 0.263)
+    return _units([{"label": "galerkin", "e": 0.01, "haptic_p99_s": 5e-3, "load_average": load, "n_cpus": 2},
+                   {"label": "table", "e": 0.19, "haptic_p99_s": 5e-4, "load_average": 1.0, "n_cpus": 2}])
+
+
+@pytest.mark.parametrize("load, first, closeness", [
+    (6.0, "galerkin", 0.6),      # 3x loaded: the 0.2 rate headroom taken as 0.6 > 0.263
+    (2.0, "table", 0.2),         # load average = CPUs: not loaded, the margin as measured
+    (2.5, "table", 0.25),        # 1.25x loaded: 0.25 < 0.263, the error miss is still closer
+    (2.7, "galerkin", 0.27),     # 1.35x: 0.27 > 0.263
+    (np.nan, "table", 0.2),      # not recorded: the margin
+])
+def test_the_closest_takes_off_a_latency_miss_the_machine_load_accounts_for(load, first, closeness):
+    out = rank_units(_loaded(load), parse_requirement("rate>=1kHz, error<=5%"), "e")
+    assert out["label"].tolist()[0] == first and not out["meets"].any()
+    o = out.set_index("label")
+    assert o.loc["galerkin", "margin"] == pytest.approx(0.2) and o.loc["galerkin", "closeness"] == \
+        pytest.approx(closeness)
+    # the error's headroom is never scaled, nor a unit on an idle machine's
+    assert o.loc["table", "closeness"] == pytest.approx(0.05 / 0.19) == o.loc["table", "margin"]
+    assert o.loc["galerkin", "misses"] == "rate 200 Hz (p99 5 ms) is 5x short of 1 kHz"  # measured, said as such
+
+
+def test_meeting_is_decided_and_ranked_on_the_measured_latency():
+    req = parse_requirement("rate>=1kHz, error<=1%")
+    units = _units([
+        {"label": "loaded", "e": 0.0025, "haptic_p99_s": 1e-3 / 1.5, "load_average": 6.0, "n_cpus": 2},  # 1.5, 4
+        {"label": "idle", "e": 0.004, "haptic_p99_s": 0.5e-3, "load_average": 0.5, "n_cpus": 2},  # 2, 2.5
+        {"label": "short", "e": 0.001, "haptic_p99_s": 2e-3, "load_average": 6.0, "n_cpus": 2},  # 0.5 (1.5 idle)
+    ])
+    o = rank_units(units, req, "e")
+    assert o["label"].tolist() == ["idle", "loaded", "short"]  # by margin 2 > 1.5, not closeness 4 > 2
+    assert o["meets"].tolist() == [True, True, False]  # "short" would meet on an idle machine: not said to
+    assert o.set_index("label").loc["loaded", "closeness"] == pytest.approx(4.0)
+    assert o.set_index("label").loc["short", "closeness"] == pytest.approx(1.5)
+
+
+def test_a_latency_clause_is_scaled_too_and_unmeasurable_units_have_no_closeness():
+    units = _units([{"label": "a", "e": 0.0, "haptic_p99_s": 4e-3, "load_average": 4.0, "n_cpus": 1},
+                    {"label": "f", "e": 0.0, "haptic_p99_s": 1e-6, "unit_status": "failed", "message": "boom"}])
+    o = rank_units(units, parse_requirement("latency<=1ms"), "e").set_index("label")
+    assert o.loc["a", "margin"] == pytest.approx(0.25) and o.loc["a", "closeness"] == pytest.approx(1.0)
+    assert o.loc["a", "load_factor"] == 4.0 and math.isnan(o.loc["f", "closeness"])
+    assert bool(o.loc["a", "meets"]) is False
+    from tissuebench.reports.recommend import Requirement
+    o = rank_units(units, Requirement((), ""), "e").set_index("label")
+    assert o.loc["a", "closeness"] > 1e300  # no clause: nothing to miss
+
+
+def test_the_best_unit_per_clause_among_those_that_meet_the_others():
+    from tissuebench.reports.recommend import best_per_clause
+    req = parse_requirement("rate>=1kHz, error<=5%")
+    units = _units([
+        {"label": "table", "e": 0.19, "haptic_p99_s": 1e-4},       # meets the rate: 3.8x over the error
+        {"label": "table2", "e": 0.30, "haptic_p99_s": 5e-5},      # meets the rate, less accurate
+        {"label": "galerkin", "e": 0.04, "haptic_p99_s": 2.5e-3},  # meets the error: 400 Hz
+        {"label": "slow", "e": 0.01, "haptic_p99_s": 1e-2},        # meets the error: 100 Hz
+        {"label": "seen", "e": 0.0, "haptic_p99_s": 1e-5, "seen": True},   # never a candidate
+        {"label": "x", "e": 0.0, "haptic_p99_s": 1e-5, "unit_status": "failed"},
+    ])
+    ranked = rank_units(units, req, "e")
+    (c1, others1, best1), (c2, others2, best2) = best_per_clause(ranked, req)
+    assert (c1.quantity, [d.quantity for d in others1], best1["label"]) == ("rate", ["error"], "galerkin")
+    assert (c2.quantity, [d.quantity for d in others2], best2["label"]) == ("error", ["rate"], "table")
+    assert best1["misses"] == "rate 400 Hz (p99 2.5 ms) is 2.5x short of 1 kHz"
+    assert best2["misses"] == "error 19 % is 3.8x over 5 %"
+    # no unit meets the others: None; a requirement of one clause: nothing per clause
+    ranked = rank_units(units[units["label"].isin(["table", "table2"])], req, "e")
+    assert best_per_clause(ranked, req)[0][2] is None and best_per_clause(ranked, req)[1][2]["label"] == "table"
+    assert best_per_clause(rank_units(units, parse_requirement("rate>=1kHz"), "e"), parse_requirement("rate>=1kHz")) \
+        == []
+
+
+def test_the_best_per_clause_with_three_clauses_and_a_tie():
+    from tissuebench.reports.recommend import best_per_clause
+    req = parse_requirement("rate>=1kHz, latency<=2ms, error<=1%")
+    units = _units([{"label": "a", "e": 0.02, "haptic_p99_s": 5e-4},   # meets rate and latency
+                    {"label": "b", "e": 0.02, "haptic_p99_s": 5e-4},   # the same: a comes first
+                    {"label": "c", "e": 0.005, "haptic_p99_s": 1.5e-3},  # meets latency and error, not the rate
+                    {"label": "d", "e": 0.001, "haptic_p99_s": 3e-3}])   # meets the error only
+    ranked = rank_units(units, req, "e")
+    best = {c.quantity: (b if b is None else b["label"]) for c, _, b in best_per_clause(ranked, req)}
+    assert best == {"rate": "c", "latency": None, "error": "a"}

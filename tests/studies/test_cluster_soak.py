@@ -29,6 +29,7 @@ from tissuebench.studies.results import read_units
 from tissuebench.studies.spec import expand_units, load_spec
 from tissuebench.studies.sweep import run_sweep
 from tissuebench.studies.units import unit_references
+from tissuebench.studies.schema import RUN_DEPENDENT_COLUMNS
 
 distributed = pytest.importorskip("distributed")
 
@@ -67,11 +68,8 @@ N_UNITS = 12
 # more kill schedules: TISSUEBENCH_SOAK_SEEDS=0-19 (a soak is as good as the schedules it tried)
 _SEEDS = os.environ.get("TISSUEBENCH_SOAK_SEEDS", "0-1")
 SEEDS = list(range(int(_SEEDS.split("-")[0]), int(_SEEDS.split("-")[-1]) + 1))
-# what differs between two runs of one unit (tests/studies/test_sweep.py's VOLATILE): timings, their
-# ratios, dates, memory, the machine's name and threads
-VOLATILE = {"haptic_median_s", "haptic_p99_s", "reconstruct_median_s", "reconstruct_p99_s", "reference_step_s",
-            "speedup", "calibration_s", "haptic_per_calibration", "floor_s", "efficiency", "offline_s",
-            "build_peak_bytes", "date", "model_info", "machine", "blas_threads", "unit_wall_s"}
+# what differs between two runs of the same unit: timings, memory, dates, the machine and its load
+VOLATILE = RUN_DEPENDENT_COLUMNS
 
 
 def _log(path: Path) -> list:

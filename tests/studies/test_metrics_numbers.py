@@ -16,8 +16,9 @@ import pandas as pd
 import pytest
 
 from tissuebench.studies.evaluation import Evaluation, EvaluationPoint
-from tissuebench.studies.metrics import (SEEN_RTOL, TOLERANCES, ZERO_REFERENCE, claimed_range, output_rows,
-                                         pareto_front, point_rows, seen_points, summarise_points, validity_radius)
+from tissuebench.studies.metrics import (SEEN_RTOL, TOLERANCES, ZERO_REFERENCE, claimed_mask, claimed_range,
+                                         output_rows, pareto_front, peak_normalise, point_rows, seen_points,
+                                         summarise_points, validity_radius)
 from tissuebench.studies.timing import LatencyStats, latency_stats, max_displacement, relative_l2
 
 
@@ -117,6 +118,12 @@ def test_a_failed_step_is_inf_and_a_point_without_reference_is_nan():
     # exactly 1e150 is still a number: its error is computed, not inf
     assert rows[4]["rel_l2"] == pytest.approx(big) and rows[4]["rel_max_displacement"] == pytest.approx(big)
     assert rows[5]["rel_l2"] == math.inf  # the magnitude counts, not the signed value
+    # the peak-normalised and absolute errors (issue 52) on the same sides: inf where rel_l2 is, NaN without
+    # a reference, 1e150 still a number (the scale: |ref| = 1)
+    assert [rows[k]["abs_error"] for k in (0, 2, 3, 5)] == [math.inf] * 4
+    assert [rows[k]["peak_rel"] for k in (0, 2, 3, 5)] == [math.inf] * 4
+    assert math.isnan(rows[1]["abs_error"]) and math.isnan(rows[1]["peak_rel"])
+    assert rows[4]["abs_error"] == pytest.approx(big) and rows[4]["peak_rel"] == pytest.approx(big)
 
 
 def test_statuses_initial_not_reached_and_the_message():
@@ -267,6 +274,8 @@ def test_peak_and_absolute_errors_of_references_smaller_than_one():
     points = pd.DataFrame(point_rows(ev, _driven(fields)))
     row = summarise_points(points, pd.DataFrame(), ev, [np.asarray(f, float) for f in fields])
     assert row["peak_rel_l2"] == pytest.approx(0.2) and row["max_abs_error"] == pytest.approx(0.1)
+    # the headline's scale below 1 is still a scale (0.1 / 0.5), not an absolute error
+    assert row["claimed_error"] == pytest.approx(0.2) and points["peak_rel"].tolist() == pytest.approx([0.2, 0.0])
 
 
 def test_every_reference_zero_makes_the_history_errors_inf():
@@ -390,6 +399,118 @@ def test_valid_to_stops_at_the_training_range_unless_extrapolation_is_asked():
     assert row["validity_5pct"] == 0.3 and row["validity_range"] == "training"
     row = _radius_row(["ok", "extrapolation", "ok"], [False] * 3, off, True)
     assert row["validity_5pct"] == 0.1
+
+
+# ---------------------------------------------------------------- the claimed (headline) error (issue 52)
+def _headline_case(extrapolation):
+    """A path: near rest (1/1000 of the first state: the model 100 % off state-relatively, 0.01
+    absolute), a held-out state (|ref| 5, error 0.1), a step the model flags (|ref| 10, error 0.5)
+    and a point past the top (|ref| 20, error 1)."""
+    refs = [[0.01, 0, 0], [3, 4, 0], [0, 0, 10], [0, 20, 0]]
+    fields = [[0.02, 0, 0], [3, 4, 0.1], [0, 0, 10.5], [0, 20, 1]]
+    ev = _evaluation(refs, xs=[0.001, 0.5, 0.75, 1.5], beyond=[False, False, False, True])
+    ev.info["extrapolation"] = extrapolation
+    points = pd.DataFrame(point_rows(ev, _driven(fields, statuses=["ok", "ok", "extrapolation", "extrapolation"])))
+    return points, summarise_points(points, pd.DataFrame(), ev, [np.asarray(f, float) for f in fields])
+
+
+def test_the_headline_is_peak_normalised_over_the_training_range_by_hand():
+    points, row = _headline_case(False)
+    # the largest reference of the claimed range is 5: neither the flagged step's 10 nor the 20 past the top
+    assert points["peak_rel"].tolist() == pytest.approx([0.01 / 5, 0.1 / 5, 0.5 / 5, 1 / 5], rel=1e-14)
+    assert points["abs_error"].tolist() == pytest.approx([0.01, 0.1, 0.5, 1.0], rel=1e-14)
+    assert points["rel_l2"].tolist() == pytest.approx([1.0, 0.02, 0.05, 0.05], rel=1e-14)
+    assert row["claimed_error"] == pytest.approx(0.02, rel=1e-14)  # the held-out state's 0.1 / 5
+    # beside it, unchanged: the state-relative worst (near rest), the run's peak (0.5 / 10), the absolute
+    assert row["max_rel_l2"] == pytest.approx(1.0) and row["peak_rel_l2"] == pytest.approx(0.05)
+    assert row["max_abs_error"] == pytest.approx(0.5)
+    # "valid to" reads the peak-normalised error: 0.2 % at 0.001, 2 % at 0.5 (state-relative: 0 at both)
+    assert (row["validity_1pct"], row["validity_5pct"], row["validity_range"]) == (0.001, 0.5, "training")
+
+
+def test_the_headline_with_extrapolation_asked_is_over_every_point():
+    points, row = _headline_case(True)
+    # the claimed range is every point: the largest reference is the 20 past the top
+    assert points["peak_rel"].tolist() == pytest.approx([0.0005, 0.005, 0.025, 0.05], rel=1e-14)
+    assert row["claimed_error"] == pytest.approx(0.05, rel=1e-14)
+    # 2.5 % at the flagged 0.75 fails 1 %; 5 % at 1.5 holds 5 % (equality holds)
+    assert (row["validity_1pct"], row["validity_5pct"], row["validity_range"]) == (0.5, 1.5, "extrapolation")
+
+
+def test_the_headline_scale_counts_a_failed_step_and_skips_the_initial_state():
+    # a trajectory: the initial state (|ref| 100) is no error point and no scale; a failed step's
+    # reference (|ref| 10) is the largest of the run: its error is inf, the others' are over 10
+    ev = _evaluation([[100, 0, 0], [0, 2, 0], [0, 0, 10]], kind="trajectory")
+    fields = [[100, 0, 0], [0, 2, 0.5], None]
+    points = pd.DataFrame(point_rows(ev, _driven(fields, statuses=[None, "ok", "failed"])))
+    assert math.isnan(points["peak_rel"][0]) and math.isnan(points["abs_error"][0])
+    assert points["peak_rel"][1] == pytest.approx(0.05, rel=1e-14) and points["abs_error"][1] == pytest.approx(0.5)
+    assert points["peak_rel"][2] == math.inf and points["abs_error"][2] == math.inf
+    row = summarise_points(points, pd.DataFrame(), ev, [None if f is None else np.asarray(f, float) for f in fields])
+    assert row["claimed_error"] == math.inf and row["validity_range"] == ""
+    # the other side: the step succeeds, exactly; the worst is 0.5 over the failed step's 10
+    fields[2] = [0, 0, 10]
+    points = pd.DataFrame(point_rows(ev, _driven(fields, statuses=[None, "ok", "ok"])))
+    row = summarise_points(points, pd.DataFrame(), ev, [np.asarray(f, float) for f in fields])
+    assert row["claimed_error"] == pytest.approx(0.05, rel=1e-14) and points["peak_rel"][2] == 0.0
+    assert row["claimed_error"] == pytest.approx(row["peak_rel_l2"], rel=1e-14)  # a motion: the same number
+
+
+def test_a_zero_claimed_range_is_inf_whatever_lies_past_it():
+    # every reference of the training range is zero: no peak-normalised error exists (inf), even where
+    # the model matches it, and a reference past the top does not lend its scale
+    ev = _evaluation([[0, 0, 0], [0, 0, 0], [0, 5, 0]], beyond=[False, False, True])
+    ev.info["extrapolation"] = False
+    fields = [[0, 0, 0], [0, 0, 0.1], [0, 5, 0]]
+    points = pd.DataFrame(point_rows(ev, _driven(fields)))
+    assert points["peak_rel"].tolist() == [math.inf] * 3
+    row = summarise_points(points, pd.DataFrame(), ev, [np.asarray(f, float) for f in fields])
+    assert row["claimed_error"] == math.inf and row["validity_1pct"] == 0.0
+    # the other side: extrapolation asked, the 5 past the top is the scale
+    ev.info["extrapolation"] = True
+    points = pd.DataFrame(point_rows(ev, _driven(fields)))
+    assert points["peak_rel"].tolist() == pytest.approx([0.0, 0.02, 0.0])
+
+
+def test_no_reference_in_the_claimed_range_makes_the_scale_zero():
+    # the claimed range has points, none with a reference: the point past the top has nothing to be
+    # normalised by (inf); the points without reference stay NaN
+    ev = _evaluation([None, [0, 5, 0]], beyond=[False, True])
+    ev.info["extrapolation"] = False
+    peaks = peak_normalise(point_rows(ev, _driven([[0, 0, 0], [0, 5, 1]])), [math.nan, 1.0], [0.0, 5.0], ev)
+    assert math.isnan(peaks[0]) and peaks[1] == math.inf
+    assert point_rows(_evaluation([]), _driven([])) == [] and peak_normalise([], [], [], ev) == []
+    # the other side: a reference below 1 beside the point without one is the scale (0.1 / 0.5)
+    ev = _evaluation([None, [0, 0.5, 0]])
+    ev.info["extrapolation"] = False
+    peaks = [r["peak_rel"] for r in point_rows(ev, _driven([[0, 0, 0], [0, 0.5, 0.1]]))]
+    assert math.isnan(peaks[0]) and peaks[1] == pytest.approx(0.2, rel=1e-14)
+
+
+def test_without_a_reference_or_peak_rel_column_the_headline_is_nan():
+    ev = _evaluation([None, None])
+    points = pd.DataFrame(point_rows(ev, _driven([[1.0], [2.0]])))
+    assert points["peak_rel"].isna().all() and points["abs_error"].isna().all()
+    assert math.isnan(summarise_points(points, pd.DataFrame(), ev, [None, None])["claimed_error"])
+    # rows without peak_rel (a store's before issue 52): no headline, the radii read rel_l2
+    points, _ = _headline_case(False)
+    ev = _evaluation([[0.01, 0, 0], [3, 4, 0], [0, 0, 10], [0, 20, 0]], xs=[0.001, 0.5, 0.75, 1.5],
+                     beyond=[False, False, False, True])
+    ev.info["extrapolation"] = False
+    row = summarise_points(points.drop(columns="peak_rel"), pd.DataFrame(), ev, [None] * 4)
+    assert math.isnan(row["claimed_error"]) and row["validity_1pct"] == 0.0 and row["validity_5pct"] == 0.0
+
+
+@pytest.mark.parametrize("what, expected", [("training", [True, False, False, False]),
+                                            ("extrapolation", [True] * 4), ("", [True] * 4)])
+def test_the_claimed_mask_of_stored_rows(what, expected):
+    points = pd.DataFrame({"status": ["ok", "extrapolation", "beyond_validity", "ok"],
+                           "beyond": [False, False, False, True]}, index=[3, 4, 5, 6])
+    assert claimed_mask(points, what).tolist() == expected
+    assert claimed_mask(points, what).index.tolist() == [3, 4, 5, 6]
+    # a store without the beyond column: nothing is past the top
+    assert claimed_mask(points.drop(columns="beyond"), what).tolist() == (
+        [True, False, False, True] if what == "training" else [True] * 4)
 
 
 # ---------------------------------------------------------------- Pareto front

@@ -82,9 +82,19 @@ def _anm(n, order):
 
 def test_liver_nine_modes_order_six_within_one_percent_to_5_5(anm):
     """The paper's claim on the shipped liver: 9 POD modes, order 6, one series from the origin:
-    error <= 1 % up to load factor 5.5 (6.6 N, reference max displacement 4.7 mm), <= 5 % to 6.5."""
+    error <= 1 % up to load factor 5.5 (6.6 N, reference max displacement 4.7 mm), <= 5 % to 6.5.
+    The paper's error is state-relative: read from the points' ``rel_l2``. The stored radii read the
+    peak-normalised error (issue 52: over the largest displacement of the claimed range, here up to
+    6.5), 0.96 % at 6.0 where the state-relative one is 1.05 %: 1 % holds to 6.0."""
+    from tissuebench.studies.metrics import validity_radius
+    from tissuebench.studies.results import read_points
+
     row = anm.loc[("liver_palpation", _anm(9, 6))]
-    assert row["validity_1pct"] == 5.5 and row["validity_5pct"] == 6.5
+    points = read_points(anm.attrs["out"])
+    mine = points[points["unit_key"] == row["unit_key"]]  # extrapolation asked: every point, as the radii
+    assert validity_radius(mine["x"], mine["rel_l2"], 0.01) == 5.5
+    assert validity_radius(mine["x"], mine["rel_l2"], 0.05) == 6.5
+    assert row["validity_1pct"] == 6.0 and row["validity_5pct"] == 6.5
     # order 1 (the linear ROM) is far worse; the steps past the path are flagged
     assert anm.loc[("liver_palpation", _anm(9, 1)), "max_rel_l2"] > 4 * row["max_rel_l2"]
     assert row["n_beyond_validity"] + row["n_extrapolation"] >= 2

@@ -71,7 +71,7 @@ def _case_section(data, case, index, requirement, figures, tables, title):
     err, err_data = error_figure(title, units, data.points)
     figures[f"pareto-{index}"], figures[f"error-{index}"] = pareto, err
     tables += [Table(f"pareto_{part}", [], [], pareto_data), Table(f"error_{part}", [], [], err_data)]
-    rec = recommendation(units, requirement, data.error_metric)
+    rec = recommendation(units, requirement, data.error_metric, data.points)
     ext = extremes_table(units, data.points, {case: scene_info(scene)})
     section = {"case": case, "title": title, "index": index, "scene": scene, "scene_error": scene_error,
                "mesh": mesh_text(scene) if scene is not None else "",
@@ -102,7 +102,8 @@ def verdict_lines(results_dir, require: str | None = None, case: str | None = No
     requirement = parse_requirement(require)
     data = load_results(results_dir, case)
     titles = report_titles(data)
-    return [f"{titles[c]}: {one_line(recommendation(_case_units(data, c), requirement, data.error_metric))}"
+    return [f"{titles[c]}: "
+            f"{one_line(recommendation(_case_units(data, c), requirement, data.error_metric, data.points))}"
             for c in data.cases]
 
 

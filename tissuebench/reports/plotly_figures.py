@@ -127,19 +127,20 @@ def _option_sets(data: pd.DataFrame):
             yield PALETTE[i % len(PALETTE)], SYMBOLS[j % len(SYMBOLS)], label, rows
 
 
-def _unit_traces(key, g, meta, color, visible, top) -> list:
-    """One unit's error curve (points with a reference), its failed steps at ``top`` and its
-    validity radii as diamonds on the tolerance lines, in one legend group."""
+def _unit_traces(key, g, meta, color, visible, top, y="rel_l2") -> list:
+    """One unit's error curve (points with a reference; the error column ``y``), its failed steps
+    at ``top`` and its validity radii as diamonds on the tolerance lines, in one legend group."""
     label = esc(meta.loc[key, "label"])
     g = g[g["has_reference"].astype(bool)].sort_values("x")
-    finite = np.isfinite(g["rel_l2"].astype(float))
+    finite = np.isfinite(g[y].astype(float))
     ok, bad = g[finite], g[~finite]
     common = {"type": "scatter", "legendgroup": key, "visible": visible}
-    text = [f"{label}<br>{esc(r.mu)}<br>status {esc(r.status)}<br>error {percent(r.rel_l2)}" for r in ok.itertuples()]
+    text = [f"{label}<br>{esc(r.mu)}<br>status {esc(r.status)}<br>error {percent(getattr(r, y))}"
+            + (f" (state-relative {percent(r.rel_l2)})" if y != "rel_l2" else "") for r in ok.itertuples()]
     # held-out positions share their distance: markers only (a line would zigzag between positions)
     mode = "markers" if meta.loc[key, "x_name"] == "distance" else "lines+markers"
     traces = [{**common, "mode": mode, "name": label, "x": [_num(v) for v in ok["x"]],
-               "y": [_num(max(v, ERROR_FLOOR)) for v in ok["rel_l2"]], "text": text,
+               "y": [_num(max(v, ERROR_FLOOR)) for v in ok[y]], "text": text,
                "hovertemplate": "%{text}<extra></extra>", "line": {"color": color, "width": 1},
                "marker": {"color": color, "size": 6,
                           "symbol": [_STATUS_SYMBOL.get(s, "circle") for s in ok["status"]]}}]
@@ -167,19 +168,24 @@ def error_figure(case: str, units: pd.DataFrame, points: pd.DataFrame) -> tuple[
     pts = points[points["unit_key"].isin(units["unit_key"]) & (points["status"] != "initial")]
     meta = units.set_index("unit_key")
     data = pts.merge(units[["unit_key", "label", "validity_1pct", "validity_5pct"]], on="unit_key")
+    # the validity radius reads the peak-normalised error (issue 52): the curves are that error where
+    # the store has it (a store written before: the state-relative rel_l2 its radii read)
+    y = "peak_rel" if "peak_rel" in data and data["peak_rel"].notna().any() else "rel_l2"
     data = data[["unit_key", "label", "point", "x", "group", "mu", "status", "has_reference", "rel_l2",
-                 "rel_max_displacement", "validity_1pct", "validity_5pct"]]
-    finite = data["rel_l2"].replace([np.inf, -np.inf], np.nan)
+                 "rel_max_displacement", "validity_1pct", "validity_5pct"] + (["peak_rel"] if y != "rel_l2" else [])]
+    finite = data[y].replace([np.inf, -np.inf], np.nan)
     top = max(float(np.nanmax(finite)) * 3 if finite.notna().any() else 1.0, 0.1)
     front = set(units.loc[units["pareto"].astype(bool), "unit_key"]) if "pareto" in units else set(units["unit_key"])
     traces = []
     for i, (key, g) in enumerate(data.groupby("unit_key", sort=False)):
-        traces += _unit_traces(key, g, meta, PALETTE[i % len(PALETTE)], True if key in front else "legendonly", top)
+        traces += _unit_traces(key, g, meta, PALETTE[i % len(PALETTE)], True if key in front else "legendonly", top,
+                               y)
     x_name = esc(units["x_name"].iloc[0]) if len(units) else "x"
     shapes = [_line(0, 1, t, t, "dash", "#c00", xref="paper") for t in TOLERANCES]
     notes = [{"x": 0, "y": math.log10(t), "xref": "paper", "yref": "y", "text": f"{t:.0%}", "showarrow": False,
               "xanchor": "left", "yanchor": "bottom", "font": {"size": 10, "color": "#c00"}} for t in TOLERANCES]
-    yaxis = _log_axis("relative l2 error", [ERROR_FLOOR, top], percent,
+    yaxis = _log_axis("l2 error over the largest reference of the claimed range" if y != "rel_l2"
+                      else "relative l2 error", [ERROR_FLOOR, top], percent,
                       range=[math.log10(ERROR_FLOOR) - 0.2, math.log10(top) + 0.2])
     layout = {"title": {"text": f"{esc(case)}: error versus {x_name} (diamonds: validity radius at 1 % and 5 %)"},
               "xaxis": {"title": {"text": x_name}, "gridcolor": "#e5e5e5"}, "yaxis": yaxis, "shapes": shapes,

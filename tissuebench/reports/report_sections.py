@@ -12,10 +12,12 @@ from ..cases import load
 from ..reference.backend_comparison import RTOL
 from .extremes import ENERGY_DRIFT_TOL
 from .format import hz, nbytes, number, percent, seconds
+from ..studies.metrics import claimed_mask
 from ..studies.timing import TAIL_SAMPLES
-from .recommend import rank_units
+from .recommend import best_per_clause, rank_units
 
 __all__ = ["Table", "scene_of", "scene_info", "recommendation", "one_line", "p99_samples", "ranking_table",
+           "errors_text", "state_relative_text", "load_text", "clause_lines",
            "extremes_table_view", "offline_table", "radius_table", "paper_table", "anchors_table", "backends_table",
            "convergence_table",
            "provenance_rows", "calibration", "plugin_methods"]
@@ -43,21 +45,33 @@ def scene_info(scene) -> dict:
     return {"material": m.get("name", ""), "nu": m.get("nu", np.nan), "kappa": m.get("kappa", np.nan)}
 
 
-def recommendation(units: pd.DataFrame, requirement, error_metric: str) -> dict:
-    """The ranked units and the sentence(s) of the recommendation for one case."""
+def recommendation(units: pd.DataFrame, requirement, error_metric: str, points: pd.DataFrame | None = None) -> dict:
+    """The ranked units and the sentence(s) of the recommendation for one case: each unit that
+    meets it with its errors side by side (:func:`errors_text`) and where its state-relative error
+    exceeds the requirement (:func:`state_relative_text`, from the point rows ``points``); when
+    none does, the closest, the best unit per clause among those that meet the others
+    (:func:`clause_lines`) and the machine's load while they were timed (:func:`load_text`)."""
     ranked = rank_units(units, requirement, error_metric)
     meets = ranked[ranked["meets"]]
+    error_clause = next((c for c in requirement.clauses if c.quantity == "error"), None)
     items = [f"{r.label}: p99 {seconds(r.p99_s)} ({hz(r.rate_hz)}; {p99_samples(r)}), median "
              f"{seconds(r.haptic_median_s)}, "
-             f"error {percent(r.error)}, margin {r.margin:.3g}x" + _seen_note(r)
-             + (f"; {v}" if (v := validity_text(r)) else "") for r in meets.itertuples()]
+             f"{errors_text(r, error_metric)}, margin {r.margin:.3g}x" + _seen_note(r)
+             + (f"; {v}" if (v := validity_text(r)) else "")
+             + (f"; {w}" if error_clause and (w := state_relative_text(r, points, error_clause.value)) else "")
+             for r in meets.itertuples()]
     measurable = ranked[ranked["measurable"]]
     if len(meets):
         verdict = f"{len(meets)} of {len(ranked)} units meet it, ranked by margin (the smallest headroom of the " \
                   f"clauses):"
     elif len(measurable):
         c = measurable.iloc[0]
-        verdict = f"None meets it. Closest: {c['label']} (margin {c['margin']:.3g}x): {c['misses']}."
+        idle = "" if c["closeness"] == c["margin"] else (
+            f" as timed; {c['closeness']:.3g}x with its latency scaled by the machine's load factor "
+            f"{c['load_factor']:.3g}")
+        verdict = " ".join(filter(None, [
+            f"None meets it. Closest: {c['label']} (margin {c['margin']:.3g}x{idle}): {c['misses']}.",
+            clause_lines(ranked, requirement), load_text(measurable)]))
     else:
         verdict = "None meets it: no finished unit has a finite error and latency" + (
             " that was measured away from its training data." if ranked["seen"].any() else ".")
@@ -66,6 +80,88 @@ def recommendation(units: pd.DataFrame, requirement, error_metric: str) -> dict:
         f"Not considered: {len(seen)} unit(s) evaluated only on their training data (seen; shown greyed in the "
         f"table): {', '.join(seen['label'].head(6))}" + (" ..." if len(seen) > 6 else "") + ".")
     return {"verdict": verdict, "lines": items, "meets": len(meets), "ranked": ranked, "excluded": excluded}
+
+
+#: what a clause's best unit is, by the clause's quantity (:func:`clause_lines`)
+_BEST_WORDS = {"error": "the most accurate", "rate": "the fastest", "latency": "the fastest"}
+
+
+def clause_lines(ranked: pd.DataFrame, requirement) -> str:
+    """``"Per clause, among the units that meet the others: error<=5%: the most accurate with
+    rate>=1kHz is A: error 6 % is 1.2x over 5 %; rate>=1kHz: the fastest with error<=5% is B:
+    rate 400 Hz (p99 2.5 ms) is 2.5x short of 1 kHz."``
+    (:func:`~.recommend.best_per_clause`); "" for a requirement of one clause."""
+    parts = []
+    for clause, others, best in best_per_clause(ranked, requirement):
+        with_others = " and ".join(d.text for d in others)
+        if best is None:
+            parts.append(f"{clause.text}: no unit meets {with_others}")
+        else:
+            parts.append(f"{clause.text}: {_BEST_WORDS[clause.quantity]} with {with_others} is {best['label']}: "
+                         + (best["misses"] or "it meets this clause too"))
+    return ("Per clause, among the units that meet the others: " + "; ".join(parts) + ".") if parts else ""
+
+
+def load_text(units: pd.DataFrame) -> str:
+    """The machine's load while ``units`` (rows of :func:`~.recommend.rank_units`) were timed, in
+    words: the range of the 1-minute load average over the CPUs, and how many units ran on a
+    loaded machine (more runnable tasks than CPUs: their latency is slowed by the load, and the
+    closest is named with it scaled); that it was not recorded, in a store written before it."""
+    factor = units["load_factor"].astype(float) if "load_factor" in units else pd.Series(dtype=float)
+    known = units[np.isfinite(factor)] if len(factor) else units.iloc[:0]
+    if known.empty:
+        return ("The machine's load while the units were timed was not recorded (a store written before issue 52): "
+                "a latency miss may be the machine's, not the method's.")
+    loads, cpus = known["load_average"].astype(float), sorted({int(c) for c in known["n_cpus"]})
+    span = number(loads.min(), 3) if loads.min() == loads.max() else f"{number(loads.min(), 3)} to " \
+                                                                        f"{number(loads.max(), 3)}"
+    text = (f"Timed at a 1-minute load average of {span} on {' or '.join(str(c) for c in cpus)} CPU"
+            f"{'s' if cpus != [1] else ''}")
+    loaded = int((known["load_factor"].astype(float) > 1.0).sum())
+    if not loaded:
+        return text + ": not loaded (no more runnable tasks than CPUs)."
+    return (text + f": {loaded} of {len(known)} unit(s) on a loaded machine (more runnable tasks than CPUs), whose "
+            "steps waited for a CPU: their latency misses are scaled by load / CPUs when naming the closest.")
+
+
+def errors_text(r, error_metric: str) -> str:
+    """``"error 0.34 % (claimed_error), state-relative worst 5.1 % (max_rel_l2), absolute 0.012 mm
+    (max_abs_error)"``: a unit's error by the sweep's metric, then the headline, the state-relative
+    worst and the absolute error where they are other columns and known (issue 52)."""
+    text = f"error {percent(r.error)} ({error_metric})"
+    unit = getattr(r, "length_unit", "") or ""
+    extra = []
+    for col, words, fmt in (("claimed_error", "headline", percent), ("max_rel_l2", "state-relative worst", percent),
+                            ("max_abs_error", "absolute", lambda v: f"{number(v, 3)} {unit}".rstrip())):
+        v = getattr(r, col, np.nan)
+        if col != error_metric and isinstance(v, (int, float)) and np.isfinite(v):
+            extra.append(f"{words} {fmt(v)} ({col})")
+    return ", ".join([text] + extra)
+
+
+def state_relative_text(r, points: pd.DataFrame | None, tol: float) -> str:
+    """Where a unit's state-relative error (``rel_l2``) exceeds ``tol`` over its claimed range
+    (:func:`~tissuebench.studies.metrics.claimed_mask` of its ``validity_range``), from its point
+    rows: ``"state-relative error above 5 % at 3 of 24 points, all at or below 0.04 N, where the
+    absolute error is at most 0.018 mm"`` (the abscissa in the scene's units, ``x_scale`` ``x_unit``;
+    else as ``x_name``); "" where it never does, or without point rows."""
+    if points is None or not len(points) or "unit_key" not in points:
+        return ""
+    pts = points[points["unit_key"] == r.unit_key]
+    pts = pts[claimed_mask(pts, getattr(r, "validity_range", "") or "") & pts["has_reference"].astype(bool)
+              & (pts["status"] != "initial")]
+    over = pts[pts["rel_l2"].astype(float) > tol]
+    if over.empty:
+        return ""
+    x = float(over["x"].max())
+    scale, unit = getattr(r, "x_scale", np.nan), getattr(r, "x_unit", "")
+    where = f"{number(x * scale, 3)} {unit}" if isinstance(unit, str) and unit and np.isfinite(scale) else \
+        f"{getattr(r, 'x_name', 'x') or 'x'} {number(x, 3)}"
+    text = f"state-relative error above {percent(tol)} at {len(over)} of {len(pts)} points, all at or below {where}"
+    worst = float(over["abs_error"].max()) if "abs_error" in over else np.nan
+    if np.isfinite(worst):
+        text += f", where the absolute error is at most {number(worst, 3)} {getattr(r, 'length_unit', '') or ''}"
+    return text.rstrip()
 
 
 def one_line(rec: dict) -> str:
@@ -94,28 +190,37 @@ def _seen_note(r) -> str:
 
 
 def ranking_table(name: str, ranked: pd.DataFrame) -> dict:
-    # floor_s / efficiency: the step's arithmetic floor timed beside it (NaN in a store written before them)
-    floor = ranked["floor_s"] if "floor_s" in ranked else pd.Series(np.nan, index=ranked.index)
-    eff = ranked["efficiency"] if "efficiency" in ranked else pd.Series(np.nan, index=ranked.index)
-    n_seen = ranked["n_seen"] if "n_seen" in ranked else pd.Series(0, index=ranked.index)
-    n_ref = ranked["n_reference_points"] if "n_reference_points" in ranked else pd.Series(0, index=ranked.index)
+    # floor_s / efficiency: the step's arithmetic floor timed beside it (NaN in a store written before them);
+    # the state-relative worst, the absolute error and the machine's load (issue 52) likewise
+    def col(c, default=np.nan):
+        return ranked[c] if c in ranked else pd.Series(default, index=ranked.index)
+
+    floor, eff, n_seen, n_ref = col("floor_s"), col("efficiency"), col("n_seen", 0), col("n_reference_points", 0)
+    state, absolute, unit = col("max_rel_l2"), col("max_abs_error"), col("length_unit", "")
+    load, cpus = col("load_average"), col("n_cpus", -1)
     rows = []
-    for r, f, e, k, n in zip(ranked.itertuples(), floor, eff, n_seen, n_ref):
+    for r, f, e, k, n, sr, a, lu, la, nc in zip(ranked.itertuples(), floor, eff, n_seen, n_ref, state, absolute,
+                                               unit, load, cpus):
         meets = {"text": "seen", "cls": "seen"} if r.seen else \
             {"text": "meets" if r.meets else "no", "cls": "pass" if r.meets else "fail"}
         cells = [r.label, meets, number(r.margin, 3), seconds(r.p99_s), p99_samples(r), hz(r.rate_hz),
                  seconds(r.haptic_median_s),
-                 seconds(f), number(e, 2), percent(r.error), f"{int(k)} / {int(n)}" if k >= 0 and n >= 0 else "",
-                 r.misses]
+                 seconds(f), number(e, 2), percent(r.error), percent(sr),
+                 f"{number(a, 3)} {lu or ''}".rstrip() if np.isfinite(a) else "-",
+                 f"{number(la, 3)} / {int(nc)}" if np.isfinite(la) and nc > 0 else "-",
+                 f"{int(k)} / {int(n)}" if k >= 0 and n >= 0 else "", r.misses]
         # a unit evaluated on its training data: greyed, with the reason (recommend.SEEN_REASON)
         rows.append([c if isinstance(c, dict) else {"text": c, "cls": "seen"} for c in cells] if r.seen else cells)
     cols = ["unit", "meets", "margin", "haptic p99", "timed steps behind the p99", "rate on p99", "haptic median",
             "arithmetic floor",
-            "efficiency (floor / median)", "error", "points seen in training", "misses by"]
-    keep = ["case", "label", "options", "unit_key", "meets", "seen", "margin", "p99_s", "p99_n", "p99_tail",
-            "rate_hz", "haptic_median_s",
+            "efficiency (floor / median)", "error", "state-relative worst (max_rel_l2)",
+            "absolute error (max_abs_error)", "load average / CPUs while timed", "points seen in training",
+            "misses by"]
+    keep = ["case", "label", "options", "unit_key", "meets", "seen", "margin", "closeness", "p99_s", "p99_n",
+            "p99_tail", "rate_hz", "haptic_median_s",
             "error", "misses"] + [c for c in ranked.columns if c.startswith("headroom_")]
-    return Table(name, cols, rows, ranked[keep].assign(floor_s=floor, efficiency=eff, n_seen=n_seen))
+    return Table(name, cols, rows, ranked[keep].assign(floor_s=floor, efficiency=eff, n_seen=n_seen, max_rel_l2=state,
+                                                       max_abs_error=absolute, load_average=load, n_cpus=cpus))
 
 
 def extremes_table_view(name: str, ext: pd.DataFrame) -> dict:
@@ -159,8 +264,9 @@ def offline_table(name: str, units: pd.DataFrame) -> dict:
 def validity_text(r) -> str:
     """``valid to 1.2 N at 1 % / 2.3 N at 5 % (training range)``: the validity radii in the scene's
     units (the abscissa times ``x_scale`` ``x_unit``: load factor 1 is the scene's net force ...) and
-    what they read (``validity_range``: the training range only, or extrapolation asked), "" where
-    unknown."""
+    what they read (``validity_range``: the training range only, or extrapolation asked; the
+    peak-normalised error, or the state-relative one in a store without ``claimed_error``), ""
+    where unknown."""
     scale, unit = getattr(r, "x_scale", np.nan), getattr(r, "x_unit", "")
     if not isinstance(unit, str) or not unit or not np.isfinite(scale) or getattr(r, "unit_status", "ok") != "ok":
         return ""
@@ -172,12 +278,19 @@ def validity_text(r) -> str:
     within = getattr(r, "validity_range", "")
     if text and within in RANGE_WORDS:
         text += f" ({RANGE_WORDS[within]})"
+    headline = getattr(r, "claimed_error", np.nan)
+    if text and not (isinstance(headline, (int, float)) and np.isfinite(headline)):
+        text += f" ({STATE_RELATIVE_RADII})"
     limit = getattr(r, "reference_limit", np.nan)
     if text and within != "training" and np.isfinite(limit) and max(r.validity_1pct, r.validity_5pct) >= limit * (
             1 - 1e-9):
         text += f" (the reference itself stops converging at {number(limit * scale)} {unit})"
     return text
 
+
+#: what the validity radii of a unit without a headline error read (a store written before issue 52)
+STATE_RELATIVE_RADII = "state-relative error: the store has no peak-normalised error of this unit (written before " \
+                       "issue 52)"
 
 #: what a unit's validity radius reads (its ``validity_range``, :func:`~tissuebench.studies.metrics.claimed_range`)
 RANGE_WORDS = {"training": "training range only: the steps past it are extrapolation, not counted; "
@@ -186,15 +299,25 @@ RANGE_WORDS = {"training": "training range only: the steps past it are extrapola
 
 
 def radius_table(name: str, units: pd.DataFrame) -> dict:
-    units = units.assign(**{c: units[c] if c in units else np.nan for c in ("x_scale", "reference_limit")},
+    units = units.assign(**{c: units[c] if c in units else np.nan for c in ("x_scale", "reference_limit",
+                                                                          "claimed_error")},
                          **{c: units[c] if c in units else "" for c in ("x_unit", "validity_range")})
     rows = [[r.label, number(r.validity_1pct) if r.unit_status == "ok" else "-",
-             number(r.validity_5pct) if r.unit_status == "ok" else "-", r.x_name, validity_text(r)]
+             number(r.validity_5pct) if r.unit_status == "ok" else "-", r.x_name, _radius_reads(r), validity_text(r)]
             for r in units.itertuples()]
     return Table(name, ["unit", "validity radius, error <= 1 %", "validity radius, error <= 5 %", "abscissa",
-                        "in the scene's units"],
+                        "the error it reads", "in the scene's units"],
                  rows, units[["case", "label", "unit_key", "x_name", "validity_1pct", "validity_5pct", "x_scale",
-                              "x_unit", "reference_limit", "validity_range"]])
+                              "x_unit", "reference_limit", "validity_range", "claimed_error"]])
+
+
+def _radius_reads(r) -> str:
+    """What a unit's validity radii read: the peak-normalised error of its claimed range, or (a
+    unit without ``claimed_error``: a store written before issue 52) the state-relative one."""
+    if r.unit_status != "ok":
+        return "-"
+    return "peak-normalised (peak_rel)" if np.isfinite(r.claimed_error) else "state-relative (rel_l2: a store " \
+                                                                              "written before issue 52)"
 
 
 def paper_table(name: str, rows: pd.DataFrame) -> dict:

@@ -17,6 +17,9 @@ __all__ = ["METRIC_WORDS", "metric_words", "case_title", "case_titles", "mesh_te
 
 #: the sweep's error metrics (``[sweep] error_metric``) in words
 METRIC_WORDS = {
+    "claimed_error": "worst error of the field over the range it claims, relative to the largest displacement there",
+    "peak_rel_l2": "worst error of the field over the run, relative to its largest displacement",
+    "max_abs_error": "largest nodal displacement error, in the scene's length unit",
     "max_rel_l2": "worst relative L2 error of the field over the evaluation points",
     "max_rel_l2_in_envelope": "worst relative L2 error of the field over the training range",
     "mean_rel_l2": "mean relative L2 error of the field over the evaluation points",

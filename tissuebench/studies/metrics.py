@@ -16,10 +16,20 @@
   against the largest displacement of the run), and the absolute error in the scene's length
   unit, the largest nodal displacement error ``max_k max_node |u_rom - u_ref|``
   (``max_abs_error``; :data:`ABSOLUTE_ERROR_METRICS`);
+* **the claimed (headline) error** of a unit (issue 52): peak-normalised over the range it claims
+  (:func:`claimed_range`: along a path the training range, its held-out states, quarter points and
+  loads near rest; every point of a motion), ``claimed_error = max_k ||u_rom,k - u_ref,k|| /
+  max_k ||u_ref,k||`` over the points of that range with a reference, and per point ``peak_rel =
+  ||u_rom,k - u_ref,k|| / max_j ||u_ref,j||`` (the same denominator) beside ``rel_l2`` and the
+  point's largest nodal error ``abs_error`` [length unit]. Why not the state-relative error: at the
+  near-rest point (1/1024 of the first training state) the displacement is so small that a
+  constant offset of the model dominates its relative error (an organ: 5.1 % there, 0.34 %
+  peak-normalised), which tells a user nothing they act on; the state-relative worst
+  (``max_rel_l2``) and the absolute error stay beside it;
 * the validity radius: the largest abscissa (load factor, distance to the nearest stored
-  position, time) up to which every error stays within a tolerance (1 %, 5 %); along a path,
-  within the training range unless the evaluation asks ``extrapolation = true``
-  (:func:`claimed_range`);
+  position, time) up to which every peak-normalised error (``peak_rel``) stays within a
+  tolerance (1 %, 5 %); along a path, within the training range unless the evaluation asks
+  ``extrapolation = true`` (:func:`claimed_range`);
 * the Pareto front per scene: units not beaten in both haptic latency and error.
 """
 from __future__ import annotations
@@ -30,7 +40,8 @@ import pandas as pd
 from .timing import max_displacement
 
 __all__ = ["point_rows", "output_rows", "summarise_points", "validity_radius", "pareto_front", "TOLERANCES",
-           "seen_points", "SEEN_RTOL", "ABSOLUTE_ERROR_METRICS", "nodal_error", "claimed_range", "FLAGGED"]
+           "seen_points", "SEEN_RTOL", "ABSOLUTE_ERROR_METRICS", "nodal_error", "claimed_range", "claimed_mask",
+           "peak_normalise", "FLAGGED"]
 
 TOLERANCES = (0.01, 0.05)
 #: the statuses of a step the model itself flags as outside its training envelope
@@ -90,7 +101,9 @@ def _magnitudes(ref) -> tuple[float, float]:
 
 
 def point_rows(evaluation, driven, seen=None) -> list[dict]:
-    """One row per evaluation point: mu, abscissa, step status, errors, ``seen`` (:func:`seen_points`)."""
+    """One row per evaluation point: mu, abscissa, step status, errors (``rel_l2``; the
+    peak-normalised ``peak_rel`` and the largest nodal error ``abs_error``: :func:`_peak_rows`),
+    ``seen`` (:func:`seen_points`)."""
     rows = []
     seen = seen or [False] * len(evaluation.points)
     refs = [_magnitudes(p.reference) for p in evaluation.points if p.reference is not None and p.reference.size]
@@ -117,7 +130,35 @@ def point_rows(evaluation, driven, seen=None) -> list[dict]:
                      "mu": _mu_text(p.mu), "status": status, "message": message,
                      "rel_l2": rel, "rel_max_displacement": dmax, "has_reference": ref is not None,
                      "seen": bool(seen[k]) and status != "initial", "beyond": bool(getattr(p, "beyond", False))})
+    _peak_rows(rows, evaluation, driven.fields)
     return rows
+
+
+def _peak_rows(rows: list[dict], evaluation, fields) -> None:
+    """Add to each row of :func:`point_rows` its largest nodal error ``abs_error`` [length unit]
+    and ``peak_rel`` (:func:`peak_normalise`): NaN without a reference or at the initial state,
+    inf where the step failed or blew up (no field, a non-finite one, one beyond 1e150)."""
+    errors, norms = [], []
+    for row, p, u in zip(rows, evaluation.points, fields):
+        measured = p.reference is not None and row["status"] != "initial"
+        failed = u is None or not np.all(np.isfinite(u)) or np.abs(u).max() > 1e150
+        errors.append(np.nan if not measured else np.inf if failed else float(np.linalg.norm(u - p.reference)))
+        row["abs_error"] = np.nan if not measured else np.inf if failed else nodal_error(u, p.reference)
+        norms.append(float(np.linalg.norm(p.reference)) if measured else 0.0)
+    for row, peak in zip(rows, peak_normalise(rows, errors, norms, evaluation)):
+        row["peak_rel"] = peak
+
+
+def peak_normalise(rows: list[dict], errors, norms, evaluation) -> list[float]:
+    """Per point, ``errors[k] / R`` with ``R`` the largest of ``norms`` (``||u_ref||``; 0 without
+    a reference) over the points of the claimed range (:func:`claimed_range` of ``rows``); NaN
+    where ``errors[k]`` is (no reference), ``inf`` where every reference of the range is zero (as
+    :func:`_relative`: a model matching a zero field is never "0 % error")."""
+    if not rows:
+        return []
+    claimed, _ = claimed_range(pd.DataFrame(rows), evaluation)
+    scale = float(np.max(np.asarray(norms, float)[claimed.to_numpy()], initial=0.0))
+    return [float(e) if np.isnan(e) else (e / scale if scale > 0 else np.inf) for e in errors]
 
 
 def output_rows(evaluation, driven) -> list[dict]:
@@ -159,7 +200,9 @@ def validity_radius(x, errors, tol: float) -> float:
 
 def summarise_points(points: pd.DataFrame, outputs: pd.DataFrame, evaluation, fields) -> dict:
     """The unit-level error columns from its point rows: over the points with a reference, but
-    those past the training path (``beyond``), which enter the validity radius only."""
+    those past the training path (``beyond``), which enter the validity radius only; the claimed
+    (headline) error ``claimed_error`` and the validity radii over the claimed range
+    (:func:`claimed_range`), from the rows' ``peak_rel``."""
     past = points["beyond"].astype(bool) if "beyond" in points else pd.Series(False, index=points.index)
     has_ref = points["has_reference"] & (points["status"] != "initial") & ~past
     rel = points.loc[has_ref, "rel_l2"].to_numpy(float)
@@ -196,22 +239,38 @@ def summarise_points(points: pd.DataFrame, outputs: pd.DataFrame, evaluation, fi
     claimed, row["validity_range"] = claimed_range(points, evaluation)
     for tol in TOLERANCES:
         row[f"validity_{int(round(tol * 100))}pct"] = validity_radius(points.loc[claimed, "x"],
-                                                                      points.loc[claimed, "rel_l2"], tol)
+                                                                      points.loc[claimed, _radius_column(points)], tol)
+    # the headline: the worst peak-normalised error of the claimed range (peak_rel is NaN where there
+    # is nothing to compare with; rows without it, as a store's before issue 52: NaN, radii on rel_l2)
+    row["claimed_error"] = float(points.loc[claimed, "peak_rel"].max()) if "peak_rel" in points else np.nan
     return row
 
 
+def _radius_column(points: pd.DataFrame) -> str:
+    """The error the validity radius reads: ``peak_rel``, or ``rel_l2`` in rows without it."""
+    return "peak_rel" if "peak_rel" in points else "rel_l2"
+
+
 def claimed_range(points: pd.DataFrame, evaluation) -> tuple[pd.Series, str]:
-    """``(mask of the points the validity radius reads, what they are)``. A path evaluation
-    (``evaluation.info["extrapolation"]`` set) without ``extrapolation = true``: the training
-    range only (``"training"``), neither the points past the path's top (``beyond``) nor those
-    the model flags (:data:`FLAGGED`), so "valid to" never reaches past what the unit learnt; with
-    it, every point (``"extrapolation"``). Other kinds: every point (``""``: no training range
-    along the abscissa: a distance to the stored positions, a time)."""
+    """``(mask of the points the claimed error and the validity radius read, what they are)``. A
+    path evaluation (``evaluation.info["extrapolation"]`` set) without ``extrapolation = true``:
+    the training range only (``"training"``), neither the points past the path's top (``beyond``)
+    nor those the model flags (:data:`FLAGGED`), so "valid to" never reaches past what the unit
+    learnt; with it, every point (``"extrapolation"``). Other kinds: every point (``""``: no
+    training range along the abscissa: a distance to the stored positions, a time)."""
     asked = (getattr(evaluation, "info", None) or {}).get("extrapolation")
-    if asked is None or asked:
-        return pd.Series(True, index=points.index), "" if asked is None else "extrapolation"
+    what = "" if asked is None else ("extrapolation" if asked else "training")
+    return claimed_mask(points, what), what
+
+
+def claimed_mask(points: pd.DataFrame, validity_range: str) -> pd.Series:
+    """The claimed range of stored point rows from their unit's ``validity_range`` (what
+    :func:`claimed_range` returned): ``"training"``: neither ``beyond`` (a store without the
+    column: nothing is) nor a :data:`FLAGGED` status; anything else: every point."""
+    if validity_range != "training":
+        return pd.Series(True, index=points.index)
     past = points["beyond"].astype(bool) if "beyond" in points else pd.Series(False, index=points.index)
-    return ~past & ~points["status"].isin(FLAGGED), "training"
+    return ~past & ~points["status"].isin(FLAGGED)
 
 
 def pareto_front(units: pd.DataFrame, error: str = "max_rel_l2", latency: str = "haptic_median_s") -> pd.DataFrame:

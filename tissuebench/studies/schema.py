@@ -44,6 +44,9 @@ UNIT_COLUMNS = {
     # what a user feels of a motion (studies/metrics.py): the worst step's error over the run's peak
     # displacement, and the largest nodal error in the scene's length unit (length_unit)
     "peak_rel_l2": _F, "max_abs_error": _F, "length_unit": _S,
+    # the headline (issue 52): the worst error over the claimed range (metrics.claimed_range) over its
+    # largest reference displacement; NaN in a store written before it (its validity radii read rel_l2)
+    "claimed_error": _F,
     "x_name": _S, "validity_1pct": _F, "validity_5pct": _F,
     # what the validity radii read (studies/metrics.claimed_range): "training" (a path's training
     # range: no point past its top, none the model flags), "extrapolation" (asked: every point),
@@ -63,6 +66,9 @@ UNIT_COLUMNS = {
     # efficiency = floor_s / haptic_median_s (1: nothing but the arithmetic)
     "floor_s": _F, "efficiency": _F,
     "blas": _S, "blas_threads": _I,
+    # the machine's load when the unit was timed: the 1-minute load average (os.getloadavg, the
+    # unit's own process included) and the CPUs the process may run on (NaN / -1: not recorded)
+    "load_average": _F, "n_cpus": _I,
     # offline
     "offline_s": _F, "build_peak_bytes": _I, "model_bytes": _I, "model_info": _S, "unit_wall_s": _F,
     # provenance
@@ -72,8 +78,18 @@ UNIT_COLUMNS = {
     # installed distribution and version, and the hash of its package's .py files
     "method_source": _S, "method_distribution": _S, "method_version": _S, "method_code_hash": _S,
 }
+#: the unit columns that differ between two runs of the same unit: timings and their ratios, memory,
+#: dates, the machine, its threads and its load; every other column repeats exactly (errors, counts,
+#: statuses, keys)
+RUN_DEPENDENT_COLUMNS = frozenset({
+    "haptic_median_s", "haptic_p99_s", "reconstruct_median_s", "reconstruct_p99_s", "reference_step_s", "speedup",
+    "calibration_s", "haptic_per_calibration", "floor_s", "efficiency", "offline_s", "build_peak_bytes", "date",
+    "model_info", "machine", "blas_threads", "unit_wall_s", "load_average", "n_cpus"})
 POINT_COLUMNS = {"unit_key": _S, "point": _I, "x": _F, "group": _F, "mu": _S, "status": _S, "message": _S,
                  "rel_l2": _F, "rel_max_displacement": _F, "has_reference": _B,
+                 # issue 52: the error over the largest reference of the claimed range (the validity
+                 # radius reads it) and the largest nodal error in the scene's length unit
+                 "peak_rel": _F, "abs_error": _F,
                  # the reference field equals a training snapshot (the model was trained on it)
                  "seen": _B,
                  # past the training path's top (evaluation.beyond; the continued reference where
@@ -115,13 +131,17 @@ UNIT_COLUMNS_DOC = {
     "training envelope", "rmse_rel": "sqrt(sum ||u_rom - u_ref||^2 / sum ||u_ref||^2)",
     "max_monitor_rel_error": "largest relative error of a monitored output",
     "x_name": "the evaluation abscissa: load factor, distance to the nearest stored position, time",
-    "validity_1pct": "the largest x up to which every error is within 1 %",
+    "validity_1pct": "the largest x up to which every peak-normalised error (`peak_rel`) of the claimed range is "
+                     "within 1 % (state-relative `rel_l2` in a store written before issue 52)",
     "validity_5pct": "the same within 5 %", "x_scale": "what x = 1 is in the scene's units",
     "x_unit": "that unit", "reference_limit": "where the reference continued past the path stopped converging",
     "validity_range": "the points the validity radius reads: `training` (a path: the training range only), "
                       "`extrapolation` (the evaluation asked `extrapolation = true`: past it too) or empty (every "
                       "point: a distance, a time)",
     "peak_rel_l2": "the worst step's l2 error over the run's peak displacement (inf where every reference is zero)",
+    "claimed_error": "the headline error: the worst l2 error over the claimed range (the training range of a path, "
+                     "with its held-out states, quarter points and near rest; every point of a motion) over the "
+                     "largest reference l2 norm of that range (NaN: a store written before issue 52)",
     "max_abs_error": "the largest nodal displacement error, in `length_unit`",
     "length_unit": "the scene's length unit (`[units] length`) of the absolute error columns",
     "n_beyond_reference": "points past the path's top with a reference",
@@ -135,6 +155,8 @@ UNIT_COLUMNS_DOC = {
     "floor_s": "the step's arithmetic floor (`OnlineModel.floor_ops`) [s]",
     "efficiency": "floor_s / haptic_median_s (1: nothing but the arithmetic)",
     "blas": "the BLAS library", "blas_threads": "its threads while the unit ran",
+    "load_average": "the machine's 1-minute load average when the unit was timed (its own process included)",
+    "n_cpus": "the CPUs the unit's process could run on",
     "offline_s": "the offline build [s]", "build_peak_bytes": "tracemalloc peak of the build",
     "model_bytes": "the online model's size", "model_info": "what the model reports of itself (JSON)",
     "unit_wall_s": "the whole unit [s]",
@@ -150,6 +172,8 @@ POINT_COLUMNS_DOC = {
     "group": "the group (a stored position, a run)", "mu": "the model's parameters (JSON)",
     "status": "the step's status: ok, extrapolation, beyond_validity, failed", "message": "why",
     "rel_l2": "relative l2 error of the field", "rel_max_displacement": "relative error of the largest displacement",
+    "peak_rel": "l2 error of the field over the largest reference l2 norm of the claimed range (the validity "
+                "radius reads it)", "abs_error": "the largest nodal displacement error, in the scene's length unit",
     "has_reference": "a reference exists at this point", "seen": "the reference equals a training snapshot",
     "beyond": "past the training path's top", "energy_rel": "the model's energy / scale in the constant-load window",
     "reference_energy_rel": "the reference's",

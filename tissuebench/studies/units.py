@@ -15,6 +15,7 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
+import os
 import platform
 import time
 import tracemalloc
@@ -42,7 +43,7 @@ from ..reference import cached_dynamics_system, reference_key
 from .training import build_training, case_scene, training_references
 
 __all__ = ["WorkUnit", "UnitOutcome", "unit_key", "options_text", "run_unit", "failed_outcome", "unit_references",
-           "unit_method", "DEFAULT_PROTOCOL"]
+           "unit_method", "machine_load", "DEFAULT_PROTOCOL"]
 
 #: 2000 timed steps: 20 samples beyond the p99 (studies/timing.p99_tail); a model slower than
 #: latency_budget_s seconds for them is timed on fewer (its haptic_n)
@@ -235,6 +236,7 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
                                                                        "rel_error"])
     lat = time_latency(model, evaluation, history, int(p["latency_steps"]), int(p["warmup"]), int(p["seed"]),
                        budget_s=p.get("latency_budget_s"))
+    load = machine_load()  # right after the timed steps: the load they ran under (the report states it)
     notes, label = _asked_versus_done(unit, model, evaluation, history, training.info)
     notes += [n for n in (non_finite_note(driven),) if n]  # NaN steps: failed steps, said on the unit's row too
     h = lat["haptic"]
@@ -252,7 +254,7 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
             "haptic_median_s": h.median, "haptic_p99_s": h.p99, "haptic_n": h.n,
             "reconstruct_median_s": r.median if r else np.nan, "reconstruct_p99_s": r.p99 if r else np.nan,
             "reference_step_s": ref_step, "speedup": ref_step / h.median if h.median > 0 else np.nan,
-            "calibration_s": calib, "haptic_per_calibration": h.median / calib, **blas_info(),
+            "calibration_s": calib, "haptic_per_calibration": h.median / calib, **blas_info(), **load,
             "floor_s": lat["floor"].median, "efficiency": lat["floor"].median / h.median,
             "offline_s": offline, "build_peak_bytes": int(peak), "model_bytes": _nbytes(model),
             "scene_hash": scene.content_hash(), "kind": model.kind,  # the built model's (a baseline's varies)
@@ -263,6 +265,18 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
             "model_info": json.dumps(_jsonable(getattr(model, "info", {}))), "label": label,
             "_points": points.to_dict("records"), "_outputs": outputs.to_dict("records"), "_latency": lat["samples"],
             "_notes": notes + _blas_note(unit)}
+
+
+def machine_load() -> dict:
+    """``{"load_average", "n_cpus"}``: the 1-minute load average (the unit's own process included:
+    about 1 on an otherwise idle machine) and the CPUs this process may run on; NaN where the
+    system has no load average (Windows)."""
+    try:
+        load = float(os.getloadavg()[0])
+    except (AttributeError, OSError):
+        load = float("nan")
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or -1)
+    return {"load_average": load, "n_cpus": int(cpus)}
 
 
 def _asked_versus_done(unit: WorkUnit, model, evaluation, history, training_info=None) -> tuple[list, str]:
