@@ -111,8 +111,10 @@ def _scene_call(path, data, variants):
     return call
 
 
-#: the two scenes whose mutated loads cost the most (13-15 s each) are fuzzed with the slow tests
-_SLOW_FUZZ = {"left_ventricle", "liver_dynamic"}
+#: the scenes whose mutated loads cost the most (9-15 s each on an idle machine) are fuzzed with the slow tests
+_SLOW_FUZZ = {"left_ventricle", "liver_dynamic", "liver_palpation"}
+#: likewise the presets whose mutated specs cost the most (8-10 s each: their liver scenes load)
+_SLOW_SPEC_FUZZ = {"pod_galerkin_liver", "extremes"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in _SLOW_FUZZ else c
@@ -141,7 +143,8 @@ def test_mutated_scenes_describe_or_name_the_key(case, folder, data):
     _verdict("scene describe", lambda: describe(path), SCENE_KEYS)
 
 
-@pytest.mark.parametrize("preset", sorted(PRESETS))
+@pytest.mark.parametrize("preset", [pytest.param(p, marks=pytest.mark.slow) if p in _SLOW_SPEC_FUZZ else p
+                                    for p in sorted(PRESETS)])
 @settings(FUZZ)
 @given(data=st.data())
 def test_mutated_sweep_specs_load_or_name_the_key(preset, folder, data):
