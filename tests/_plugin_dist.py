@@ -4,6 +4,7 @@
 discovery, in this process and in every process it starts)."""
 from __future__ import annotations
 
+import fnmatch
 import importlib
 import os
 import sys
@@ -82,17 +83,33 @@ def write_dist(root: Path, dist: str, version: str, entry_points: dict, modules:
     return root
 
 
+def on_path(monkeypatch, folder) -> str:
+    """``folder`` first on this process's ``sys.path`` and on the ``PYTHONPATH`` of every process it
+    starts (where an install puts a package's import location), the import caches invalidated;
+    ``monkeypatch`` undoes both. Returns the folder as a string."""
+    folder = str(folder)
+    monkeypatch.syspath_prepend(folder)
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (folder, os.environ.get("PYTHONPATH")) if p))
+    importlib.invalidate_caches()
+    return folder
+
+
+def forget_modules(*tops: str) -> None:
+    """Drop the packages whose top-level name matches one of ``tops`` (``fnmatch`` patterns:
+    ``"podreg"``, ``"tbp_*"``) and their modules from ``sys.modules``: the next test imports its own
+    copy of a package a test put on the path."""
+    for name in [m for m in sys.modules if any(fnmatch.fnmatchcase(m.split(".")[0], top) for top in tops)]:
+        del sys.modules[name]
+
+
 class Installed:
-    """A folder of plugin distributions on this process's path and ``PYTHONPATH``, the registry
-    re-armed to read their entry points at its next read; :meth:`undo` forgets them."""
+    """A folder of plugin distributions on this process's path and ``PYTHONPATH`` (:func:`on_path`),
+    the registry re-armed to read their entry points at its next read; :meth:`undo` forgets them."""
 
     def __init__(self, root: Path, monkeypatch):
         self.root = root
-        monkeypatch.syspath_prepend(str(root))
-        monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (str(root), os.environ.get("PYTHONPATH"))
-                                                         if p))
+        on_path(monkeypatch, root)
         self.before = set(dict.keys(METHODS))
-        importlib.invalidate_caches()
         _distribution_of_top.cache_clear()
         METHODS.arm(load_entry_points)
 

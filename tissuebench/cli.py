@@ -11,6 +11,9 @@
 ``tissuebench cache ls|clear [--cache URL]`` the reference-run cache
 ``tissuebench report RESULTS [--out report.html] [--require "rate>=500Hz, error<=2%"] [--case C]``
                                             self-contained HTML: which method for which scene
+``tissuebench fit SCENE --require "rate>=1kHz, error<=2%" [--methods A,B] [--budget-references N]
+[--budget-minutes M] [--out DIR]``           train to a requirement: references added where the
+                                            models err most until a unit meets it (studies.fit)
 ``tissuebench check RESULTS [--baseline FILE] [--against REF] [--project PATH] [--junit OUT.xml]``
                                             regression gate: errors exactly, latency A/B
 ``tissuebench verify [RESULTS] [--resolution ci|paper] [--backend B] [--cases C,D]``
@@ -89,6 +92,7 @@ def _parser():
     rep.add_argument("--force", action="store_true",
                      help="replace an existing file that is not a report written by tissuebench")
     _check_parser(sub)
+    _fit_parser(sub)
     ver = sub.add_parser("verify", help="our values against the external anchors (Cook, Land et al., analytic)")
     ver.add_argument("results", type=Path, nargs="?", default=None,
                      help="a sweep's results folder: the table goes to RESULTS/_anchors.parquet (the report shows it)")
@@ -388,6 +392,90 @@ that matters, e.g. 1e-6; a baseline file sets it in [defaults] or per [[unit]] (
 value wins over the command). A unit the floor held is said in the verdict line."""
 
 
+def _fit_parser(sub):
+    fit = sub.add_parser("fit", help="train to a requirement: add references where the models err most until a unit "
+                         "meets it, or show that none can within the budget")
+    fit.add_argument("scene", help="a catalogue case or a scene file")
+    fit.add_argument("--require", required=True, help='e.g. "rate>=1kHz, error<=2%%" (the error: the headline, on '
+                     "references never used for training; the rate: the p99 step's)")
+    fit.add_argument("--variant", default=None, help="the scene's variant")
+    fit.add_argument("--resolution", default="ci", choices=RESOLUTIONS)
+    fit.add_argument("--backend", default="skfem", choices=BACKEND_NAMES)
+    fit.add_argument("--methods", default=None, help="only these method families (comma-separated; default: every "
+                     "one that applies, `tissuebench methods SCENE`)")
+    fit.add_argument("--budget-references", type=int, default=4, help="references the fit may add per family "
+                     "(default 4)")
+    fit.add_argument("--budget-minutes", type=float, default=60.0, help="wall minutes after which no round starts "
+                     "(default 60; a resumed fit counts the time spent before)")
+    fit.add_argument("--out", type=Path, default=None, help="the fit's folder (default out/fit-SCENE-RES); the same "
+                     "command resumes a fit killed there")
+    fit.add_argument("--executor", default="serial", help="serial (default) | processes | dask: where each round's "
+                     "units (and the references they need) run")
+    fit.add_argument("--workers", type=int, default=None, help="worker processes of --executor processes or dask")
+    fit.add_argument("--scheduler", default=None, help="address of a running dask scheduler, tcp://HOST:PORT")
+    _cache_option(fit)
+    fit.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def _fit(args) -> int:
+    """``tissuebench fit``: :mod:`.studies.fit`; exit 0 when a unit meets the requirement, 1 when none does."""
+    from .reference.location import check_cache_url
+    from .reports.fit_figure import draw_learning_curves
+    from .reports.recommend import parse_requirement
+    from .studies.executors import check_executor
+    from .studies.fit import FitSettings, Target, run_fit
+    from .studies.run import safe_name
+
+    check_executor(args.executor, args.workers, args.scheduler)
+    if args.cache is not None:
+        check_cache_url(args.cache)
+    requirement = parse_requirement(args.require)
+    target = Target.of([(c.quantity, c.op, c.value) for c in requirement.clauses])
+    if args.budget_references < 0:
+        raise ValueError(f"--budget-references = {args.budget_references}: expected an integer >= 0")
+    if not args.budget_minutes > 0 or args.budget_minutes == float("inf"):
+        raise ValueError(f"--budget-minutes = {args.budget_minutes}: expected a finite number of minutes > 0")
+    methods = _id_list(args.methods, "--methods")
+    stem = Path(args.scene).stem if Path(args.scene).suffix == ".toml" else args.scene
+    tag = safe_name(stem) + (f"-{safe_name(args.variant)}" if args.variant else "")
+    out = args.out or Path("out") / f"fit-{tag}-{args.resolution}"
+    settings = FitSettings(scene=args.scene, target=target, require=args.require, out=out, variant=args.variant,
+                           resolution=args.resolution, backend=args.backend, methods=methods,
+                           budget_references=args.budget_references, budget_minutes=args.budget_minutes,
+                           executor=args.executor, workers=args.workers, scheduler=args.scheduler, cache=args.cache,
+                           progress=not args.quiet)
+    log = (lambda *_: None) if args.quiet else _progress_line
+    try:
+        m = run_fit(settings, log=log, figures=draw_learning_curves)
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: the manifest and the round's store are kept
+        signum = getattr(exc, "signum", signal.SIGINT)
+        print(f"tissuebench: fit interrupted; resume with the same command (its state is in {out / 'fit.json'})",
+              file=sys.stderr)
+        return 128 + signum
+    answer = m.get("answer")
+    if answer:
+        p = answer["point"]
+        print(f"fit: {p['label']} ({answer['family']}) meets {args.require}: error {100 * p['error']:.3g} % held out, "
+              f"p99 {1e3 * p['p99_s']:.3g} ms, after {p['references']} added references; spec {answer['spec']} "
+              f"({answer['why']})")
+        dense = (m.get("dense") or {}).get(p["unit_key"])
+        if dense:
+            print(f"fit: dense check {100 * dense['error']:.3g} % at parameters neither the training nor the greedy "
+                  "used")
+    else:
+        print(f"fit: no unit meets {args.require} ({m['state']})")
+        for clause, pick in (m.get("best_per_clause") or {}).items():
+            if pick:
+                p = pick["point"]
+                print(f"fit: best {'meeting the speed' if clause == 'error' else 'meeting the error'}: {p['label']}: "
+                      f"error {100 * p['error']:.3g} %, p99 {1e3 * p['p99_s']:.3g} ms")
+    for name, st in m["families"].items():
+        print(f"fit: {name}: {st['status']}: {st['why']} ({st['refs_added']} references added; "
+              f"{(st.get('heading') or {}).get('words', '')})")
+    print(f"fit: report {out / 'fit.md'}, learning curves {out / 'learning_curves.png'}, manifest {out / 'fit.json'}")
+    return 0 if answer else 1
+
+
 def _check_parser(sub):
     chk = sub.add_parser("check", help="fail on a regression in error or latency (A/B against a git ref) or on a "
                                        "requirement no unit meets", description=CHECK_HELP,
@@ -418,7 +506,7 @@ def _check_parser(sub):
 
 
 def _ab_settings(args):
-    from .reports.gate import ABSettings
+    from .gate import ABSettings
 
     try:
         lo, hi = (int(x) for x in args.ab_rounds.split(","))
@@ -434,7 +522,7 @@ def _ab_settings(args):
 
 
 def _check(args) -> int:
-    from .reports.gate import GateOutputError, baseline_rows, check, check_outputs, update_baseline, write_junit
+    from .gate import GateOutputError, baseline_rows, check, check_outputs, update_baseline, write_junit
 
     # before REF's sweep and the A/B's minutes: a folder, a device, a FIFO, a loop of links, a missing folder
     check_outputs(args.results, junit=args.junit)
@@ -496,7 +584,7 @@ def _print_check(result, args) -> None:
 def _accept_hint(args) -> str:
     """What to run to accept an intended change of errors: the baseline file written from these
     results and committed with the change (the gate then notes the entries the commit edits as
-    declared, :mod:`.reports.gate`)."""
+    declared, :mod:`.gate`)."""
     import shlex
 
     results = shlex.quote(str(args.results))
@@ -701,6 +789,8 @@ def _dispatch(args) -> int:
         return _sweep(args)
     if args.command == "study":
         return _sweep(args, preset=args.name)
+    if args.command == "fit":
+        return _fit(args)
     if args.command == "check":
         return _check(args)
     if args.command in ("cache", "report", "verify"):  # the reference cache they read: --cache

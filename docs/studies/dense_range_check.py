@@ -9,10 +9,12 @@ path it claims?" This script answers it the way a sceptical user would, on any s
    increment from rest to ``top / 3**k`` for k = 4 ... 7 (the sweep's near-rest fractions are
    powers of 2 of the first training state);
 3. every unit of the static path case that ran, rebuilt as the sweep builds it
-   (:func:`tissuebench.studies.latency_ab.prepare_unit`), stepped at each of those load factors,
+   (:func:`tissuebench.gate.latency.prepare_unit`), stepped at each of those load factors,
    its full field compared here with numpy (``||u - u_ref|| / ||u_ref||``) with the dense
    reference; the worst over the points the model does not flag as outside its envelope (the
-   range the unit claims: ``max_rel_l2_in_envelope``, the recommendation's error);
+   range the unit claims: the sweep's state-relative ``max_rel_l2_in_envelope``; the recommendation
+   reads the peak-normalised ``claimed_error`` since issue 52, which this state-relative check bounds
+   from above);
 4. a table (``OUT/dense_check.csv`` and ``.md``): unit, reported error, the dense check's worst
    and where, the ratio. Exit status 1 when a unit's reported error is more than ``--tol``
    (10 %) away from the dense worst.
@@ -35,7 +37,7 @@ import pandas as pd
 
 from tissuebench.reference.cache import cached_solve
 from tissuebench.studies.case_entry import CaseEntry
-from tissuebench.studies.latency_ab import ab_units, prepare_unit
+from tissuebench.gate.latency import ab_units, prepare_unit
 from tissuebench.studies.results import read_units
 from tissuebench.studies.training import case_scene, reference_states
 

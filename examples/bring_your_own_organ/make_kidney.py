@@ -8,38 +8,28 @@ tetrahedra, written as a gmsh file in millimetres::
     python make_kidney.py kidney.msh            # 4534 nodes, 21727 tetrahedra (mesh size 3.3 mm)
     python make_kidney.py kidney.msh --size 9   # a coarse one (396 nodes: the test's)
 
-Needs gmsh (``pip install gmsh``, or tissuebench's extra ``pip install "tissuebench[mesh]"``).
+The gmsh steps after the body (element sizes, algorithm, the file) are ``gmsh_body.py``'s, beside
+this file. Needs gmsh (``pip install gmsh``, or tissuebench's extra ``pip install "tissuebench[mesh]"``).
 """
 from __future__ import annotations
 
 import argparse
 import sys
 
+from gmsh_body import mesh_body  # beside this file: the gmsh steps the example organs share
+
+
+def kidney_body(occ) -> None:
+    """The ellipsoid with the hilum cut out, in gmsh's OpenCASCADE kernel ``occ`` (millimetres)."""
+    body = occ.addSphere(0.0, 0.0, 0.0, 1.0)
+    occ.dilate([(3, body)], 0.0, 0.0, 0.0, 55.0, 30.0, 25.0)
+    hilum = occ.addCylinder(0.0, 22.0, -30.0, 0.0, 0.0, 60.0, 11.0)  # along z, centred on the medial side
+    occ.cut([(3, body)], [(3, hilum)])
+
 
 def kidney_mesh(path: str, size: float = 3.3, quiet: bool = True) -> str:
     """Mesh the kidney with target element size ``size`` [mm] into ``path`` (.msh); returns it."""
-    import gmsh
-
-    gmsh.initialize(["-noenv"] if quiet else [])
-    try:
-        gmsh.option.setNumber("General.Terminal", 0 if quiet else 1)
-        gmsh.model.add("kidney")
-        occ = gmsh.model.occ
-        body = occ.addSphere(0.0, 0.0, 0.0, 1.0)
-        occ.dilate([(3, body)], 0.0, 0.0, 0.0, 55.0, 30.0, 25.0)
-        hilum = occ.addCylinder(0.0, 22.0, -30.0, 0.0, 0.0, 60.0, 11.0)  # along z, centred on the medial side
-        occ.cut([(3, body)], [(3, hilum)])
-        occ.synchronize()
-        gmsh.option.setNumber("Mesh.MeshSizeMin", 0.5 * size)
-        gmsh.option.setNumber("Mesh.MeshSizeMax", size)
-        gmsh.option.setNumber("Mesh.Algorithm3D", 1)  # Delaunay
-        gmsh.option.setNumber("Mesh.Optimize", 1)
-        gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
-        gmsh.model.mesh.generate(3)
-        gmsh.write(str(path))
-    finally:
-        gmsh.finalize()
-    return str(path)
+    return mesh_body(path, "kidney", kidney_body, size, quiet)
 
 
 def main(argv=None) -> int:

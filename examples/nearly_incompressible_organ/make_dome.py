@@ -12,33 +12,24 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
+
+# the gmsh steps the example organs share: examples/bring_your_own_organ/gmsh_body.py
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bring_your_own_organ"))
+from gmsh_body import mesh_body  # noqa: E402
 
 
 def dome_mesh(path: str, size: float = 5.6, semi_axes=(60.0, 60.0, 120.0), quiet: bool = True) -> str:
     """Mesh the half ellipsoid with target element size ``size`` [mm] into ``path`` (.msh); returns it."""
-    import gmsh
-
     a, b, c = semi_axes
-    gmsh.initialize(["-noenv"] if quiet else [])
-    try:
-        gmsh.option.setNumber("General.Terminal", 0 if quiet else 1)
-        gmsh.model.add("dome")
-        occ = gmsh.model.occ
+
+    def dome(occ) -> None:
         body = occ.addSphere(0.0, 0.0, 0.0, 1.0)
         occ.dilate([(3, body)], 0.0, 0.0, 0.0, a, b, c)
         lower = occ.addBox(-2 * a, -2 * b, -2 * c, 4 * a, 4 * b, 2 * c)
         occ.cut([(3, body)], [(3, lower)])
-        occ.synchronize()
-        gmsh.option.setNumber("Mesh.MeshSizeMin", 0.5 * size)
-        gmsh.option.setNumber("Mesh.MeshSizeMax", size)
-        gmsh.option.setNumber("Mesh.Algorithm3D", 1)  # Delaunay
-        gmsh.option.setNumber("Mesh.Optimize", 1)
-        gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
-        gmsh.model.mesh.generate(3)
-        gmsh.write(str(path))
-    finally:
-        gmsh.finalize()
-    return str(path)
+
+    return mesh_body(path, "dome", dome, size, quiet)
 
 
 def main(argv=None) -> int:

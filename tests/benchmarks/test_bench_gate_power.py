@@ -5,7 +5,7 @@ A small sweep (ci meshes) holds a microsecond unit (ANM-POD on the liver, 9 mode
 6), a sub-millisecond one (skinning-cubature on the dynamic cube) and two untouched
 microsecond units (POD with interpolated coefficients; POD-Galerkin). Each gate run re-times
 all four A/B, both sides running the project's HEAD commit (exported once), exactly as
-``tissuebench check --against`` does (:func:`tissuebench.studies.latency_ab.run_ab` with the gate's decision
+``tissuebench check --against`` does (:func:`tissuebench.gate.latency.run_ab` with the gate's decision
 rule, without its 10 us floor: the statistic's power is measured; the floor only lets through
 slowdowns no haptic budget would notice), with a calibrated 1.3x slowdown injected on HEAD's
 side into the first two (a busy wait of 0.3x the unit's own warm median after every step). The counts and the wall time
@@ -25,10 +25,10 @@ import time
 
 import pytest
 
-from tissuebench.reports.gate import HEAD_ROOT, baseline_rows
-from tissuebench.studies.ab_ref import export_ref, resolve_ref
-from tissuebench.studies.ab_stats import decided_units, verdicts
-from tissuebench.studies.latency_ab import ab_units, run_ab
+from tissuebench.gate import HEAD_ROOT, baseline_rows
+from tissuebench.gate.ref import export_ref, resolve_ref
+from tissuebench.gate.stats import decided_units, verdicts
+from tissuebench.gate.latency import ab_units, run_ab
 from tissuebench.studies.results import read_units
 from tissuebench.studies.spec import load_spec
 from tissuebench.studies.sweep import run_sweep

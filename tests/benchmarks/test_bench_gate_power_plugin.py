@@ -3,7 +3,7 @@
 * ``test_gate_power_of_a_plugins_microsecond_step``: the example's package
   (examples/bring_your_own_method, ``pod_polyreg``: a 5-6 us step) in a git repository of its
   own; each run is the gate's A/B of two of its units, REF's side the package exported at the
-  commit by the project machinery (:mod:`tissuebench.studies.ab_project`), HEAD's the work tree,
+  commit by the project machinery (:mod:`tissuebench.gate.project`), HEAD's the work tree,
   with a calibrated 1.3x slowdown injected on HEAD's side into one unit (a busy wait of 0.3x the
   unit's warm median after every step) and the other untouched; the floor set to 0 (the
   statistic decides alone). Issue: the 1.3x unit flagged in >= 19 of 20 runs, the untouched one
@@ -30,15 +30,16 @@ from pathlib import Path
 
 import pytest
 
-from tissuebench.reports.gate import HEAD_ROOT
-from tissuebench.studies.ab_project import export_project, find_project, head_code
-from tissuebench.studies.ab_stats import decided_units, verdicts
-from tissuebench.studies.latency_ab import ab_units, run_ab
+from tissuebench.gate import HEAD_ROOT
+from tissuebench.gate.project import export_project, find_project, head_code
+from tissuebench.gate.stats import decided_units, verdicts
+from tissuebench.gate.latency import ab_units, run_ab
 from tissuebench.studies.results import read_units
 from tissuebench.studies.spec import load_spec
 from tissuebench.studies.sweep import run_sweep
 
 from _gate_repo import commit, example_repo
+from _plugin_dist import on_path
 from _venv import chained_venv, tissuebench_command
 
 SPEC = """[sweep]
@@ -82,9 +83,7 @@ def test_gate_power_of_a_plugins_microsecond_step(tmp_path, monkeypatch):
     runs = _runs()
     repo, sha = _user_repo(tmp_path)
     # the package importable here and in every process the A/B starts (HEAD's copy, as an install would)
-    monkeypatch.syspath_prepend(str(repo / "src"))
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (str(repo / "src"), os.environ.get("PYTHONPATH"))
-                                                     if p))
+    on_path(monkeypatch, repo / "src")
     monkeypatch.chdir(repo)
     out = tmp_path / "res"
     run_sweep(load_spec(repo / "power_spec.toml"), out, progress=False)

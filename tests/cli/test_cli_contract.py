@@ -20,7 +20,7 @@ from tissuebench.cli import _parser, main
 from tissuebench.studies.sweep_manifest import read_sweep_manifest
 
 ROOT = Path(__file__).resolve().parents[2]
-SUBCOMMANDS = ["run", "cases", "sweep", "study", "cache", "report", "check", "verify", "describe", "scene", "methods"]
+SUBCOMMANDS = ["run", "cases", "sweep", "study", "cache", "report", "check", "verify", "describe", "scene", "methods", "fit"]
 
 ONE = """
 [sweep]
@@ -129,6 +129,13 @@ BAD = [
     (["sweep", "--scene", "cornea_pinch"], "--all-methods"),
     (["sweep", "--all-methods"], "go with --scene"),
     (["sweep", "{d}/spec.toml", "--scene", "cornea_pinch", "--all-methods"], "give either --scene"),
+    (["fit", "nope", "--require", "error<=2%"], "unknown case 'nope'"),
+    (["fit", "{d}/garbage.toml", "--require", "error<=2%"], "garbage.toml"),
+    (["fit", "cornea_pinch"], "--require"),
+    (["fit", "cornea_pinch", "--require", "rate>5 parsecs"], "require = 'rate>5 parsecs'"),
+    (["fit", "cornea_pinch", "--require", "error<=2%", "--methods", "nope"], "--methods = 'nope'"),
+    (["fit", "cornea_pinch", "--require", "error<=2%", "--budget-minutes", "-1"], "--budget-minutes = -1"),
+    (["fit", "cornea_pinch", "--require", "error<=2%", "--out", "{d}/afile/x"], "afile"),
 ]
 
 

@@ -4,8 +4,11 @@ larger of the two deviations passes :data:`~tissuebench.reference.locking.LOCKIN
 on both sides of it, whichever of the two carries it."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from tissuebench.reference import locking
 
@@ -129,3 +132,160 @@ def test_not_computed_below_the_threshold_or_without_tetrahedra(nu, cell, why):
     ind = locking.locking_indicator(scene)
     assert ind["computed"] is False and why in ind["why"]
     assert ind["bulk_to_shear"] == pytest.approx(2 * (1 + nu) / (3 * (1 - 2 * nu)), rel=1e-15)
+
+
+# ---- the two linear solves, the inputs of the comparison and the verdict's edges, by hand (issue 50,
+# item 10: mutation testing of reference/locking.py). The solves are called directly: locking_indicator
+# keeps its results per scene in MEMO, which a process that has run other tests may already hold.
+
+class _Problem:
+    """Three dofs: dof 0 prescribed (0.1 at load factor 1), dofs 1 and 2 free; a load 1.5 on dof 2."""
+
+    ndof, free_dofs, fixed_dofs = 3, np.array([1, 2]), np.array([0])
+
+    def prescribed_values(self, lam):
+        return np.array([0.1 * lam])
+
+
+class _Backend:
+    """Two springs in a chain, stiffness 2 and 1: K = [[2, -2, 0], [-2, 3, -1], [0, -1, 1]]."""
+
+    K = np.array([[2.0, -2.0, 0.0], [-2.0, 3.0, -1.0], [0.0, -1.0, 1.0]])
+
+    def tangent(self, u):
+        assert isinstance(u, np.ndarray) and u.shape == (3,) and not u.any()  # the tangent at rest
+        return sp.csr_matrix(self.K)
+
+    def external_force(self, u, lam):
+        assert isinstance(u, np.ndarray) and u.shape == (3,) and not u.any()
+        return np.array([0.0, 0.0, 1.5 * lam])
+
+
+def test_linear_solution_by_hand_with_a_prescribed_value():
+    """Free rows: [[3, -1], [-1, 1]] u_f = [0, 1.5] - [-2, 0] * 0.1 = [0.2, 1.5], so u_1 = 1.7 / 2 = 0.85
+    and u_2 = 1.5 + 0.85 = 2.35; the prescribed dof holds its value at load factor 1 (0.1)."""
+    u, K = locking._linear_solution(_Backend(), _Problem())
+    np.testing.assert_allclose(u, [0.1, 0.85, 2.35], rtol=1e-14, atol=1e-15)
+    np.testing.assert_array_equal(K.toarray(), _Backend.K)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Pb:
+    """A problem whose material the Saint Venant-Kirchhoff branch replaces (a dataclass, as the real
+    one), and the dof the ``peak`` monitor reads."""
+
+    material: object = None
+    dof: int = 3
+
+
+class _MonitoredScene(_Scene):
+    """A ``peak`` monitor of quantity max_displacement first, whose value the problem's dof
+    names, and a reaction read from the internal force."""
+
+    monitors = [{"name": "reaction", "quantity": "force"}, {"name": "peak", "quantity": "max_displacement"}]
+
+    def evaluate_monitors(self, pb, u, f_int):
+        return {"peak": float(u[pb.dof]), "reaction": float(f_int[0])}
+
+
+def test_compare_passes_the_problem_and_the_internal_force_to_the_monitors():
+    # two nodes moved: (3, 4, 0) and (0, 0, 1): the largest nodal displacement is 5, the norm of all 26 ** 0.5
+    u_p1, u_ref = np.array([3.0, 4.0, 0.0, 0.0, 0.0, 1.0]), np.array([6.0, 8.0, 0.0, 0.0, 0.0, 1.0])
+    K = np.diag([1.0, 1.0, 1.0, 1.0, 1.0, 2.0])
+    compared = locking._compare(_MonitoredScene(), _Pb(dof=5), {"P1": (u_p1, K), "reference": (u_ref, K)})
+    assert compared["peak"] == {"P1": 1.0, "reference": 1.0, "deviation": 0.0}  # u[5] through pb
+    assert compared["reaction"] == {"P1": 3.0, "reference": 6.0, "deviation": -0.5}  # f_int[0] = K u
+    assert compared["max_displacement"] == {"P1": 5.0, "reference": 10.0, "deviation": -0.5}
+    # 0.5 u.K.u: (9 + 16 + 2) / 2 = 13.5 against (36 + 64 + 2) / 2 = 51
+    assert compared["strain_energy"]["P1"] == 13.5 and compared["strain_energy"]["reference"] == 51.0
+    assert locking._headline(_MonitoredScene(), compared) == "peak"  # a max_displacement monitor is one too
+
+
+def test_indicator_of_a_law_anp_cannot_average_compares_the_linear_material_of_its_e_and_nu(monkeypatch):
+    """Saint Venant-Kirchhoff: both solves run on LinearElastic(E, nu) of the scene's E and nu, the
+    note says so; every call gets the P1 problem, the backend name and the P1 backend."""
+    calls = []
+    scene = _MonitoredScene()
+    scene.material = {"name": "svk", "E": 7.0, "nu": 0.49}
+    scene.to_problem = lambda element: calls.append(("to_problem", element)) or _Pb()
+    monkeypatch.setattr(locking, "anp_applies", lambda pb: calls.append(("anp_applies", pb)) or "no U(J)")
+    monkeypatch.setattr(locking, "make_backend", lambda backend, pb: calls.append(("make_backend", backend, pb))
+                        or "P1 backend")
+    monkeypatch.setattr(locking, "AnpBackend", lambda pb, be: calls.append(("AnpBackend", pb, be)) or "ANP backend")
+    u = {"P1 backend": np.array([0.0, 0.0, 0.0, 0.9, 0.0, 0.0]), "ANP backend": np.array([0, 0, 0, 1.0, 0, 0])}
+    monkeypatch.setattr(locking, "_linear_solution", lambda be, pb: calls.append(("solve", be, pb))
+                        or (u[be], np.eye(6)))
+    ind = locking._indicator(scene, "ngsolve")
+    linear = locking.LinearElastic(7.0, 0.49)
+    pb = _Pb(material=linear)
+    assert calls == [("to_problem", "P1"), ("anp_applies", _Pb()), ("make_backend", "ngsolve", pb),
+                     ("solve", "P1 backend", pb), ("AnpBackend", pb, "P1 backend"), ("solve", "ANP backend", pb)]
+    assert ind["material_note"] == "small-strain comparison with the linear material of the same E and nu (svk)"
+    assert ind["headline"] == "peak" and ind["compared"]["peak"]["deviation"] == pytest.approx(-0.1, abs=1e-15)
+    assert ind["method"] == "linear solves at rest, P1 against average nodal pressure tetrahedra on the same mesh"
+
+
+def _indicator_of(monkeypatch, compared):
+    monkeypatch.setattr(locking, "anp_applies", lambda pb: "")
+    monkeypatch.setattr(locking, "make_backend", lambda backend, pb: None)
+    monkeypatch.setattr(locking, "AnpBackend", lambda pb, be: None)
+    monkeypatch.setattr(locking, "_linear_solution", lambda be, pb: None)
+    monkeypatch.setattr(locking, "_compare", lambda scene, pb, solutions: compared)
+    return locking._indicator(_Scene(), "skfem")
+
+
+def test_exactly_the_tolerance_does_not_lock_and_nothing_compared_does_not_lock(monkeypatch):
+    """P1 locks when a deviation is *more* than 2 %: exactly 2 % does not; with no quantity to
+    compare (every reference value 0) the deviations are NaN and nothing locks."""
+    at = _indicator_of(monkeypatch, {"tip": {"deviation": locking.LOCKING_TOL},
+                                     "strain_energy": {"deviation": -locking.LOCKING_TOL}})
+    assert at["locks"] is False and at["deviation"] == 0.02 and at["energy_deviation"] == -0.02
+    nothing = _indicator_of(monkeypatch, {})
+    assert nothing["headline"] == "max_displacement" and nothing["compared"] == {} and nothing["locks"] is False
+    assert np.isnan(nothing["deviation"]) and np.isnan(nothing["energy_deviation"]) and nothing["material_note"] == ""
+    only_tip = _indicator_of(monkeypatch, {"tip": {"deviation": -0.03}})  # no strain energy: the tip decides
+    assert only_tip["locks"] is True and np.isnan(only_tip["energy_deviation"])
+
+
+def test_locking_indicator_keeps_the_solve_per_scene_and_backend(monkeypatch):
+    from tissuebench.reference.memo import Memo
+
+    monkeypatch.setattr(locking, "MEMO", Memo({"locking": None}))
+    calls = []
+    monkeypatch.setattr(locking, "_indicator", lambda scene, backend: calls.append((scene, backend)) or {
+        "computed": True, "locks": True})
+    scene = _Scene()
+    ind = locking.locking_indicator(scene, "ngsolve")
+    assert ind == {"computed": True, "bulk_to_shear": pytest.approx(2 * 1.49 / (3 * 0.02), rel=1e-14),
+                   "threshold": locking.LOCKING_BULK_TO_SHEAR, "tolerance": 0.02, "locks": True}
+    assert calls == [(scene, "ngsolve")]
+    assert locking.locking_indicator(scene, "ngsolve") is ind and len(calls) == 1  # kept
+
+
+def test_not_computed_for_a_scene_that_is_not_finite_elements_or_has_no_moduli():
+    scene = _Scene()
+    scene.is_fe = False  # nearly incompressible, but no mesh to solve on
+    ind = locking.locking_indicator(scene)
+    assert ind == {"computed": False, "bulk_to_shear": pytest.approx(2 * 1.49 / (3 * 0.02), rel=1e-14),
+                   "threshold": locking.LOCKING_BULK_TO_SHEAR, "tolerance": 0.02, "why": "not nearly incompressible"}
+    scene.material = {"name": "other"}
+    assert locking.locking_indicator(scene)["why"] == "no bulk and shear modulus"
+    assert locking.bulk_to_shear({"E": 3.0}) is None  # E without nu: no K/G from it
+
+
+def test_text_when_not_computed_and_without_a_headline_or_a_unit():
+    text = locking.indicator_text({"computed": False, "why": "not nearly incompressible", "bulk_to_shear": 8.5,
+                                   "threshold": 9.6667})
+    assert text == "locking indicator not computed: not nearly incompressible (K/G = 8.5, threshold 9.667)"
+    assert locking.indicator_text({"computed": False, "why": "no bulk and shear modulus", "bulk_to_shear": None}) \
+        == "locking indicator not computed: no bulk and shear modulus"
+    assert locking.indicator_text({"computed": False}) == "locking indicator not computed: "
+    ind = {"computed": True, "compared": {"tip": {"P1": 0.99, "reference": 1.0, "deviation": -0.01}},
+           "headline": "tip", "deviation": -0.01, "energy_deviation": -0.015, "locks": False,
+           "bulk_to_shear": 12.0, "threshold": 9.6667, "tolerance": 0.02}
+    assert locking.indicator_text(ind) == (
+        "P1 does not lock noticeably (K/G = 12 >= 9.667, i.e. nu >= 0.45): tip 0.99  with P1 against 1  without "
+        "locking (-1.0 %), strain energy -1.5 % (tolerance 2 %; small strain, same mesh)")
+    ind["headline"] = "max_displacement"  # not among the compared quantities: no headline numbers
+    assert locking.indicator_text(ind).startswith("P1 does not lock noticeably (K/G = 12 >= 9.667, i.e. nu >= 0.45): "
+                                                  ", strain energy -1.5 %")

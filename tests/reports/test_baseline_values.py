@@ -8,9 +8,9 @@ import re
 
 import pytest
 
-from tissuebench.reports.gate import BaselineError, load_baseline
-from tissuebench.reports.gate.baseline import DEFAULTS, UNIT_KEYS
-from tissuebench.reports.gate.checks import _error_changed
+from tissuebench.gate import BaselineError, load_baseline
+from tissuebench.gate.baseline import DEFAULTS, UNIT_KEYS
+from tissuebench.gate.checks import _error_changed
 
 UNIT = {"case": '"cornea_pinch"', "method": '"pod_interp"', "options": """'{"n_modes":4}'""", "error": "0.0123",
         "latency_per_calibration": "0.012", "latency_per_reference": "0.0004", "flagged_steps": "0"}

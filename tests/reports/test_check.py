@@ -15,8 +15,8 @@ import pytest
 import tomlkit
 
 from tissuebench.cli import main
-from tissuebench.reports.gate import BaselineError, baseline_rows, check, load_baseline, update_baseline
-from tissuebench.studies.ref_scratch import clean_stale_scratch, ref_scratch
+from tissuebench.gate import BaselineError, baseline_rows, check, load_baseline, update_baseline
+from tissuebench.gate.scratch import clean_stale_scratch, ref_scratch
 from tissuebench.studies.spec import load_spec
 from tissuebench.studies.sweep import run_sweep
 
@@ -337,8 +337,8 @@ def test_the_verdict_line_says_when_the_floor_held_a_slower_ratio(capsys):
     import argparse
 
     from tissuebench.cli import _print_check
-    from tissuebench.reports.gate import CheckResult
-    from tissuebench.studies.ab_stats import ABVerdict
+    from tissuebench.gate import CheckResult
+    from tissuebench.gate.stats import ABVerdict
 
     result = CheckResult(latency_mode="ab", errors_against="ref")
     for method, held in (("pod_polyreg", True), ("pod_interp", False)):
@@ -405,7 +405,7 @@ SLEEPING_REF = {
         "    os.replace(path + '.tmp', path)\n"
         "    time.sleep(600)\n"),
 }
-CHECK = "import sys; from tissuebench.reports.gate import check; check(sys.argv[1], None, against='HEAD', " \
+CHECK = "import sys; from tissuebench.gate import check; check(sys.argv[1], None, against='HEAD', " \
         "project=sys.argv[2], log=lambda m: None)"
 
 

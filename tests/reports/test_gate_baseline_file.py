@@ -1,4 +1,4 @@
-"""The gate's baseline file (:mod:`tissuebench.reports.gate.baseline`): every range at its boundary on
+"""The gate's baseline file (:mod:`tissuebench.gate.baseline`): every range at its boundary on
 both sides, every refusal with the message that names the key, and the rewrite keeping what it
 must (issue 41)."""
 from __future__ import annotations
@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 import tomlkit
 
-from tissuebench.reports.gate import baseline as bl
+from tissuebench.gate import baseline as bl
 from tissuebench.studies import atomic_files
 from tissuebench.studies.atomic_files import OutputPathError
-from tissuebench.reports.gate.baseline import DEFAULTS, BaselineError, load_baseline, unit_identity, update_baseline
+from tissuebench.gate.baseline import DEFAULTS, BaselineError, load_baseline, unit_identity, update_baseline
 
 UNIT = ('case = "cube"\nmethod = "pod"\noptions = \'{"n":2,"a":1}\'\nerror = 0.01\n'
         'latency_per_calibration = 0.5\nlatency_per_reference = 0.02\nflagged_steps = 0\n')

@@ -1,8 +1,8 @@
-"""Each rule of the gate (:mod:`tissuebench.reports.gate.checks`) at its boundary, on both sides:
+"""Each rule of the gate (:mod:`tissuebench.gate.checks`) at its boundary, on both sides:
 just inside holds, just outside is flagged, with the finding's exact values and wording (issue 41).
 
 The checks run here on hand-made unit rows, in memory: no sweep, no worker process (the A/B's
-timing is replaced by given samples; its statistics are :mod:`tissuebench.studies.ab_stats`').
+timing is replaced by given samples; its statistics are :mod:`tissuebench.gate.stats`').
 """
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import math
 import pandas as pd
 import pytest
 
-from tissuebench.reports.gate import checks
-from tissuebench.reports.gate.baseline import DEFAULTS, unit_identity
-from tissuebench.reports.gate.result import ABSettings, CheckResult, Finding
+from tissuebench.gate import checks
+from tissuebench.gate.baseline import DEFAULTS, unit_identity
+from tissuebench.gate.base import ABSettings, CheckResult, Finding
 from tissuebench.reports.recommend import parse_requirement
 
 KEY = ("cube", "pod", '{"n":2}')

@@ -167,4 +167,6 @@ def test_report_of_a_real_sweep_in_chromium(tmp_path):
     assert rec.startswith("cornea_pinch: ") and ("meet it, ranked by margin" in rec or "None meets it" in rec)
     # the requirement in words, the metric's id beside them (issue 44: the report read by a person)
     assert "haptic rate &gt;= 500 Hz on the p99 step" in dom
-    assert "(worst relative L2 error of the field over the evaluation points, max_rel_l2)" in dom
+    # the default headline metric (issue 52: peak-normalised over the claimed range) in words, its id beside them
+    assert ("(worst error of the field over the range it claims, relative to the largest displacement there, "
+            "claimed_error)") in dom

@@ -9,10 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tissuebench.cases.scene import load
 from tissuebench.refsolvers import make_backend
 from tissuebench.rom import make_method
-from tissuebench.rom.pgd import CuttingModel, pgd_training
+from tissuebench.rom.pgd import CuttingModel
 from tissuebench.rom.pgd.enrichment import condense
 from tissuebench.reference.cut import cut_problem, l2_error, linear_reference
 from tissuebench.rom.pgd.vademecum import Vademecum
@@ -21,29 +20,19 @@ RADII = [1.5, 5.2]
 
 
 @pytest.fixture(scope="module")
-def scene():
-    return load("cornea_cut")
-
-
-@pytest.fixture(scope="module")
-def training(scene):
-    return pgd_training(scene)
-
-
-@pytest.fixture(scope="module")
-def models(training):
-    srb = make_method("pgd_cutting", n_modes=10, projection="srb", radii=RADII).build(training)
+def models(cornea_cut_pgd):
+    srb = make_method("pgd_cutting", n_modes=10, projection="srb", radii=RADII).build(cornea_cut_pgd)
     # the same vademecum and enrichment, the other projection (what build(projection="prb") makes)
     return {"srb": srb, "prb": CuttingModel("pgd_cutting", srb.vademecum, "prb", srb.enrichment, srb.F_cut,
                                             srb.points)}
 
 
 @pytest.fixture(scope="module")
-def references(scene, models):
+def references(cornea_cut, models):
     m = models["srb"]
     out = []
     for c in range(m.strip.max_cut_length + 1):
-        be = make_backend("skfem", cut_problem(scene, m.strip, c, m.force))
+        be = make_backend("skfem", cut_problem(cornea_cut, m.strip, c, m.force))
         out.append((linear_reference(be)[0], be.mass()))
     return out
 
@@ -116,7 +105,7 @@ def test_contact_force_and_cutting_criterion(models):
     assert set(out) == {"contact_ux", "contact_uy", "contact_uz", "F_parallel"}
 
 
-def test_bad_input(training, models):
+def test_bad_input(cornea_cut_pgd, models):
     m = models["srb"]
     with pytest.raises(ValueError, match="cut_length"):
         _step(m, 0).q  # noqa: B018  (valid)
@@ -126,11 +115,11 @@ def test_bad_input(training, models):
     with pytest.raises(ValueError, match="cut_length"):
         m.step({"position": 0})
     with pytest.raises(ValueError, match="angle_deg"):
-        make_method("pgd_cutting", radii=RADII, incision=0, n_modes=2).build(_rotated(training, 45.0))
+        make_method("pgd_cutting", radii=RADII, incision=0, n_modes=2).build(_rotated(cornea_cut_pgd, 45.0))
     with pytest.raises(ValueError, match="radii"):
-        make_method("pgd_cutting", radii=[1.5, 2.0], n_modes=2).build(training)  # one element: nothing opens
+        make_method("pgd_cutting", radii=[1.5, 2.0], n_modes=2).build(cornea_cut_pgd)  # one element: nothing opens
     with pytest.raises(ValueError, match="incision"):
-        make_method("pgd_cutting", incision=7, n_modes=2).build(training)
+        make_method("pgd_cutting", incision=7, n_modes=2).build(cornea_cut_pgd)
     # positions: an anterior node off the strip is outside the vademecum (srb flags, prb refuses)
     off = 100  # anterior, not in the 0 deg strip
     assert off not in m.vademecum.family.nodes
@@ -148,7 +137,7 @@ def _rotated(training, angle):
     return dataclasses.replace(training, scene=dataclasses.replace(scene, cut=cut))
 
 
-def test_condensed_enrichment_leaves_only_the_vademecum_error(scene, models, references):
+def test_condensed_enrichment_leaves_only_the_vademecum_error(cornea_cut, models, references):
     """psi = N H - K^{-1} K_ud: the coupling to the modes vanishes, the jump is the FE one, and
     the error at every cut length is that of the intact vademecum at the contact node."""
     m = models["srb"]
@@ -162,7 +151,7 @@ def test_condensed_enrichment_leaves_only_the_vademecum_error(scene, models, ref
     for c, (u_ref, M) in enumerate(references):
         assert l2_error(exact.reconstruct(_step(exact, c)), u_ref, M) < 1e-11
         err = l2_error(model.reconstruct(_step(model, c)), u_ref, M)
-        be = make_backend("skfem", cut_problem(scene, m.strip, 0, m.force, node=m.strip.tip(c)))
+        be = make_backend("skfem", cut_problem(cornea_cut, m.strip, 0, m.force, node=m.strip.tip(c)))
         u0 = linear_reference(be)[0]
         intact = l2_error(model.reconstruct(model.step({"node": m.strip.tip(c), "cut_length": 0})), u0, be.mass())
         # measured: 1.7e-4 / 1.7e-4, 2.46e-2 / 2.63e-2, 0.697 / 0.711 (cut / intact)

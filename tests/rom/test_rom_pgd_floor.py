@@ -14,11 +14,10 @@ from tissuebench.rom.pgd.floor import rank_floor
 
 
 @pytest.fixture(scope="module")
-def cornea():
-    training = pgd_training(load("cornea_cut"))
-    family = make_method("pgd", n_modes=1).build(training).vademecum.family
+def cornea(cornea_cut_pgd):
+    family = make_method("pgd", n_modes=1).build(cornea_cut_pgd).vademecum.family
     U = factorized(family.K)(family.loads.toarray())
-    return training, family, U
+    return cornea_cut_pgd, family, U
 
 
 def _rms_rel(U, V):

@@ -16,24 +16,19 @@ from tissuebench.reference.cut import linear_reference
 
 
 @pytest.fixture(scope="module")
-def training():
-    return pgd_training(load("cornea_cut"))
-
-
-@pytest.fixture(scope="module")
-def reference(training):
-    res = newton_solve(training.backend, 1.0)
+def reference(cornea_cut_pgd):
+    res = newton_solve(cornea_cut_pgd.backend, 1.0)
     assert res.success
     return res.u
 
 
 @pytest.fixture(scope="module")
-def model(training):
-    return make_method("pgd_svk", n_modes=10).build(training)
+def model(cornea_cut_pgd):
+    return make_method("pgd_svk", n_modes=10).build(cornea_cut_pgd)
 
 
-def test_reduced_newton_is_the_galerkin_projection_of_the_full_svk(training, model):
-    be = training.backend
+def test_reduced_newton_is_the_galerkin_projection_of_the_full_svk(cornea_cut_pgd, model):
+    be = cornea_cut_pgd.backend
     node = int(be.problem.loads[0].nodes[0])
     r = model.step({"node": node})
     assert r.status == "ok" and r.info["increments"] == 1
@@ -44,11 +39,11 @@ def test_reduced_newton_is_the_galerkin_projection_of_the_full_svk(training, mod
     assert np.linalg.norm(res) < 1e-8 * np.linalg.norm(Q.T @ f_ext)
 
 
-def test_error_against_the_full_svk_newton_solve(training, model, reference):
-    node = int(training.backend.problem.loads[0].nodes[0])
+def test_error_against_the_full_svk_newton_solve(cornea_cut_pgd, model, reference):
+    node = int(cornea_cut_pgd.backend.problem.loads[0].nodes[0])
     err = {}
     for n in (2, 10):
-        m = model if n == 10 else make_method("pgd_svk", n_modes=n).build(training)
+        m = model if n == 10 else make_method("pgd_svk", n_modes=n).build(cornea_cut_pgd)
         u = m.reconstruct(m.step({"node": node}))
         err[n] = np.linalg.norm(u - reference) / np.linalg.norm(reference)
     # measured 0.45 (2 modes) and 0.22 (10 modes): a point-load vademecum over the 57
@@ -56,14 +51,14 @@ def test_error_against_the_full_svk_newton_solve(training, model, reference):
     assert err[10] < 0.25 and err[10] < 0.6 * err[2], err
     # SVK matters at 0.1 N: the full linear response differs from the SVK one by 7.9 % at ci,
     # the reduced ones (10 modes) by 2.5 %
-    u_lin = linear_reference(training.backend)[0]
+    u_lin = linear_reference(cornea_cut_pgd.backend)[0]
     assert np.linalg.norm(u_lin - reference) / np.linalg.norm(reference) > 0.05
-    lin = make_method("pgd", n_modes=10).build(training)
+    lin = make_method("pgd", n_modes=10).build(cornea_cut_pgd)
     u_rl, u_rs = (m.reconstruct(m.step({"node": node})) for m in (lin, model))
     assert 0.01 < np.linalg.norm(u_rl - u_rs) / np.linalg.norm(u_rs) < 0.05
 
 
-def test_bad_positions_and_options(training, model):
+def test_bad_positions_and_options(cornea_cut_pgd, model):
     assert model.step({"position": 10**4}).status == "failed"
     assert model.step({"node": 1}).status == "extrapolation"  # a posterior node: outside the surface
     with pytest.raises(ValueError, match="position"):

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from tissuebench.rom.separated import SeparatedOperator, SeparatedSolution, SeparatedVector, pgd_solve
+from tissuebench.rom.separated import SeparatedOperator, SeparatedSolution, SeparatedVector
+from tissuebench.rom.separated_solver import pgd_solve
 
 
 def _laplacian(n, h):

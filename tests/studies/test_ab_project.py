@@ -5,18 +5,15 @@ processes taking REF's copy of a plugin or naming the copy they took instead. En
 through the CLI: tests/studies/test_gate_own_repo.py (slow)."""
 from __future__ import annotations
 
-import importlib
-import sys
-from pathlib import Path
-
 import pytest
 
-from tissuebench.reports.gate import HEAD_ROOT
-from tissuebench.studies.ab_code import Code, foreign
-from tissuebench.studies.ab_project import export_project, find_project, git_top
-from tissuebench.studies.ab_ref import _methods_of, run_ref_sweep
+from tissuebench.gate import HEAD_ROOT
+from tissuebench.gate.sides import Code, foreign
+from tissuebench.gate.project import export_project, find_project, git_top
+from tissuebench.gate.ref import _methods_of, run_ref_sweep
 
 from _gate_repo import commit, git, init
+from _plugin_dist import forget_modules, on_path
 
 PLUGIN = ('from tissuebench.rom.baselines import Nearest\n\n\nclass {cls}(Nearest):\n    name = "{name}"\n')
 
@@ -33,13 +30,10 @@ def _pyproject(dist, version="1.0", where=None, points=None, dynamic=False):
 
 @pytest.fixture
 def importable(monkeypatch):
-    """Put folders first on this process's path (a package's import location, as an install does)."""
-    def add(folder: Path):
-        monkeypatch.syspath_prepend(str(folder))
-        importlib.invalidate_caches()
-    yield add
-    for name in [m for m in sys.modules if m.startswith("tbp_")]:
-        del sys.modules[name]
+    """Put folders first on the path of this process and of those it starts (a package's import
+    location, as an install does); the test packages ``tbp_*`` are forgotten after."""
+    yield lambda folder: on_path(monkeypatch, folder)
+    forget_modules("tbp_*")
 
 
 def test_the_project_is_the_plugins_repository_else_the_working_directorys(tmp_path, importable, monkeypatch):
@@ -156,8 +150,7 @@ def test_refs_processes_run_refs_plugin_or_leave_its_methods_out_saying_why(tmp_
     base = commit(repo, {"pyproject.toml": _pyproject("tbp-r", where="src"), "src/tbp_r/__init__.py": "",
                          "src/tbp_r/m.py": PLUGIN.format(cls="R", name="tbp_r")})
     commit(repo, {"src/tbp_r/m.py": PLUGIN.format(cls="R", name="tbp_r") + "# HEAD\n"})
-    importable(repo / "src")
-    monkeypatch.setenv("PYTHONPATH", str(repo / "src"))  # HEAD's copy, where REF's processes would find it too
+    importable(repo / "src")  # HEAD's copy, on PYTHONPATH too: where REF's processes would find it
     monkeypatch.chdir(repo)
     project = find_project([("tbp_r.m:R", "tbp-r")], HEAD_ROOT)
     code, _ = export_project(project, base, tmp_path / "ref", HEAD_ROOT)

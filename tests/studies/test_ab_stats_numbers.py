@@ -1,4 +1,4 @@
-"""The A/B verdicts (:mod:`tissuebench.studies.ab_stats`) by hand: block medians, the lower-quartile
+"""The A/B verdicts (:mod:`tissuebench.gate.stats`) by hand: block medians, the lower-quartile
 ratio, the bootstrap interval, and each verdict at its boundary on both sides (issue 41). The
 power of the whole A/B is test_check_ab.py's; these run on given samples, in milliseconds."""
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tissuebench.studies import ab_stats
-from tissuebench.studies.ab_stats import ABVerdict, block_medians, decided_units, ratio_interval, verdicts
+from tissuebench.gate import stats as ab_stats
+from tissuebench.gate.stats import ABVerdict, block_medians, decided_units, ratio_interval, verdicts
 
 
 def _samples(uid, side, grid, steps=(1.0,)):

@@ -1,5 +1,5 @@
-"""The A/B's worker processes (:func:`tissuebench.studies.latency_ab.run_ab` and
-:mod:`tissuebench.studies.ab_probe`), run on two stand-in packages whose step is a busy wait:
+"""The A/B's worker processes (:func:`tissuebench.gate.latency.run_ab` and
+:mod:`tissuebench.gate.probe`), run on two stand-in packages whose step is a busy wait:
 the sides' blocks are timed in turn on one pinned core, a slower side is measured as such,
 and a unit or a worker that fails is reported, not lost."""
 from __future__ import annotations
@@ -9,7 +9,7 @@ import textwrap
 
 import pytest
 
-from tissuebench.studies.latency_ab import ABUnit, run_ab
+from tissuebench.gate.latency import ABUnit, run_ab
 
 FAKE = '''
 import copy, os, sys, time

@@ -17,12 +17,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tissuebench.reports.gate.io import write_ab_artifacts
-from tissuebench.studies import ab_probe, ab_stats
-from tissuebench.studies.ab_ref import export_ref, file_at_ref, portable_spec_text, ref_import_error, resolve_ref
-from tissuebench.studies.ref_scratch import PREFIX, clean_stale_scratch, process_start
-from tissuebench.studies.ab_stats import ratio_interval, verdicts
-from tissuebench.studies.latency_ab import SAMPLE_COLUMNS
+from tissuebench.gate.io import write_ab_artifacts
+from tissuebench.gate import probe as ab_probe, stats as ab_stats
+from tissuebench.gate.ref import export_ref, file_at_ref, portable_spec_text, ref_import_error, resolve_ref
+from tissuebench.gate.scratch import PREFIX, clean_stale_scratch, process_start
+from tissuebench.gate.stats import ratio_interval, verdicts
+from tissuebench.gate.latency import SAMPLE_COLUMNS
 
 
 def _samples(rng, factor, rounds=3, blocks=3, steps=50, noise=0.03, slow_process=0.0, slow_block=0.0,
@@ -194,7 +194,7 @@ def test_an_injected_2x_slowdown_is_flagged_and_its_neighbour_holds(tmp_path):
     """End to end on the project's own git checkout: REF = HEAD's commit (the working tree is
     this code). anm_pod's step (about 6 us) made 5x slower on HEAD's side only, so it grows by more
     than the gate's 10 us floor: flagged; pod_interp: holds."""
-    from tissuebench.reports.gate import HEAD_ROOT, ABSettings, baseline_rows, check
+    from tissuebench.gate import HEAD_ROOT, ABSettings, baseline_rows, check
     from tissuebench.studies.spec import load_spec
     from tissuebench.studies.sweep import run_sweep
 
@@ -256,7 +256,7 @@ def test_the_a_b_plot_draws_any_interval(tmp_path, fields):
 
 
 def test_a_plot_that_fails_is_a_note_and_the_tables_are_kept(tmp_path, monkeypatch):
-    from tissuebench.reports.gate import io as gate_io
+    from tissuebench.gate import io as gate_io
 
     def broken(*args):
         raise ValueError("'xerr' must not contain negative values")
@@ -344,7 +344,7 @@ def test_check_against_gates_a_scene_file_store(tmp_path, monkeypatch):
     ``sweep --scene`` writes it) is gated against REF (REF's sweep once failed with "unknown case
     '../scene.toml'", exit 2 even with --baseline)."""
     from _mesh_scene import scene_file, write_block
-    from tissuebench.reports.gate import HEAD_ROOT, ABSettings, check
+    from tissuebench.gate import HEAD_ROOT, ABSettings, check
     from tissuebench.studies.spec import load_spec
     from tissuebench.studies.sweep import run_sweep
 

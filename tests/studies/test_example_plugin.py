@@ -5,20 +5,16 @@ two catalogue scenes beside pod_interp and anm_pod, the report, and the package'
 tissuebench's contract checks."""
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
 from tissuebench.studies.results import read_units
 
+from _gate_repo import EXAMPLE, git, recipe_calls, recipe_env, recipe_repo
 from _venv import chained_venv as _venv
-
-EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "bring_your_own_method"
 
 
 def _run(python, *args, cwd):
@@ -52,32 +48,18 @@ def test_the_example_plugin_installed_listed_swept_reported_and_checked(tmp_path
 
 
 # ------------------------------------------------------------------ issue 39: the example's CI recipe
-STUB = """import json, os, sys
-with open(os.environ["TB_CALLS"], "a") as fh:
-    fh.write(json.dumps(sys.argv[1:]) + "\\n")
-"""
-
-
 def test_the_ci_recipe_checks_against_the_merge_base_and_writes_junit(tmp_path):
     """``ci/gate.sh``: sweep the spec, then ``check --against`` the merge base of HEAD and the base
     branch (the previous commit on the base branch itself), the floor for a microsecond step, JUnit
     beside the results; no merge base: exit 2 saying what to fetch. ``tissuebench`` stands in
     (``$TISSUEBENCH``) to record its arguments."""
-    from _gate_repo import commit, git, init
-
-    repo = init(tmp_path / "repo")
-    shutil.copytree(EXAMPLE / "ci", repo / "ci")
-    base = commit(repo, {"spec.toml": "x"}, "base")
-    git(repo, "checkout", "-q", "-b", "feature")
-    head = commit(repo, {"a.txt": "1"}, "feature")
-    calls = tmp_path / "calls.jsonl"
-    (tmp_path / "stub.py").write_text(STUB)
-    env = {**os.environ, "TISSUEBENCH": f"{sys.executable} {tmp_path / 'stub.py'}", "TB_CALLS": str(calls)}
+    repo, base, head = recipe_repo(tmp_path)
+    env, calls = recipe_env(tmp_path)
 
     def gate(*args):
         calls.unlink(missing_ok=True)
         proc = subprocess.run(["bash", "ci/gate.sh", *args], cwd=repo, capture_output=True, text=True, env=env)
-        return proc, [json.loads(line) for line in calls.read_text().splitlines()] if calls.exists() else []
+        return proc, recipe_calls(calls)
 
     proc, said = gate("main")
     assert proc.returncode == 0, proc.stderr

@@ -336,7 +336,7 @@ def test_sweep_manifest_is_accepted_or_refused_naming_the_file_long(handmade, da
     _manifest_example(handmade, data)
 
 
-# baselines: parsed only (tissuebench.reports.gate.load_baseline); the seed is the shipped CI
+# baselines: parsed only (tissuebench.gate.load_baseline); the seed is the shipped CI
 # baseline's defaults and first three units (the whole file makes an example 10x slower)
 def _baseline_seed():
     import tomllib
@@ -363,14 +363,14 @@ def _baseline_text(data):
     return text.encode()
 
 
-# hostile baselines that tissuebench.reports.gate.load_baseline (the gate, hardened in issue 25)
+# hostile baselines that tissuebench.gate.load_baseline (the gate, hardened in issue 25)
 # did not refuse with a named error on 415936c: the baseline fuzzing runs once it does
 BASELINE_PROBES = ["unit = [1]\n", "defaults = [1]\n", "[defaults]\nerror_rtol = 1" + "0" * 400 + "\n",
                    '[defaults]\n"=" = 1\n']
 
 
 def _baseline_hardened() -> bool:
-    from tissuebench.reports.gate import load_baseline
+    from tissuebench.gate import load_baseline
 
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "probe.toml"
@@ -391,7 +391,7 @@ baseline_hardened = pytest.mark.skipif(not _baseline_hardened(), reason="gate.lo
 
 
 def _baseline_example(folder, data):
-    from tissuebench.reports.gate import load_baseline
+    from tissuebench.gate import load_baseline
 
     path = folder / "baseline.toml"
     path.write_bytes(_baseline_text(data))

@@ -3,7 +3,7 @@ URL`` and ``--workers N`` (with ``--executor`` and ``--scheduler``).
 
 Every example is accepted, or refused with a ValueError whose message is one line naming the
 option and the value: never another exception (a traceback), never a hang. The validation
-functions are fuzzed directly (:func:`~tissuebench.studies.ab_ref.check_ref_text`,
+functions are fuzzed directly (:func:`~tissuebench.gate.ref.check_ref_text`,
 :func:`~tissuebench.reference.location.check_cache_url`,
 :func:`~tissuebench.studies.executors.check_executor`): the profile's 200 examples each in the
 default run, 2 000 in the slow variants (``_long``: CI's ``pytest -m slow``) and 10 000 with
@@ -28,7 +28,7 @@ from hypothesis import strategies as st
 from _fuzz import HOSTILE_STRINGS, Tally
 from tissuebench.cli import main
 from tissuebench.reference.cache_protocols import WRITABLE_PROTOCOLS, check_cache_url
-from tissuebench.studies.ab_ref import check_ref_text, resolve_ref
+from tissuebench.gate.ref import check_ref_text, resolve_ref
 from tissuebench.studies.executors import EXECUTORS, check_executor, max_workers
 
 pytestmark = pytest.mark.fuzz

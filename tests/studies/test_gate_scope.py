@@ -14,21 +14,18 @@ the A/B) is replaced by a recorder, so each test says whether the check got ther
 """
 from __future__ import annotations
 
-import json
 import re
-import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-import tissuebench.reports.gate as gate
+import tissuebench.gate as gate
 from tissuebench.cli import main
-from tissuebench.reports.gate import HEAD_ROOT, check
+from tissuebench.gate import HEAD_ROOT, check
 
-from _gate_repo import EXAMPLE, commit, git, init
+from _gate_repo import readme_history, recipe_calls, recipe_env, recipe_repo
 from _plugin_dist import Installed, toy_source, write_dist
 
 SPEC = """
@@ -60,9 +57,7 @@ def store(tmp_path_factory):
         installed = Installed(root / "site", mp)
         write_dist(installed.root, "tb-scope", "0.1", {"tb_scope_plug": "tb_scope:Toy"},
                    {"tb_scope": toy_source("tb_scope_plug")})
-        init(installed.root)
-        commit(installed.root, {"README": "1"})
-        commit(installed.root, {"README": "2"})
+        readme_history(installed.root)
         spec = root / "scope.toml"
         spec.write_text(SPEC)
         assert main(["sweep", str(spec), "--out", str(root / "res"), "--quiet"]) == 0
@@ -78,17 +73,10 @@ def ref_stage(monkeypatch):
     return calls
 
 
-def _empty_repo(root: Path) -> Path:
-    repo = init(root)
-    commit(repo, {"README": "1"})
-    commit(repo, {"README": "2"})
-    return repo
-
-
 def test_a_project_that_holds_none_of_the_methods_is_refused_saying_where_they_come_from(store, ref_stage, tmp_path,
                                                                                          capsys):
     results, site = store
-    empty = _empty_repo(tmp_path / "empty")
+    empty = readme_history(tmp_path / "empty")
     assert main(["check", str(results), "--against", "HEAD~1", "--project", str(empty)]) == 2
     out, err = capsys.readouterr()
     assert ref_stage == [] and "units hold" not in out  # before REF's export, sweep and A/B
@@ -115,7 +103,7 @@ def test_the_repository_that_holds_the_plugin_passes_the_scope_check_the_shipped
 
 
 def _version() -> str:
-    from tissuebench.studies.ab_project import _installed_version
+    from tissuebench.gate.project import _installed_version
 
     return _installed_version("tissuebench")
 
@@ -150,29 +138,17 @@ def test_output_paths_are_refused_before_any_ref_work(store, ref_stage, tmp_path
     assert nodir.is_file()
 
 
-# the example's CI recipe with tissuebench stood in (it records its arguments; its check exits $TB_CHECK_EXIT)
-STUB = """import json, os, sys
-with open(os.environ["TB_CALLS"], "a") as fh:
-    fh.write(json.dumps(sys.argv[1:]) + "\\n")
-sys.exit(int(os.environ.get("TB_CHECK_EXIT", "0")) if sys.argv[1] == "check" else 0)
-"""
-
-
 def test_the_ci_recipe_passes_its_baseline_file_when_there_is_one_and_says_how_to_accept(tmp_path):
-    repo = init(tmp_path / "repo")
-    shutil.copytree(EXAMPLE / "ci", repo / "ci")
-    base = commit(repo, {"spec.toml": "x"}, "base")
-    git(repo, "checkout", "-q", "-b", "feature")
-    commit(repo, {"a.txt": "1"}, "feature")
-    calls = tmp_path / "calls.jsonl"
-    (tmp_path / "stub.py").write_text(STUB)
-    env = {**os.environ, "TISSUEBENCH": f"{sys.executable} {tmp_path / 'stub.py'}", "TB_CALLS": str(calls)}
+    """The example's CI recipe with tissuebench stood in (it records its arguments; its check exits
+    $TB_CHECK_EXIT)."""
+    repo, base, _ = recipe_repo(tmp_path)
+    env, calls = recipe_env(tmp_path)
 
     def gate_sh(**extra):
         calls.unlink(missing_ok=True)
         proc = subprocess.run(["bash", "ci/gate.sh", "main"], cwd=repo, capture_output=True, text=True,
                               env={**env, **extra})
-        return proc, [json.loads(line) for line in calls.read_text().splitlines()][-1]
+        return proc, recipe_calls(calls)[-1]
 
     proc, said = gate_sh()
     assert proc.returncode == 0 and "--baseline" not in said  # no file: none passed
@@ -198,7 +174,7 @@ def test_a_failed_check_names_the_command_that_records_an_intended_error_change(
     import argparse
 
     from tissuebench.cli import _print_check
-    from tissuebench.reports.gate import CheckResult, Finding
+    from tissuebench.gate import CheckResult, Finding
 
     key = ("cornea_pinch", "pod_polyreg", "{}")
 
@@ -222,8 +198,8 @@ def test_the_scope_rule_on_both_sides_of_its_boundary(tmp_path):
     """Every method the project's: nothing said; some: a note per package outside it; none: refused,
     unless the project is tissuebench's (every method runs through its code). Without --project,
     the message says how the project was found."""
-    from tissuebench.studies.ab_project import Package, Project
-    from tissuebench.studies.ab_scope import check_scope, method_packages
+    from tissuebench.gate.project import Package, Project
+    from tissuebench.gate.scope import check_scope, method_packages
 
     plug = ("tbp_plug", "tbp.m:P", "tbp-dist", "2.0")
     shipped = ("nearest", "", None, None)

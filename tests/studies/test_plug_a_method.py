@@ -71,7 +71,7 @@ def toy_registered():
 
 
 def test_a_toy_method_runs_through_sweep_report_and_gate(toy_registered, tmp_path, monkeypatch, capsys):
-    from tissuebench.reports.gate import check
+    from tissuebench.gate import check
     from tissuebench.studies.results import read_units
 
     spec = tmp_path / "toy.toml"

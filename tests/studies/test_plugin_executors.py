@@ -5,17 +5,15 @@ LocalCluster; each worker finds it by its entry point."""
 from __future__ import annotations
 
 import os
-import sys
-from pathlib import Path
 
 import pytest
 
-from _plugin_dist import Installed, write_dist
+from _gate_repo import EXAMPLE
+from _plugin_dist import Installed, forget_modules, on_path, write_dist
 from _workers import run_saying_where
 from tissuebench.studies.executors import execute
 from tissuebench.studies.spec import expand_units, load_spec
 
-EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "bring_your_own_method"
 SPEC = """
 [sweep]
 name = "plugin-executors"
@@ -40,13 +38,10 @@ def podreg(tmp_path, monkeypatch):
     inst = Installed(tmp_path / "site", monkeypatch)
     write_dist(inst.root, "tissuebench-podreg", "0.1.0", {"pod_polyreg": "podreg.method:PodPolyReg"}, {},
                top_level=["podreg"])
-    src = str(EXAMPLE / "src")
-    monkeypatch.syspath_prepend(src)
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([src, os.environ["PYTHONPATH"]]))
+    on_path(monkeypatch, EXAMPLE / "src")
     yield inst
     inst.undo()
-    for name in [m for m in sys.modules if m == "podreg" or m.startswith("podreg.")]:
-        del sys.modules[name]
+    forget_modules("podreg")
 
 
 @pytest.mark.parametrize("executor", ["processes", "dask"])
@@ -65,8 +60,8 @@ def test_a_plugin_method_runs_on_the_parallel_executors(podreg, tmp_path, execut
 
 def test_the_ab_probes_entry_builds_a_plugin_by_its_class_path(podreg):
     """The A/B units carry a plugin method as "module:Class" (plain data): the probe's entry into
-    either side's code (latency_ab.prepare_unit) builds it from there."""
-    from tissuebench.studies.latency_ab import prepare_unit
+    either side's code (gate.latency.prepare_unit) builds it from there."""
+    from tissuebench.gate.latency import prepare_unit
 
     case = {"id": "c", "name": "cornea_pinch", "variant": None, "resolution": "ci", "backend": "skfem",
             "training": {"kind": "path", "every": 2}, "evaluation": {"kind": "path", "held_out": True}}

@@ -155,7 +155,8 @@ def test_the_baselines_join_the_contact_nodes_only_beside_a_vademecum():
     assert _baselines_once([("coarse_fe", ["trajectory", "operators"], {}, {}, {})], dynamic)[0][1] == ["trajectory"]
 
 
-def _kidney(folder: Path, size: float) -> Path:
+def _kidney(folder: Path, size: float, monkeypatch) -> Path:
+    monkeypatch.syspath_prepend(str(EXAMPLE))  # make_kidney.py imports gmsh_body.py from its folder
     spec = importlib.util.spec_from_file_location("make_kidney", EXAMPLE / "make_kidney.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -170,7 +171,7 @@ def test_a_new_users_organ_from_mesh_file_to_report(tmp_path, capsys, monkeypatc
     sweep --all-methods -> report at ci size; the recommendation rests on no seen unit."""
     pytest.importorskip("gmsh")
     monkeypatch.chdir(tmp_path)
-    scene = _kidney(tmp_path, size=12.0)  # ~200 nodes
+    scene = _kidney(tmp_path, size=12.0, monkeypatch=monkeypatch)  # ~200 nodes
     assert main(["scene", "check", str(scene)]) == 0
     assert (tmp_path / "scene.png").stat().st_size > 0
     assert main(["methods", str(scene)]) == 0

@@ -21,7 +21,7 @@ import numpy as np
 
 from .materials import Material
 from .mesh import ELEMENTS, Mesh, node_layout
-from .well_posed import check_rigid_body_modes
+from .rigid_modes import check_rigid_body_modes
 
 
 def _finite_array(name, value, shape=None):
@@ -157,8 +157,9 @@ class Problem:
         Unknown element, material data inconsistent with the mesh, no Dirichlet set
         (rigid-body modes left free), a Dirichlet set that cannot remove all six
         rigid-body modes of every connected body of the mesh (see
-        :mod:`~tissuebench.refsolvers.well_posed`, which also has the check a scene makes of
-        its loads, :func:`~tissuebench.refsolvers.well_posed.check_loads_do_work`).
+        :mod:`~tissuebench.refsolvers.rigid_modes`; :mod:`~tissuebench.refsolvers.well_posed`
+        has the check a scene makes of its loads,
+        :func:`~tissuebench.refsolvers.well_posed.check_loads_do_work`).
     """
 
     mesh: Mesh

@@ -36,6 +36,7 @@ from .format import seconds
 from .ladder import ladder_section, versus_baselines
 from .scaling import scaling_section
 from .paper import paper_rows
+from .peers import peers_section
 from .plotly_figures import error_figure, pareto_figure
 from .recommend import LATENCY_STATISTIC, parse_requirement
 from .report_data import load_results
@@ -293,12 +294,15 @@ def write_report(results_dir, out_html, require: str | None = None, case: str | 
     tables += ladder["tables"] if ladder else []
     scaling = scaling_section(data, Table)  # cost versus size (studies/scaling.py)
     tables += scaling["tables"] if scaling else []
+    peers = peers_section(data, Table, titles)  # a library's adapter beside the shipped method of its family
+    tables += peers["tables"] if peers else []
     tables.append(Table("units", [], [], data.units))
     context = {"title": f"tissuebench report: {data.manifest.get('spec_name', data.root.name)}",
                "data_folder": f"{out_html.stem}_data", "requirement": requirement, "require_text": requirement.text,
                "error_metric": data.error_metric, "error_words": metric_words(data.error_metric),
                "latency_statistic": LATENCY_STATISTIC, "sections": sections,
-               "papers": papers, "ladder": ladder, "scaling": scaling, "anchors": anchors, "backends": backends,
+               "papers": papers, "ladder": ladder, "scaling": scaling, "peers": peers, "anchors": anchors,
+               "backends": backends,
                "convergence": convergence, "convergence_how": _convergence_how(data.convergence),
                "calibration": calibration(data.units),
                "provenance": provenance_rows(data.manifest, data.units),

@@ -38,8 +38,9 @@ A step never hides a failure: ``StepResult.status`` is ``"ok"``, ``"extrapolatio
 ``"beyond_validity"`` (past a series' radius of validity, e.g. ANM's a_max) or
 ``"failed"`` (no value: ``q`` is None and ``message`` says why).
 
-The registry :data:`METHODS` (:mod:`.registry`) maps names to classes, the methods of other
-packages included (:mod:`.plugins`); :func:`make_method` accepts a name, a ``"module:Class"``
+The registry :data:`METHODS` (:mod:`.registry`, below this module) maps names to classes, the
+methods of other packages included (:mod:`.plugins`, above it); :func:`register` adds a class it
+checks (:func:`check_method_class`); :func:`make_method` accepts a name, a ``"module:Class"``
 name or a class and lists the valid names on an unknown one; :meth:`RomMethod.option_names` lists
 the options a method takes (a grid over another one is refused by name).
 """
@@ -54,7 +55,8 @@ from typing import Any, Callable, ClassVar, Mapping, Sequence
 import numpy as np
 
 from . import reads
-from .registry import METHODS, make_method, method_class, register
+from .parameters import check_parameters
+from .registry import METHOD_NAME, METHODS
 
 __all__ = ["Training", "StepResult", "DeferredStepResult", "OnlineModel", "RomMethod", "METHODS", "register",
            "make_method", "STEP_STATUSES", "MODEL_KINDS", "check_parameters", "LinearReconstruction", "method_class",
@@ -260,20 +262,6 @@ def check_choice(who: str, name: str, value, valid) -> None:
     """Refuse an option ``value`` outside ``valid``, naming the method, the option and the value."""
     if value not in valid:
         raise ValueError(f"{who}: {name} = {value!r}; valid: {list(valid)}")
-
-
-def check_parameters(mu, required: tuple, name: str) -> dict:
-    """``mu`` as a dict with finite numeric ``required`` keys; ValueError naming the key otherwise."""
-    if not isinstance(mu, Mapping):
-        raise TypeError(f"{name}.step: mu must be a mapping of parameters, got {type(mu).__name__}")
-    out = dict(mu)
-    for key in required:
-        if key not in out:
-            raise ValueError(f"{name}.step: parameter {key!r} missing from mu = {out}")
-        v = out[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not np.isfinite(v):
-            raise ValueError(f"{name}.step: mu[{key!r}] = {v!r} is not a finite number")
-    return out
 
 
 class OnlineModel(ABC):
@@ -488,12 +476,18 @@ def _inheriting_variant(variant):
 
 
 def _declaring_build(build):
-    """``build`` whose model refuses a parameter it does not read (:func:`.reads.declare`)."""
+    """``build`` whose model refuses a parameter it does not read (:func:`.reads.declare`) and, for a
+    method with a :attr:`RomMethod.counterpart`, records it in the model's ``info`` (``"counterpart":
+    [name, options]``: a sweep stores it, so a report pairs the unit where the class is not installed)."""
     @functools.wraps(build)
     def declaring(self, training, *args, **kwargs):
         model = build(self, training, *args, **kwargs)
         if isinstance(model, OnlineModel) and isinstance(training, Training):
             reads.declare(model, type(self), training)
+            declared = type(self).counterpart_for((training.info or {}).get("training_kind")) \
+                if type(self).counterpart is not None else None
+            if declared is not None and isinstance(getattr(model, "info", None), dict):
+                model.info.setdefault("counterpart", [declared[0], declared[1]])
         return model
     declaring._tb_reads = True
     return declaring
@@ -553,7 +547,8 @@ class RomMethod(ABC):
     test checks; a method that cannot slice declares none, so no parent is built for nothing),
     ``training_kinds`` (the training sets it can learn from: "path", "positions",
     "trajectory", "operators"), ``applies`` (:class:`Applies`: what it needs of a scene and
-    the parameters its step reads; checked before any work).
+    the parameters its step reads; checked before any work), ``counterpart`` (the shipped method of
+    the same family it is measured beside: :meth:`counterpart_for`).
     """
 
     name: ClassVar[str] = ""
@@ -561,6 +556,10 @@ class RomMethod(ABC):
     nested: ClassVar[tuple] = ()
     training_kinds: ClassVar[tuple] = ("path",)
     applies: ClassVar[Applies] = Applies()
+    #: ``(name, options)`` of the method of the same family this one is measured beside (a library's
+    #: ECSW beside ``("pod_galerkin", {"hyper": "ecsw"})``), or ``{training kind: (name, options)}``
+    #: where it differs by training kind; None: none. The report pairs the units of a sweep by it.
+    counterpart: ClassVar[tuple | dict | None] = None
 
     def __init_subclass__(cls, **kwargs):
         # the model of every build refuses a parameter it does not read (:mod:`.reads`)
@@ -575,7 +574,11 @@ class RomMethod(ABC):
         """Why this method does not apply to ``scene`` (a validated :class:`~tissuebench.cases.scene.Scene`)
         with ``options`` (None: some option set), or ``""`` when it does: the checks of
         :attr:`applies` that need only the scene. A method with a need the declaration cannot
-        say overrides it (and calls ``super()``)."""
+        say overrides it (and calls ``super()``). A method that cannot run here at all says why
+        first (:meth:`unavailable`)."""
+        gone = cls.unavailable()
+        if gone:
+            return gone
         a, model = cls.applies, getattr(scene, "model", "fe")
         if model not in a.models:
             names = {"fe": "finite-element"}
@@ -610,6 +613,14 @@ class RomMethod(ABC):
         return ""
 
     @classmethod
+    def unavailable(cls) -> str:
+        """Why this method cannot run in this Python environment (a library it wraps is not installed:
+        ``"needs ezyrb, which is not installed (pip install ezyrb)"``), or ``""`` (the default). It
+        applies nowhere then (:meth:`why_not`), and a sweep spec naming it skips its units, saying why,
+        where a method that applies to none of a spec's cases is an error."""
+        return ""
+
+    @classmethod
     def reads(cls, scene, training_kind: str) -> tuple:
         """The scene parameters (``Scene.at`` keys) its step reads when trained as ``training_kind``
         on ``scene``, besides the load factor and the time (default: ``applies.parameters``); a
@@ -623,6 +634,21 @@ class RomMethod(ABC):
         if cls.applies.linear_model and material not in (None, "linear"):
             return f"a linear model (the stiffness at rest) of a {material} material"
         return ""
+
+    @classmethod
+    def counterpart_for(cls, training_kind: str | None = None) -> tuple[str, dict] | None:
+        """``(name, options)`` of the method this one is paired with when trained as ``training_kind``
+        (:attr:`counterpart`), or None; ValueError naming the class when the declaration is malformed."""
+        c = cls.counterpart
+        if isinstance(c, Mapping):
+            c = c.get(training_kind)
+        if c is None:
+            return None
+        if not (isinstance(c, tuple) and len(c) == 2 and isinstance(c[0], str) and c[0]
+                and isinstance(c[1], Mapping)):
+            raise ValueError(f"{cls.__name__}.counterpart = {cls.counterpart!r}: expected (method name, options dict), "
+                             "a dict of them by training kind, or None")
+        return c[0], dict(c[1])
 
     @classmethod
     def option_names(cls) -> list[str]:
@@ -640,3 +666,64 @@ class RomMethod(ABC):
     @abstractmethod
     def build(self, training: Training) -> OnlineModel:
         """Offline phase; returns the online model."""
+
+
+# ------------------------------------------------------------ the registry's checks and lookups
+def _where(cls) -> str:
+    return f"{cls.__module__}.{cls.__qualname__}"
+
+
+def check_method_class(cls, what: str = "register") -> None:
+    """TypeError, naming ``what``, for a class that is not a registrable method: not a named
+    :class:`RomMethod` subclass (the name must suit a folder name: letters, digits,
+    ``_ . -``, starting with a letter), an unknown ``kind``, or abstract methods left."""
+    if not (isinstance(cls, type) and issubclass(cls, RomMethod) and cls.name):
+        raise TypeError(f"{what}: {cls!r} is not a named RomMethod subclass (tissuebench.rom.RomMethod with a "
+                        "class attribute name)")
+    if not isinstance(cls.name, str) or not METHOD_NAME.fullmatch(cls.name):
+        raise TypeError(f"{what}: {cls.__qualname__}.name = {cls.name!r}: expected a letter then letters, digits, "
+                        "'_', '.' or '-' (it names a results folder)")
+    if cls.kind not in MODEL_KINDS:
+        raise TypeError(f"{what}: {cls.__name__}.kind = {cls.kind!r}; valid: {MODEL_KINDS}")
+    if inspect.isabstract(cls):
+        raise TypeError(f"{what}: {cls.__qualname__} does not implement {sorted(cls.__abstractmethods__)}")
+
+
+def register(cls):
+    """Class decorator: add a :class:`RomMethod` to :data:`METHODS` under ``cls.name``.
+
+    TypeError for a class :func:`check_method_class` refuses; ValueError when another class is
+    registered under that name (both named)."""
+    check_method_class(cls)
+    existing = dict.get(METHODS, cls.name)
+    # the same class imported again (importlib.reload, a test module re-run) is the same method
+    if existing is not None and existing is not cls and _where(existing) != _where(cls):
+        shipped = "the shipped method" if existing.__module__.split(".")[0] == "tissuebench" else "the method"
+        raise ValueError(f"method name {cls.name!r} of {_where(cls)} is taken by {shipped} {cls.name!r} "
+                         f"({_where(existing)}); rename one of them")
+    METHODS[cls.name] = cls
+    return cls
+
+
+def method_class(method) -> type:
+    """The :class:`RomMethod` class of a registry name, a ``"module:Class"`` name (imported
+    and registered: :func:`.plugins.load_source`) or a class."""
+    if isinstance(method, type) and issubclass(method, RomMethod):
+        return method
+    if isinstance(method, str) and ":" in method:
+        return METHODS.load_source(method)
+    if not isinstance(method, str) or method not in METHODS:
+        raise ValueError(f"unknown ROM method {method!r}; valid: {sorted(METHODS)} (or 'module:Class' of a method "
+                         "in another package)")
+    return METHODS[method]
+
+
+def make_method(method, **options):
+    """A :class:`RomMethod` from its registry name, ``"module:Class"`` name or class, with ``options``."""
+    if isinstance(method, RomMethod):
+        if options:
+            raise TypeError("make_method: options given with an instance")
+        return method
+    cls = method_class(method)
+    cls.check_options(options)
+    return cls(**options)

@@ -26,6 +26,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
+from .parameters import check_parameters
+
 __all__ = ["parameter", "ReducedSolver", "INVERSE_MAX", "solve_floor", "matvec_floor", "compose"]
 
 #: up to this size a reduced solve is a product with the inverse computed offline
@@ -34,7 +36,7 @@ INVERSE_MAX = 32
 
 def parameter(mu, key: str, who: str) -> float:
     """``mu[key]`` as a finite float; a Python float is returned as is and a Python int converted
-    (the haptic path), any other value is converted or refused by :func:`~.base.check_parameters` (ValueError or
+    (the haptic path), any other value is converted or refused by :func:`~.parameters.check_parameters` (ValueError or
     TypeError naming ``who``, the key and the value)."""
     try:
         v = mu[key]
@@ -44,8 +46,6 @@ def parameter(mu, key: str, who: str) -> float:
         return v
     if type(v) is int:  # a node index, a cut length (bool is not int's type)
         return float(v)
-    from .base import check_parameters
-
     return float(check_parameters(mu, (key,), who)[key])
 
 

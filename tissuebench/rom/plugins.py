@@ -8,7 +8,7 @@ Two ways in, as pytest (``pytest11``), Dask and fsspec find their third-party ba
   process tissuebench starts (executors' workers, REF's sweep, the A/B workers), which read
   the same installed metadata;
 * a **``"module:Class"`` name** wherever a method name is accepted (a spec's ``[[method]]
-  name``, :func:`~.registry.method_class`, ``tissuebench methods --method``): imported and
+  name``, :func:`~.base.method_class`, ``tissuebench methods --method``): imported and
   registered under the class's ``name``. A sweep's units carry the class path as plain data
   (:attr:`~tissuebench.studies.units.WorkUnit.source`), so a worker process imports it too.
 
@@ -35,7 +35,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..exits import EXIT_TYPES, exit_text, raised_by_code
-from .registry import METHODS, check_method_class
+from .base import check_method_class, method_class
+from .registry import METHODS
 
 __all__ = ["GROUP", "Plugin", "PLUGINS", "FAILURES", "PluginWarning", "load_entry_points", "load_source",
            "third_party", "source_of", "is_shipped", "origin"]
@@ -202,8 +203,6 @@ def third_party(method) -> dict:
     """What the unit key and the store record of a method's code outside tissuebench: ``{}`` for
     a shipped method, else ``source`` ("module:Class"), ``distribution``, ``version`` (None when
     its package is not an installed distribution) and ``code_hash`` (its package's ``.py`` files)."""
-    from .registry import method_class
-
     cls = method_class(method)
     if is_shipped(cls):
         return {}

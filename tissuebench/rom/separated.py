@@ -36,6 +36,10 @@ use an orthonormal basis per dimension) if another norm is wanted.
 
 Initial factors are random (``rng``: an int seed or a ``numpy.random.Generator``;
 ``None`` means seed 0), so builds are reproducible.
+
+This module holds the separated types; the algorithm, :func:`~.separated_solver.pgd_solve`, is
+:mod:`.separated_solver`, which imports them (``separated.pgd_solve`` works for one release, with a
+DeprecationWarning).
 """
 from __future__ import annotations
 
@@ -44,7 +48,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["SeparatedOperator", "SeparatedVector", "SeparatedSolution", "pgd_solve"]
+from .._moved import moved
+
+__all__ = ["SeparatedOperator", "SeparatedVector", "SeparatedSolution"]
+
+# pgd_solve, the algorithm, imports these types: it lives in .separated_solver, above this module (issue 55)
+__getattr__ = moved(__name__, {"pgd_solve": "tissuebench.rom.separated_solver"})
 
 STOP_REASONS = ("amplitude", "residual", "stagnation", "zero_mode", "breakdown", "max_modes")
 
@@ -227,7 +236,3 @@ class SeparatedSolution:
                 k = np.kron(k, v)
             out = out + k
         return out
-
-
-# ------------------------------------------------------------------------ solver
-from .separated_solver import pgd_solve  # noqa: E402  (the algorithm; it imports the types above)

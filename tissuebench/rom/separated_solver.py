@@ -1,6 +1,6 @@
 """The PGD algorithm of :mod:`tissuebench.rom.separated` (greedy enrichment, alternating
 directions, stopping criteria); see that module's docstring for the method and the
-criteria. Public entry point: :func:`pgd_solve` (re-exported by ``separated``)."""
+criteria. Public entry point: :func:`pgd_solve` (of the types of :mod:`.separated`)."""
 from __future__ import annotations
 
 import numpy as np

@@ -74,7 +74,8 @@ from .limits import (MAX_LOAD_SCALE, check_contact_nodes_evaluation, check_cut_l
                      check_trajectory_evaluation)
 from ..reference import cached_solve
 from .path_range import DEFAULT_REFINE, beyond_scene, interval_every, range_scenes, range_states
-from .training import lattice_positions, positional_reference, positional_scene, reference_states, training_indices
+from .path_states import reference_states, training_indices
+from .training import lattice_positions, positional_reference, positional_scene
 
 if TYPE_CHECKING:  # annotations only: case_entry imports this module's kind registry
     from .case_entry import CaseEntry

@@ -21,9 +21,11 @@ import inspect
 import math
 
 from ..cases.schema import is_num, value_text
+from .path_range import DEFAULT_REFINE, range_scenes
+from .path_runs import PATH_RUN_KEYS
 
 __all__ = ["LIMITS", "MAX_UNITS", "MAX_BEYOND_FACTOR", "MAX_LOAD_SCALE", "MAX_OPTION_INT", "check_count",
-           "check_load_scale", "check_protocol", "check_option_values"]
+           "check_load_scale", "check_protocol", "check_option_values", "check_path_runs"]
 
 LIMITS = {
     # protocol
@@ -141,6 +143,28 @@ def check_path_training(path, training: dict, scene, _training=None) -> None:
     for key in ("every", "repeat"):
         if key in training:
             check_count(f"{path}.{key}", training[key], key)
+    if "runs" in training:
+        check_path_runs(f"{path}.runs", training["runs"], scene)
+
+
+def check_path_runs(path, runs, scene) -> None:
+    """A path training's ``runs`` (:mod:`.path_runs`): a list of at most ``LIMITS["runs"]`` tables
+    setting only :data:`~.path_runs.PATH_RUN_KEYS`, each a positive ``max_load_factor`` and a
+    ``load_steps`` count, that the scene accepts."""
+    if not isinstance(runs, list) or len(runs) > LIMITS["runs"]:
+        _fail(path, runs, f"expected a list of at most {LIMITS['runs']} tables (LIMITS['runs'])")
+    for i, run in enumerate(runs):
+        if not isinstance(run, dict):
+            _fail(f"{path}[{i}]", run, "expected a table { max_load_factor = ..., load_steps = ... }")
+        for key, value in run.items():
+            if key not in PATH_RUN_KEYS:
+                _fail(f"{path}[{i}].{key}", value, f"a run of a path training sets only {list(PATH_RUN_KEYS)} (the "
+                      "load factor is the model's parameter: give any other as the case's mu)")
+        if "max_load_factor" in run and (not is_num(run["max_load_factor"]) or run["max_load_factor"] <= 0):
+            _fail(f"{path}[{i}].max_load_factor", run["max_load_factor"], "expected a finite number > 0")
+        if "load_steps" in run:
+            check_count(f"{path}[{i}].load_steps", run["load_steps"], "load_steps")
+        _at(f"{path}[{i}]", scene, run)
 
 
 def check_positions_training(path, training: dict, scene, _training=None) -> None:
@@ -184,8 +208,6 @@ def check_path_evaluation(path, evaluation: dict, scene, training: dict | None =
                  hi=(MAX_BEYOND_FACTOR, "times the path's top load: MAX_BEYOND_FACTOR of tissuebench.studies.limits"))
     if "refine" in evaluation:  # parts of a training interval: 1 keeps the path's states only
         check_count(f"{path}.refine", evaluation["refine"], "refine")
-    from .path_range import DEFAULT_REFINE, range_scenes  # here: path_range reads training, which reads this
-
     t = training or {}
     refine = evaluation.get("refine", DEFAULT_REFINE)
     try:  # the finer paths are scenes at other load steps: within the scene's limits

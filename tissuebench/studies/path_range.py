@@ -36,7 +36,7 @@ import math
 import numpy as np
 
 from ..reference import cached_solve
-from .training import reference_states, training_indices
+from .path_states import reference_states, training_indices
 
 __all__ = ["DEFAULT_REFINE", "NEAR_REST_STEPS", "REST_FRACTIONS", "BEYOND_MAX_INCREMENTS", "BEYOND_MAX_CUTS",
            "range_scenes", "range_states", "beyond_scene", "interval_every"]

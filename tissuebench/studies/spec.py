@@ -297,6 +297,12 @@ def _check_method(i, m, cases, resolution, max_sets, scenes, skipped):
         cls = method_class(name)
     except (ValueError, TypeError) as exc:
         raise ValueError(f"{path}.name: {exc}") from None
+    gone = cls.unavailable()
+    if gone:  # a library it wraps is not installed here: its cases are skipped, saying why (RomMethod.unavailable)
+        wanted = m.get("cases")
+        ids = wanted if isinstance(wanted, list) else [c.id for c in cases if c.training_kind in cls.training_kinds]
+        skipped.extend({"case": c, "method": cls.name, "options": "", "why": gone} for c in ids)
+        return None
     if resolution == "paper" and "paper" in m:  # the paper grid replaces grid/list; options merge
         paper = _table(f"{path}.paper", m["paper"], {"options", "grid", "list"})
         for where, table in ((f"{path}.options", m), (f"{path}.paper.options", paper)):
@@ -436,7 +442,11 @@ def load_spec(spec_or_preset, resolution: str | None = None, only: list | None =
     if not isinstance(raw_methods, list) or not raw_methods:
         raise ValueError(f"method: a sweep needs at least one [[method]] ({path})")
     skipped = []
-    methods = [_check_method(i, m, cases, res, max_units, scenes, skipped) for i, m in enumerate(raw_methods)]
+    methods = [m for m in (_check_method(i, m, cases, res, max_units, scenes, skipped)
+                           for i, m in enumerate(raw_methods)) if m is not None]
+    if not methods:
+        _fail("method", [s["method"] for s in skipped], "no method of the spec can run here: "
+              + "; ".join(dict.fromkeys(s["why"] for s in skipped)))
     if only is not None:
         unknown = sorted(set(only) - set(ids)) if isinstance(only, (list, tuple, set)) and only else [only]
         if unknown:

@@ -6,7 +6,8 @@ A case entry of a sweep spec names what its methods learn from (``training``) wi
 ``path``        the scene's reference load path (statics): the initial state and every
                 converged state, the load factor as the parameter (``every = k`` keeps every
                 k-th state counted back from the last; ``repeat = k`` duplicates the set,
-                a rank-deficient training set for the extremes).
+                a rank-deficient training set for the extremes; ``runs = [{max_load_factor =
+                3.1, load_steps = 7}]`` adds the last state of each run: :mod:`.path_runs`).
 ``positions``   one reference path per stored load position (``positions = n`` points of
                 the scene's ``[parameters.position]`` range, or a list), each shortened by
                 ``max_load_factor`` / ``load_steps``: ``Training.groups = {s: Training}``
@@ -34,8 +35,10 @@ from ..cases.monitors import linear_outputs
 from ..reference.formulation import scene_backend
 from ..refsolvers.line_models import assemble_line_model
 from ..rom import Training
-from .kinds import Kind, no_references, the_scene
+from .kinds import Kind, no_references
 from .limits import check_nothing, check_path_training, check_positions_training, check_trajectory_training
+from .path_runs import merge_states, path_run_scenes, path_run_states
+from .path_states import reference_states, require_converged, training_indices
 from ..reference import cached_solve, dynamics_system
 
 if TYPE_CHECKING:  # annotations only: case_entry imports this module (through evaluation)
@@ -54,23 +57,6 @@ def case_scene(case: CaseEntry):
     if mesh:
         scene = scene.with_mesh(mesh)
     return scene.at(case.mu) if case.mu else scene
-
-
-def require_converged(ref) -> None:
-    """Refuse a reference run that converged at no step (its only state is the initial one): a
-    RuntimeError naming the case and saying why the reference stopped, not a shape error later."""
-    if len(ref.displacement) < 2:
-        variant = f" (variant {ref.variant})" if ref.variant else ""
-        raise RuntimeError(f"case {ref.case!r}{variant}: the reference run ({ref.backend}) converged at no step, so "
-                           f"there is no state to learn from or measure against: {ref.status}: {ref.message[:400]}")
-
-
-def reference_states(ref) -> tuple[np.ndarray, np.ndarray]:
-    """``(states (n_dof, k), steps (k,))`` of a reference result without its initial state
-    (RuntimeError naming the case when it has none, :func:`require_converged`)."""
-    require_converged(ref)
-    U = ref.displacement[1:].reshape(len(ref.displacement) - 1, -1).T
-    return np.ascontiguousarray(U), np.asarray(ref.steps[1:], float)
 
 
 def lattice_positions(scene, spec) -> np.ndarray:
@@ -95,16 +81,12 @@ def _path(scene, case, spec, info):
     U = ref.displacement.reshape(len(ref.displacement), -1).T
     lams = np.asarray(ref.steps, float)
     keep = training_indices(len(lams), spec.get("every", 1))
-    keep = np.tile(keep, int(spec.get("repeat", 1)))  # a duplicated snapshot set (extremes)
+    # runs: one more state each, at its own load factor (path_runs), merged in load-factor order
+    U, lams = merge_states(U[:, keep], lams[keep], *path_run_states(scene, spec.get("runs"), case.backend))
+    keep = np.tile(np.arange(len(lams)), int(spec.get("repeat", 1)))  # a duplicated snapshot set (extremes)
     be = scene_backend(scene, case.backend, ref.problem)
     return Training(U[:, keep], [{"load_factor": float(lams[k])} for k in keep], be,
                     outputs=_outputs(scene, ref.problem), info={**info, "reference_status": ref.status})
-
-
-def training_indices(n: int, every) -> np.ndarray:
-    """The states a path training keeps of a path of ``n`` states (the initial one included):
-    every ``every``-th, counted back from the last (always kept)."""
-    return np.arange(n)[::-1][::int(every)][::-1]
 
 
 def positional_scene(scene, s, spec):
@@ -198,9 +180,14 @@ def _trajectory_references(case: CaseEntry, scene) -> list:
     return [scene.at(mu) for mu in [{}] + list(case.training.get("runs", []))]
 
 
+def _path_references(case: CaseEntry, scene) -> list:
+    return [scene] + path_run_scenes(scene, case.training.get("runs"))
+
+
 #: the training kinds (:class:`~.kinds.Kind`): options, value checks, builder, references read
 TRAINING_KINDS = {k.name: k for k in (
-    Kind("path", frozenset({"every", "repeat"}), _path, the_scene, check_path_training, analysis="static"),
+    Kind("path", frozenset({"every", "repeat", "runs"}), _path, _path_references, check_path_training,
+         analysis="static"),
     Kind("positions", frozenset({"positions", "max_load_factor", "load_steps"}), _positions, _positions_references,
          check_positions_training, analysis="static"),
     Kind("trajectory", frozenset({"runs"}), _trajectory, _trajectory_references, check_trajectory_training,
@@ -212,7 +199,9 @@ TRAINING_KINDS = {k.name: k for k in (
 TRAINING_KIND_DOCS = {
     "path": ("the scene's reference load path (statics): every converged state, the load factor as the parameter",
              {"every": "keep every k-th state, counted back from the last (default 1)",
-              "repeat": "duplicate the set k times (a rank-deficient training set, for the extremes)"}),
+              "repeat": "duplicate the set k times (a rank-deficient training set, for the extremes)",
+              "runs": "one more state per run, the last of the scene solved to another load factor: "
+                      "`[{ max_load_factor = 3.1, load_steps = 7 }]` (what `tissuebench fit` adds)"}),
     "positions": ("one reference path per stored load position of the scene's `[parameters.position]`",
                   {"positions": "how many positions over the range (default 5), or a list of them",
                    "max_load_factor": "each path's last load factor", "load_steps": "each path's increments"}),

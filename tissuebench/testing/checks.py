@@ -40,6 +40,9 @@ class Context:
 
     def primary(self):
         """The subject on the case the method is checked on (:func:`~.cases.primary_case`)."""
+        gone = self.cls.unavailable()
+        if gone:  # a library it wraps is not installed here: nothing to build (RomMethod.unavailable)
+            raise CheckSkipped(f"{self.cls.name!r} cannot run here: {gone}")
         if self.training is None:
             name = primary_case(self.cls, self.options)
             if name is None:

@@ -6,7 +6,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .base import CellKernel
-from .ngsolve_backend import make_intrules
+from .ngsolve_mesh import make_intrules
 
 __all__ = ["NgsolveCellKernel"]
 

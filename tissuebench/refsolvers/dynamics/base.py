@@ -16,24 +16,15 @@ shapes, a non-finite load) raises ValueError.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
+from .report import StepReport
+from .step_newton import StepSolver
 from .system import SecondOrderSystem, check_vector
 
 __all__ = ["Integrator", "StepReport", "SecondOrderSystem", "check_dt"]
-
-
-@dataclass
-class StepReport:
-    """Outcome of one step: ``converged`` False means the state was not advanced."""
-
-    converged: bool = True
-    iterations: int = 0
-    message: str = ""
-    residuals: list = field(default_factory=list)
 
 
 def check_dt(dt) -> float:
@@ -166,8 +157,6 @@ class Integrator(ABC):
 
     def solve_mass(self, rhs):
         """M_ff^{-1} rhs with a factorisation computed once per system."""
-        from .step_newton import StepSolver
-
         if getattr(self, "_mass_lu", None) is None or self._mass_lu[0] is not self.system:
             self._mass_lu = (self.system, StepSolver("auto"))
         return self._mass_lu[1].solve_cached("mass", lambda: self.mass_ff, rhs)

@@ -35,7 +35,7 @@ from scipy.linalg import lapack
 from ..linear_solvers import DirectSolver, LinearSolverError, NgsolveSparseSolver
 from ..newton import scaled_norm
 from ..sparse_direct import NGSOLVE_MIN_DOFS
-from .base import StepReport
+from .report import StepReport
 
 #: the Jacobian solvers an integrator accepts as its ``linear_solver`` option
 STEP_SOLVERS = ("auto", "direct", "cholesky")

@@ -44,7 +44,7 @@ class Pgd(RomMethod):
     n_modes : int, largest number of modes (the build may stop earlier, see ``tol``)
     projection : {"srb", "prb", "vademecum"}
     tol, max_fixed_point, fixed_point_tol, seed, update_last :
-        of :func:`~tissuebench.rom.separated.pgd_solve` (amplitude criterion relative to
+        of :func:`~tissuebench.rom.separated_solver.pgd_solve` (amplitude criterion relative to
         the first mode; sweeps and convergence of the alternating directions)
     s_nodes : int, optional, number of parameter nodes of a 1D scene (default: the
         scene's ``[methods.pgd] s_nodes_<resolution>``, else the mesh nodes)

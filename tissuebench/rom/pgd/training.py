@@ -20,6 +20,7 @@ import dataclasses
 
 import numpy as np
 
+from ...reference.formulation import scene_backend
 from ...refsolvers import PointLoad, make_backend
 from ...refsolvers.line_models import assemble_line_model
 from ..base import Training
@@ -36,7 +37,7 @@ def pgd_training(scene, backend: str = "skfem") -> Training:
         return Training(system=assemble_line_model(scene.line_model()), scene=scene, info=info)
 
     uncut = dataclasses.replace(scene, cut=None)
-    be = make_backend(backend, uncut.to_problem())
+    be = scene_backend(uncut, backend)  # the reference's formulation (mean-dilatation Q1 on the cornea)
     return Training(backend=be, free_dofs=np.asarray(be.problem.free_dofs), scene=scene,
                     info={**info, "backend": backend})
 

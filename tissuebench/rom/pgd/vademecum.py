@@ -1,5 +1,5 @@
 """The offline PGD vademecum ``u(x, s) ≈ sum_i X_i(x) S_i(s)`` of a moving point load
-(pgd-vademecum-cutting §2, Appendix A), built by :func:`~tissuebench.rom.separated.pgd_solve`
+(pgd-vademecum-cutting §2, Appendix A), built by :func:`~tissuebench.rom.separated_solver.pgd_solve`
 on the operators of a :class:`~.family.PointLoadFamily` (``A = K ⊗ W``, the point loads
 in separated form): no snapshot of a full solve is computed.
 
@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from ..separated import SeparatedOperator, SeparatedSolution, SeparatedVector, pgd_solve
+from ..separated import SeparatedOperator, SeparatedSolution, SeparatedVector
+from ..separated_solver import pgd_solve
 from .family import PointLoadFamily
 from .floor import rank_floor
 
@@ -107,7 +108,7 @@ class Vademecum:
 def build_vademecum(family: PointLoadFamily, n_modes: int = 10, tol: float = 1e-8, max_fixed_point: int = 50,
                     fixed_point_tol: float = 1e-8, seed: int = 0, update_last: bool = False,
                     patience: int | None = None) -> Vademecum:
-    """PGD vademecum of ``family`` (options of :func:`~tissuebench.rom.separated.pgd_solve`).
+    """PGD vademecum of ``family`` (options of :func:`~tissuebench.rom.separated_solver.pgd_solve`).
 
     The stagnation stop is off by default (``patience=None``): the Euclidean residual of a
     moving point load decreases by less than 0.1 % per mode on a large parameter set (1673

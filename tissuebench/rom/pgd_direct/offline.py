@@ -11,7 +11,7 @@ implicit sub-step, ``M`` for the explicit update) becomes
 with ``W_d`` the P1 mass matrix of parameter ``d`` (divided by its interval length) and
 the right-hand side a :class:`~.fields.SepField` built from the inputs (``u_n = sum_j phi_j ⊗ q_j``, ``lam f``)
 and earlier sub-steps. Each is solved by greedy PGD with alternating directions
-(:func:`tissuebench.rom.separated.pgd_solve`) over space x each reduced coordinate x
+(:func:`tissuebench.rom.separated_solver.pgd_solve`) over space x each reduced coordinate x
 load: the explicit update ``M z = r`` of the paper's explicit schemes, the sub-steps of
 an implicit one (and HHT's acceleration). The fields at ``t + dt`` are then exact linear
 combinations of the inputs and of those PGD modes; the vademecum is that separated sum
@@ -27,7 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..separated import SeparatedOperator, SeparatedVector, pgd_solve
+from ..separated import SeparatedOperator, SeparatedVector
+from ..separated_solver import pgd_solve
 from .fields import SepField, coordinate_field, parameter_field, stack_fields
 from .schemes import Scheme, StepOperators, scheme_step
 from .step_vademecum import StepVademecum

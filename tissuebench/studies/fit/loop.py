@@ -1,0 +1,537 @@
+"""The greedy of ``tissuebench fit``: add references where the models err most until one meets the requirement.
+
+Round 0 is the scene's own training protocol (:mod:`.specs`: the generated spec's primary case,
+every family with its option grid). From it each family keeps a **lead** option set: the most
+accurate among those meeting the speed clauses of the requirement (rate or latency on the p99
+step). Every later round is one sweep (:func:`~tissuebench.studies.sweep.run_sweep`, on the
+executor asked) of the families still going, one unit each, after one decision per family:
+
+* **add**: the lead model, built on the family's training (the unit's own, from the round's
+  spec), is evaluated at every candidate (:mod:`.candidates`) by the cheap indicator
+  (:mod:`.indicator`: the full model's residual at the reduced state, one assembly and no solve);
+  a run is added at the worst candidate (:meth:`.axes.Axis.run`), the family's case gains it and
+  its units are measured again. The indicator's ranking is checked against the true errors the
+  unit measured at the evaluation's points (Spearman's rho, recorded per round).
+* **grow**: when the last :data:`PATIENCE` references each lowered the error by less than
+  :data:`MIN_GAIN` (more training no longer helps), the model's size (``n_modes`` ..., :data:`.specs.SIZE_KEYS`) takes
+  its next value (:func:`next_size`); a larger model that fails or misses the speed clauses is
+  dropped and the family goes on at its size.
+* **stop**: the lead meets the requirement (``met``); neither a reference nor a larger model
+  lowered the error by :data:`MIN_GAIN`; no candidate or budget is left; no option set meets the
+  speed clauses (more training does not make a model faster); a practitioner baseline learns
+  nothing from references (measured once).
+
+The **stopping rule** (:class:`.target.Target`) reads the headline error of the evaluation,
+which holds only references **never used for training** (the candidates avoid every point it
+measures), and the p99 of the protocol's timed steps. The fit stops when a family meets the
+requirement (the fewest references any family needed: the others are not trained further), when
+every family has stopped, or when ``budget_minutes`` has passed (checked before each round).
+Everything is decided from stored rows and recorded in the manifest (:mod:`.manifest`) before the
+next round starts: a killed fit resumes where it stopped.
+"""
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ...exits import EXIT_TYPES, raised_by_code
+from ...rom import make_method
+from ..results import read_points, read_units
+from ..spec import load_spec
+from ..sweep import run_sweep
+from ..training import build_training, case_scene
+from .answer import finish
+from .axes import axis_of
+from .manifest import check_settings, new_manifest, read_manifest, write_manifest
+from .specs import family_case, round_spec, scene_plan, toml_text
+from .target import Target
+
+__all__ = ["FitSettings", "run_fit", "next_size", "decide", "speed_ok", "load_factor", "MIN_GAIN", "PATIENCE", "GROWTH",
+           "MAX_GROWTH"]
+
+#: a reference (or a larger model) "helps" when the family's error falls by at least this fraction
+MIN_GAIN = 0.10
+#: added references in a row that each fail to lower the error by MIN_GAIN before "training no longer helps"
+PATIENCE = 2
+#: past its grid, a size grows by this factor (rounded up for an integer option)
+GROWTH = 1.5
+#: the largest size a fit tries, as a multiple of the grid's largest
+MAX_GROWTH = 4.0
+
+
+@dataclass
+class FitSettings:
+    """What ``tissuebench fit`` was asked.
+
+    Attributes
+    ----------
+    scene : str
+        A catalogue case or a scene file.
+    target : Target
+        The requirement as numbers (:class:`.target.Target`); ``require`` is its text, as given.
+    out : Path
+        The fit's folder: ``fit.json``, ``fit.md``, ``learning_curves.png``, ``answer.spec.toml``,
+        ``rounds/``, ``dense/``; a fit found there with the same settings is resumed.
+    variant, resolution, backend : str
+        The scene's variant (None: its default), mesh resolution and the references' backend.
+    methods : list of str or None
+        Only these method families (None: every one that applies).
+    budget_references : int
+        References the fit may add per family.
+    budget_minutes : float
+        Wall minutes after which no round starts (a resumed fit counts the time spent before).
+    executor, workers, scheduler, cache
+        Where each round's units run (:mod:`~tissuebench.studies.executors`) and the reference cache.
+    progress : bool
+        Progress on stderr (rounds, candidates, the references being solved).
+    """
+
+    scene: str
+    target: Target
+    require: str
+    out: Path
+    variant: str | None = None
+    resolution: str = "ci"
+    backend: str = "skfem"
+    methods: list | None = None
+    budget_references: int = 4
+    budget_minutes: float = 60.0
+    executor: str = "serial"
+    workers: int | None = None
+    scheduler: str | None = None
+    cache: str | None = None
+    progress: bool = True
+    extra: dict = field(default_factory=dict)
+
+    def key(self) -> dict:
+        return {"scene": str(self.scene), "variant": self.variant, "resolution": self.resolution,
+                "backend": self.backend, "require": self.require,
+                "methods": sorted(self.methods) if self.methods else None,
+                "budget_references": self.budget_references, "budget_minutes": self.budget_minutes}
+
+
+def _stderr(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def next_size(family, current):
+    """The family's next model size after ``current``: the next larger value of its grid, then
+    ``GROWTH`` times the current one (an integer rounded up), up to ``MAX_GROWTH`` times the
+    grid's largest; None past it or without a size option."""
+    if not family.size_key or current is None:
+        return None
+    values = sorted(family.grid.get(family.size_key, [family.options.get(family.size_key, current)]))
+    larger = [v for v in values if v > current]
+    if larger:
+        return larger[0]
+    grown = math.ceil(current * GROWTH) if isinstance(current, int) else float(current) * GROWTH
+    return grown if grown <= MAX_GROWTH * max(values) else None
+
+
+def _error_rows(rows: pd.DataFrame, metric: str) -> pd.DataFrame:
+    rows = rows.copy()
+    rows["error"] = rows[metric].astype(float) if metric in rows else np.nan
+    return rows
+
+
+def _point(row, round_, fam_state, action) -> dict:
+    opts = json.loads(row["options"]) if isinstance(row.get("options"), str) else {}
+    size_key = fam_state["size_key"]
+    return {"round": round_, "references": fam_state["refs_added"], "size": opts.get(size_key) if size_key else None,
+            "options": opts, "unit_key": row["unit_key"], "label": row["label"], "status": row["unit_status"],
+            "error": _num(row.get("error")), "claimed_error": _num(row.get("claimed_error")),
+            "peak_rel_l2": _num(row.get("peak_rel_l2")), "max_rel_l2": _num(row.get("max_rel_l2")),
+            "p99_s": _num(row.get("haptic_p99_s")), "median_s": _num(row.get("haptic_median_s")),
+            "offline_s": _num(row.get("offline_s")), "load_average": _num(row.get("load_average")),
+            "n_cpus": _num(row.get("n_cpus")), "seen": bool(row.get("seen", False)),
+            "message": str(row.get("message", ""))[:300], "action": action}
+
+
+def _num(x) -> float | None:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return None
+    return None if math.isnan(v) else v
+
+
+def load_factor(point: dict) -> float:
+    """The machine's load when ``point``'s unit was timed: ``load_average / n_cpus``, at least 1
+    (1 where not recorded)."""
+    load, cpus = point.get("load_average"), point.get("n_cpus")
+    if load is None or not cpus or not math.isfinite(load) or cpus <= 0:
+        return 1.0
+    return max(1.0, float(load) / float(cpus))
+
+
+def speed_ok(target: Target, point: dict) -> bool:
+    """Whether ``point`` meets the speed clauses as timed, or with its p99 divided by the machine's
+    :func:`load_factor` (more runnable tasks than CPUs: the step waited for one; the report's
+    "closest" reads latency the same way, :mod:`tissuebench.reports.recommend`). A family whose lead
+    misses only by the load goes on training for the error; the requirement itself is met only by
+    the p99 as timed."""
+    row = _as_row(point)
+    if target.meets_speed(row):
+        return True
+    return target.meets_speed({**row, "haptic_p99_s": row["haptic_p99_s"] / load_factor(point)})
+
+
+def _stale_adds(curve: list) -> int:
+    """How many of the last points of ``curve`` (a family's, oldest first) came from an added
+    reference that lowered the error by less than :data:`MIN_GAIN` (counted back to the first
+    that helped or was not an added reference)."""
+    n = 0
+    for prev, p in zip(reversed(curve[:-1]), reversed(curve[1:])):
+        if p.get("action") != "add" or _helped(prev["error"], p["error"]):
+            break
+        n += 1
+    return n
+
+
+def _helped(previous, error) -> bool:
+    return previous is None or (error is not None and error <= previous * (1.0 - MIN_GAIN))
+
+
+def decide(fam_state: dict, point: dict, target: Target, budget_refs: int, can_add: bool, can_grow: bool) -> tuple:
+    """``(action, why)`` after ``point`` (the lead's measurement) of a family in ``fam_state``:
+    ``"met"``, ``"add"``, ``"grow"`` or ``"stop"`` (module docstring). The rule on its own, for
+    tests: ``can_add`` (a candidate is left), ``can_grow`` (a next size exists); the budget of
+    references is ``budget_refs``. Training "no longer helps" after :data:`PATIENCE` references in
+    a row that each lowered the error by less than :data:`MIN_GAIN` (one may land where the
+    indicator misleads: near rest, where a stiff tangent inflates the residual of a small error)."""
+    row = {"unit_status": point["status"], "seen": point["seen"], "error": point["error"] if point["error"] is not
+           None else float("nan"), "haptic_p99_s": point["p99_s"] if point["p99_s"] is not None else float("nan")}
+    if target.meets(row):
+        return "met", "meets " + target.text()
+    if point["status"] != "ok":
+        return "stop", f"its unit failed: {str(point.get('message', ''))[:200]}"
+    if not speed_ok(target, point):
+        missed = "; ".join(target.missed(row))
+        return "stop", (f"misses the speed clauses ({missed}), even with its p99 divided by the machine's load "
+                        f"factor ({load_factor(point):.3g}): more training does not make a model faster")
+    curve = [p for p in fam_state["curve"] if p is not point and not p.get("dropped")]
+    previous = curve[-1]["error"] if curve else None
+    last = fam_state.get("last_action", "start")
+    budget_left = fam_state["refs_added"] < budget_refs
+    if last == "grow" and not _helped(previous, point["error"]):
+        return "stop", (f"neither more training nor a larger model lowers the error by {MIN_GAIN:.0%} "
+                        f"({_pct(previous)} -> {_pct(point['error'])})")
+    stale = _stale_adds(curve + [{**point, "action": last}])
+    if last == "add" and stale >= PATIENCE:
+        first = curve[-stale]["error"] if len(curve) >= stale else previous
+        words = f"training no longer helps ({stale} references: {_pct(first)} -> {_pct(point['error'])})"
+        if can_grow:
+            return "grow", f"{words}: the model grows"
+        return "stop", f"{words} and the model cannot grow"
+    if budget_left and can_add:
+        return "add", "a reference at the worst candidate"
+    if can_grow:
+        return "grow", ("the budget of references is spent: the model grows" if not budget_left
+                        else "no candidate left: the model grows")
+    return "stop", (f"the budget of {budget_refs} references is spent" if not budget_left
+                    else "no candidate left and the model cannot grow")
+
+
+def _pct(x) -> str:
+    return "n/a" if x is None else f"{100 * x:.3g} %"
+
+
+class _Fit:
+    def __init__(self, settings: FitSettings, log):
+        self.s = settings
+        self.log = log
+        self.out = Path(settings.out)
+        self.plan = scene_plan(settings.scene, settings.variant, settings.resolution, settings.methods)
+        self.axes = {kind: axis_of(self.plan, settings.backend, kind) for kind in self.plan.base_cases}
+        self.fams = {f.id: f for f in self.plan.families}
+        self.t0 = time.perf_counter()
+        m = read_manifest(self.out)
+        if m is None:
+            m = new_manifest(settings.key())
+            m["families"] = {f.id: {"status": "active", "why": "", "size_key": f.size_key, "learns": f.learns,
+                                    "method": f.name, "case_kind": f.case_kind,
+                                    "axis": self.axes[f.case_kind].name if self.axes[f.case_kind] else None,
+                                      "lead": None, "runs": [], "refs_added": 0, "last_action": "start",
+                                      "next": None, "curve": [], "checks": [], "added": [], "grew_to": []}
+                             for f in self.plan.families}
+            m["scene_name"] = self.plan.scene.name
+            m["analysis"] = self.plan.analysis
+            m["error_metric"] = self.plan.error_metric
+            m["not_fitted"] = [list(x) for x in self.plan.not_fitted]
+            m["target"] = [[c.quantity, c.op, c.value] for c in settings.target.clauses]
+        else:
+            check_settings(m, settings.key(), self.out)
+            m["settings"].update(budget_references=settings.budget_references,
+                                 budget_minutes=settings.budget_minutes)
+            m["state"] = "running"
+            self.log(f"fit: resuming {self.out} ({len(m['rounds'])} rounds begun, {m['elapsed_s'] / 60:.1f} min spent)")
+        self.m = m
+        self.base_elapsed = float(m.get("elapsed_s", 0.0))
+
+    # --------------------------------------------------------------- bookkeeping
+    def elapsed(self) -> float:
+        return self.base_elapsed + time.perf_counter() - self.t0
+
+    def save(self) -> None:
+        self.m["elapsed_s"] = self.elapsed()
+        write_manifest(self.out, self.m)
+
+    # --------------------------------------------------------------- rounds
+    def entries(self, k: int) -> list:
+        out = []
+        for name, st in self.m["families"].items():
+            fam = self.fams[name]
+            if k == 0:
+                out.append((family_case(self.plan, name, []), fam, None))
+            elif st["status"] == "active" and st["next"] is not None:
+                out.append((family_case(self.plan, name, st["next"]["runs"]), fam, [st["next"]["options"]]))
+        return out
+
+    def run(self) -> dict:
+        self.out.mkdir(parents=True, exist_ok=True)
+        (self.out / "rounds").mkdir(exist_ok=True)
+        self.save()
+        while True:
+            rounds = self.m["rounds"]
+            if rounds and rounds[-1]["status"] == "running":
+                r = rounds[-1]
+                self.log(f"fit: round {r['round']}: resuming its sweep ({r['folder']})")
+            else:
+                k = len(rounds)
+                entries = self.entries(k)
+                if not entries:
+                    break
+                if k > 0 and self.elapsed() > 60.0 * self.s.budget_minutes:
+                    for st in self.m["families"].values():
+                        if st["status"] == "active":
+                            st.update(status="stopped", why=f"the budget of {self.s.budget_minutes:g} minutes is spent")
+                    self.m["state"] = "budget"
+                    break
+                r = self.start_round(k, entries)
+            self.run_round(r)
+            self.measure_round(r)
+            if any(st["status"] == "met" for st in self.m["families"].values()):
+                for st in self.m["families"].values():
+                    if st["status"] == "active":
+                        st.update(status="stopped", why="another family met the requirement with as many references")
+                break
+        return finish(self)
+
+    def start_round(self, k: int, entries: list) -> dict:
+        spec = round_spec(self.plan, f"fit-{self.plan.scene.name}-round{k}", entries)
+        path = self.out / "rounds" / f"round-{k}.spec.toml"
+        what = "the scene's training protocol" if k == 0 else "the families still training"
+        path.write_text(toml_text(spec, f"Round {k} of `tissuebench fit` on {self.plan.scene.name}: {what}.\n"
+                                        "Run it again with `tissuebench sweep THIS_FILE --out FOLDER`."),
+                        encoding="utf-8")
+        r = {"round": k, "spec": str(path.relative_to(self.out)), "folder": f"rounds/round-{k}",
+             "families": [fam.id for _, fam, _ in entries], "status": "running", "wall_s": None,
+             "started_s": self.elapsed()}
+        self.m["rounds"].append(r)
+        self.save()
+        return r
+
+    def run_round(self, r: dict) -> None:
+        k = r["round"]
+        fams = ", ".join(r["families"])
+        news = [f"{n} {st['next']['value_text']}" for n, st in self.m["families"].items()
+                if n in r["families"] and st.get("next") and st["next"].get("value_text")]
+        self.log(f"fit: round {k}: sweeping {fams}" + (f"; references solved for: {'; '.join(news)}" if news else ""))
+        spec = load_spec(self.out / r["spec"], resolution=self.s.resolution)
+        folder = self.out / r["folder"]
+        resume = folder.exists() and any(folder.iterdir())
+        t0 = time.perf_counter()
+        run_sweep(spec, folder, self.s.executor, self.s.workers, self.s.scheduler, resume=resume,
+                  progress=self.s.progress, log=self.log if self.s.progress else (lambda *_: None), cache=self.s.cache)
+        r["sweep_wall_s"] = time.perf_counter() - t0
+        self.save()  # the time the sweep took counts in the budget, whatever happens next
+
+    def measure_round(self, r: dict) -> None:
+        """Record each family's measurement of round ``r``; then, unless one meets the requirement
+        (the others stop: it needed as few references), decide each family's next step."""
+        folder = self.out / r["folder"]
+        rows = _error_rows(read_units(folder), self.plan.error_metric)
+        spec = load_spec(self.out / r["spec"], resolution=self.s.resolution)
+        entries = {c.id: c for c in spec.cases}
+        pending = []
+        for name in r["families"]:
+            st = self.m["families"][name]
+            if st["status"] == "active":
+                step = self.record(r["round"], name, st, rows[rows["case"] == name])
+                if step is not None:
+                    pending.append((name, st, *step))
+        met = [name for name, st in self.m["families"].items() if st["status"] == "met"]
+        for name, st, point, dropped in pending:
+            if st["status"] != "active":
+                continue
+            if met:
+                st.update(status="stopped", next=None, why=f"{met[0]} met the requirement with as few references")
+                continue
+            self.next_step(r["round"], name, st, point, entries[name], force_after_drop=dropped)
+        r["status"] = "done"
+        r["wall_s"] = self.elapsed() - r.get("started_s", self.elapsed())
+        self.save()
+
+    def record(self, k, name, st, fam_rows):
+        """Add round ``k``'s measurement of family ``name`` to its curve; ``(point, dropped)`` when a
+        next step is to be decided, None when the family is done (met, a baseline, nothing ran)."""
+        fam, target = self.fams[name], self.s.target
+        if fam_rows.empty:
+            st.update(status="stopped", why="no unit of the family ran", next=None)
+            return None
+        action = st["next"]["action"] if st.get("next") else "start"
+        st["last_action"] = action
+        if k == 0:
+            lead = _lead(fam_rows, target)
+            st["grid_points"] = [_point(row, k, st, "grid") for _, row in fam_rows.iterrows()]
+        else:
+            lead = fam_rows.iloc[0]
+        point = _point(lead, k, st, action)
+        if action == "grow" and not speed_ok(target, point):
+            # a larger model that fails or misses the speed clauses: the family goes on at its size
+            point["dropped"] = True
+            st["curve"].append(point)
+            st["ladder_done"] = True
+            st["last_action"] = "add"
+            self.log(f"fit: round {k}: {name}: {point['label']} {_said(point)}: dropped (the size stays)")
+            return next(p for p in reversed(st["curve"]) if not p.get("dropped")), True
+        st["curve"].append(point)
+        st["lead"] = point["options"]
+        self.log(f"fit: round {k}: {name}: {point['label']} {_said(point)}")
+        if target.meets(_as_row(point)):
+            st.update(status="met", why="meets " + target.text(), next=None)
+            return None
+        if not fam.learns:
+            st.update(status="stopped", next=None,
+                      why="a practitioner baseline: it learns nothing from references (measured once)")
+            return None
+        return point, False
+
+    def next_step(self, k, name, st, point, entry, force_after_drop=False) -> None:
+        """Decide family ``name``'s next step after ``point`` and record it (module docstring). A
+        family whose lead failed, or whose lead model cannot be rebuilt or stepped for the indicator
+        (the method raises), stops saying why; the fit goes on with the others."""
+        if point["status"] != "ok":
+            st.update(status="stopped", next=None, why=f"its unit failed: {point['message'][:200]}")
+            self.log(f"fit: round {k}: {name}: stop: {st['why']}")
+            return
+        try:
+            self._next_step(k, name, st, point, entry, force_after_drop)
+        except (Exception, *EXIT_TYPES) as exc:  # noqa: BLE001 - a method's failure stops its family, never the fit
+            if not isinstance(exc, Exception) and not raised_by_code(exc):
+                raise  # the user's Ctrl-C or SIGTERM: the fit stops, resumably (tissuebench.exits)
+            st.update(status="stopped", next=None, why=f"the indicator could not be computed on its lead model: "
+                                                       f"{type(exc).__name__}: {str(exc)[:200]}")
+            self.log(f"fit: round {k}: {name}: stop: {st['why']}")
+
+    def _next_step(self, k, name, st, point, entry, force_after_drop) -> None:
+        fam, target = self.fams[name], self.s.target
+        size = point["options"].get(fam.size_key) if fam.size_key else None
+        grow_to = None if st.get("ladder_done") else next_size(fam, size)
+        model = training = None
+        candidates = np.zeros(0)
+        axis = self.axis_for(name)
+        if axis is not None:
+            trained_case = family_case(self.plan, name, st["runs"])
+            model, training = self.lead_model(entry, fam.name, point["options"])
+            pts = self.unit_points(point["round"], point["unit_key"])
+            measured = axis.measured(trained_case, pts)
+            candidates = axis.candidates(axis.trained(trained_case, training), measured)
+            if not pts.empty and not force_after_drop:
+                rho, n = axis.point_check(model, training, trained_case, pts)
+                st["checks"].append({"round": k, "rho": rho, "pairs": n, "size": size})
+                self.log(f"fit: round {k}: {name}: the indicator's rank correlation with the true error: "
+                         f"{rho:.3g} over {n} points")
+        if force_after_drop:
+            action, why = ("add", "a reference at the worst candidate") if (
+                st["refs_added"] < self.s.budget_references and len(candidates)) else (
+                "stop", "a larger model misses the requirement's speed or fails, and no reference is left to add")
+        else:
+            action, why = decide(st, point, target, self.s.budget_references, bool(len(candidates)),
+                                 grow_to is not None)
+        if action == "met":
+            st.update(status="met", why=why, next=None)
+        elif action == "stop":
+            st.update(status="stopped", why=why, next=None)
+        elif action == "grow":
+            opts = {**point["options"], fam.size_key: grow_to}
+            st["grew_to"].append({"round": k, "size": grow_to})
+            st["next"] = {"action": "grow", "options": opts, "runs": list(st["runs"]), "why": why,
+                          "value_text": ""}
+        else:
+            self.log(f"fit: round {k}: {name}: indicator at {len(candidates)} candidate {axis.name}s")
+            ind = axis.indicators(model, training, candidates)
+            worst = int(np.argmax(np.where(np.isnan(ind), -np.inf, ind)))
+            value = float(candidates[worst])
+            order = np.argsort(-np.nan_to_num(ind, nan=-np.inf))[:3]
+            st["added"].append({"round": k, "value": value, "indicator": float(ind[worst]),
+                                "candidates": int(len(candidates)),
+                                "top": [[float(candidates[i]), float(ind[i])] for i in order]})
+            runs = list(st["runs"]) + [axis.run(value)]
+            st["runs"] = runs
+            st["refs_added"] += 1
+            text = f"{axis.name} {value:.6g}"
+            st["next"] = {"action": "add", "options": dict(point["options"]), "runs": runs, "why": why,
+                          "value_text": text}
+            self.log(f"fit: round {k}: {name}: worst candidate {text} (indicator {ind[worst]:.3g}): a reference "
+                     f"is added there ({st['refs_added']} of {self.s.budget_references})")
+        if action in ("met", "stop"):
+            self.log(f"fit: round {k}: {name}: {action}: {why}")
+
+    def axis_for(self, family_id: str):
+        """The axis the family ``family_id`` adds references along (None: it has none)."""
+        return self.axes[self.fams[family_id].case_kind]
+
+    def lead_model(self, entry, method, options):
+        """The lead's model rebuilt on the unit's own training (the round spec's case entry)."""
+        scene = case_scene(entry)
+        training = build_training(entry, scene)
+        return make_method(method, **options).build(training), training
+
+    def unit_points(self, k, unit_key) -> pd.DataFrame:
+        points = read_points(self.out / self.m["rounds"][k]["folder"])
+        return points[points["unit_key"] == unit_key] if not points.empty else points
+
+
+def _said(p: dict) -> str:
+    if p["status"] != "ok":
+        return f"failed: {p['message'][:160]}"
+    return (f"error {_pct(p['error'])}, p99 {p['p99_s'] * 1e3:.3g} ms" if p["p99_s"] is not None
+            else f"error {_pct(p['error'])}")
+
+
+def _as_row(p: dict) -> dict:
+    return {"unit_status": p["status"], "seen": p["seen"], "error": p["error"] if p["error"] is not None else np.nan,
+            "haptic_p99_s": p["p99_s"] if p["p99_s"] is not None else np.nan}
+
+
+def _lead(rows: pd.DataFrame, target: Target):
+    """The family's lead among its round-0 units: the most accurate that meets the speed clauses
+    as timed, else the most accurate that meets them with its p99 divided by the machine's load
+    (:func:`speed_ok`), else the fastest usable, else the first."""
+    usable = rows[(rows["unit_status"] == "ok") & ~rows.get("seen", pd.Series(False, index=rows.index)).fillna(False)
+                  .astype(bool)]
+    timed = [_point(r, 0, {"size_key": "", "refs_added": 0}, "") for _, r in usable.iterrows()]
+    for ok in (lambda p: target.meets_speed(_as_row(p)), lambda p: speed_ok(target, p)):
+        fast = usable[[ok(p) for p in timed]] if not usable.empty else usable
+        if not fast.empty:
+            return fast.sort_values(["error", "haptic_p99_s"], na_position="last").iloc[0]
+    if not usable.empty:
+        return usable.sort_values("haptic_p99_s", na_position="last").iloc[0]
+    return rows.iloc[0]
+
+
+def run_fit(settings: FitSettings, log=_stderr, figures=None) -> dict:
+    """Train to a requirement (module docstring); returns the manifest (``answer``, ``dense``,
+    each family's learning curve). ``figures(manifest, path)`` draws the learning curves into
+    ``path`` (a PNG; :mod:`tissuebench.reports.fit_figure`)."""
+    fit = _Fit(settings, log)
+    fit.figures = figures
+    return fit.run()
