@@ -20,7 +20,8 @@ from tissuebench.cli import _parser, main
 from tissuebench.studies.sweep_manifest import read_sweep_manifest
 
 ROOT = Path(__file__).resolve().parents[2]
-SUBCOMMANDS = ["run", "cases", "sweep", "study", "cache", "report", "check", "verify", "describe", "scene", "methods", "fit"]
+SUBCOMMANDS = ["run", "cases", "sweep", "study", "cache", "report", "check", "verify", "describe", "scene", "methods",
+               "fit"]
 
 ONE = """
 [sweep]
