@@ -139,6 +139,7 @@ def test_wave_front_reaches_mid_height_at_the_p_wave_speed():
     assert arrival == pytest.approx(t_mid, rel=0.05)
 
 
+@pytest.mark.slow  # ~9 s: a dynamic liver run; every catalogue case still runs at ci in the default run
 def test_liver_dynamic_first_period_is_the_modal_one():
     """After the release (t > 0.5 s) the undamped liver vibrates freely, and HHT on a linear
     system decouples mode by mode: the first-mode coordinate q1 = phi1^T M u of the stored

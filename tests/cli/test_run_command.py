@@ -111,6 +111,7 @@ def test_a_run_that_fails_midway_leaves_nothing(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []  # neither the folder nor a temporary sibling
 
 
+@pytest.mark.slow  # ~15 s: the ventricle to its pressure maximum; test_run_reliability keeps a failed run by default
 def test_numerical_failure_is_stored_with_its_status(tmp_path):
     # the MR ventricle at 1 kPa passes its pressure maximum: Newton stalls; the run is stored, exit 1
     scene = _scene_copy(tmp_path, "left_ventricle", [("value = 0.5", "value = 1.0")])

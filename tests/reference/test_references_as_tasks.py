@@ -84,6 +84,7 @@ def test_the_declared_references_are_the_ones_the_units_read(spec):
     assert all(list(unit_references(u)) == declared for u in units)
 
 
+@pytest.mark.slow  # ~11 s (two worker processes); the default run keeps the cache-argument test of this file
 def test_a_reference_five_units_need_is_computed_once_on_two_workers(spec, tmp_path):
     """Two worker processes (threads of one process running units side by side segfaulted once in
     native code, README command 2 beside another run), a shared ``file://`` cache; every solve

@@ -43,6 +43,7 @@ def test_7_a_unit_that_kills_its_worker_is_stored_failed_and_the_others_finish()
     assert run["seconds"] < 120
 
 
+@pytest.mark.slow  # ~10 s; the default run keeps the unit that kills its own worker (the same recovery)
 def test_7_a_worker_killed_from_outside_loses_no_unit():
     """SIGKILL of a busy worker (not the unit's doing): its unit and the pool's other units in
     flight run again, all finish ok."""

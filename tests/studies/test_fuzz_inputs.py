@@ -682,7 +682,7 @@ def _stray_example(root, data):
                 p.unlink(missing_ok=True)
 
 
-@settings(FILES, max_examples=_examples(200))
+@settings(FILES, max_examples=_examples(100))  # 100 (200 before: CI time); the slow variant runs LONG_EXAMPLES
 @given(data=st.data())
 def test_stray_files_in_a_store_are_never_read_as_units(small_store, data):
     _stray_example(small_store, data)
