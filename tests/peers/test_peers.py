@@ -248,3 +248,16 @@ def test_a_small_peers_sweep_reports_its_pairs(tmp_path, monkeypatch):
     # both keep every mode): the same error
     none = pymor[pymor["peer"].str.startswith("pymor_galerkin hyper=none")]
     np.testing.assert_allclose(none["peer_error"], none["ours_error"], rtol=1e-3)
+
+
+def test_a_trajectory_step_starts_from_the_last_one_and_refuses_another_time():
+    """The adapters' shared time check (``_common.step_start``): the next step within 1e-6 dt is
+    taken, from ``t - dt`` at the first step; a skipped or repeated step is refused naming it."""
+    from tissuebench_peers._common import step_start
+
+    assert step_start("m", 0.1, None, 0.1) == pytest.approx(0.0)
+    assert step_start("m", 0.3, 0.2, 0.1) == 0.2
+    assert step_start("m", 0.3 + 0.9e-7, 0.2, 0.1) == 0.2
+    for t in (0.3 + 1.1e-7, 0.4, 0.2):
+        with pytest.raises(ValueError, match=r"m\.step: mu\['time'\] = .* is not the next step 0\.3"):
+            step_start("m", t, 0.2, 0.1)

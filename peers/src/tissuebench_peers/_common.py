@@ -7,7 +7,7 @@ import importlib.util
 import numpy as np
 
 __all__ = ["missing", "envelope_of", "status_at", "evenly", "positive_int", "positive", "fraction",
-           "is_dynamic", "moving_supports"]
+           "is_dynamic", "moving_supports", "step_start"]
 
 
 def missing(*modules: str) -> str:
@@ -33,6 +33,15 @@ def status_at(name: str, lam: float, envelope: dict) -> tuple[str, str]:
     if lo - tol <= lam <= hi + tol:
         return "ok", ""
     return "extrapolation", f"{name}: load factor {lam:.6g} outside the training's [{lo:.6g}, {hi:.6g}]"
+
+
+def step_start(name: str, t: float, last_t: float | None, dt: float) -> float:
+    """The time [s] a trajectory step to ``t`` starts from: the last step's time (``t - dt`` at the
+    first step); a ``t`` other than the next step's (a relative 1e-6 of ``dt``) is refused."""
+    t0 = t - dt if last_t is None else last_t
+    if abs(t - (t0 + dt)) > 1e-6 * dt:
+        raise ValueError(f"{name}.step: mu['time'] = {t!r} is not the next step {t0 + dt!r} (dt = {dt!r})")
+    return t0
 
 
 def evenly(n_columns: int, count: int) -> np.ndarray:

@@ -30,7 +30,7 @@ import numpy as np
 from tissuebench.rom import Applies, LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, \
     check_parameters
 
-from ._common import envelope_of, fraction, missing, positive_int, status_at
+from ._common import envelope_of, fraction, missing, positive_int, status_at, step_start
 
 __all__ = ["OpInf"]
 
@@ -208,10 +208,7 @@ class _OpInfModel(LinearReconstruction, OnlineModel):
             raise RuntimeError(f"{self.name}: call start(mu0, state0, dt) before step()")
         if self._stopped is not None:
             return StepResult(None, "failed", self._stopped, mu=out)
-        t0 = t - self._dt if self._t is None else self._t
-        if abs(t - (t0 + self._dt)) > 1e-6 * self._dt:
-            raise ValueError(f"{self.name}.step: mu['time'] = {t!r} is not the next step {t0 + self._dt!r} "
-                             f"(dt = {self._dt!r})")
+        t0 = step_start(self.name, t, self._t, self._dt)
         with np.errstate(all="ignore"):
             if self._discrete:
                 x = self._model.rhs(self._x, np.array([self._lam, lam]))

@@ -34,7 +34,7 @@ from tissuebench.rom import Applies, LinearReconstruction, OnlineModel, RomMetho
     check_parameters
 
 from ._common import (envelope_of, evenly, fraction, is_dynamic, missing, moving_supports, positive, positive_int,
-                      status_at)
+                      status_at, step_start)
 
 __all__ = ["PymorGalerkin"]
 
@@ -352,10 +352,7 @@ class _TrajectoryModel(_PymorModel):
             raise RuntimeError(f"{self.name}: call start(mu0, state0, dt) before step()")
         if self._stopped is not None:
             return StepResult(None, "failed", self._stopped, mu=out)
-        t0 = t - self._dt if self._t is None else self._t
-        if abs(t - (t0 + self._dt)) > 1e-6 * self._dt:
-            raise ValueError(f"{self.name}.step: mu['time'] = {t!r} is not the next step {t0 + self._dt!r} "
-                             f"(dt = {self._dt!r})")
+        t0 = step_start(self.name, t, self._t, self._dt)
         try:
             steps = self._stepper.iterate(t0, t, self._x, self._A, rhs=self._F, mass=self._M, mu=_mu(lam))
             next(steps)  # the initial state
