@@ -209,9 +209,14 @@ def test_the_peers_preset_gives_every_peer_unit_its_counterpart(resolution, tmp_
     from tissuebench.rom import method_class
     from tissuebench.studies.spec import expand_units, load_spec
 
+    # the peers whose library is installed (README's test command installs none of them: `.[test]`;
+    # CI's .ci/run installs `.[peers]`, pyMOR, romtools and OpInf): a spec skips the others, saying why
+    installed = {cls.name for cls in (PymorGalerkin, RomtoolsEcsw, OpInf) if not cls.unavailable()}
+    if not installed:
+        pytest.skip("none of pyMOR, romtools, OpInf is installed (pip install -e \".[peers]\")")
     units = expand_units(load_spec(_preset(tmp_path, monkeypatch), resolution=resolution))
     peers = [u for u in units if method_class(u.method).counterpart is not None]
-    assert {u.method for u in peers} >= {"pymor_galerkin", "romtools_ecsw", "opinf"}
+    assert {u.method for u in peers} >= installed
     for u in peers:
         name, wanted = method_class(u.method).counterpart_for(u.case.training_kind)
         mates = [v for v in units if v.case.id == u.case.id and v.method == name
