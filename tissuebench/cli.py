@@ -25,9 +25,10 @@
 The package's subcommand modules are imported inside the handlers below, not at the top: a
 command loads only what it runs (``tissuebench --help`` and ``cache ls`` need no solver).
 
-Exit codes: 0 success, 1 the run finished with a numerical failure (stored) or its results
-could not be written (a full disk: nothing stored), 2 bad input (including an output location
-that cannot be written, checked before any work or found read-only during it), 130
+Exit codes: 0 success (a sweep that finished: its failed units are results, stored and counted
+in its last line; ``--strict`` exits 1 on them), 1 ``run`` finished with a numerical failure
+(stored) or the results could not be written (a full disk: nothing stored), 2 bad input
+(including an output location that cannot be written, checked before any work or found read-only during it), 130
 interrupted (Ctrl-C), 143 a sweep stopped by SIGTERM (``timeout``: resumable as after Ctrl-C).
 A ``SystemExit`` or ``KeyboardInterrupt`` raised by a plugin method's code fails that plugin or
 unit, never the command (:mod:`.exits`). Every error is one line naming the key, value or path,
@@ -152,6 +153,10 @@ def _sweep_options(p):
     p.add_argument("--resume", action="store_true", help="continue the sweep stored in --out")
     p.add_argument("--cases", default=None, help="only these case ids of the spec (comma-separated)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no per-unit lines")
+    p.add_argument("--strict", action="store_true",
+                   help="exit 1 when a unit of the sweep failed (computed now or kept from before; default: a failed "
+                   "unit is a result, stored with its message and counted in the last line, and the finished sweep "
+                   "exits 0)")
     p.add_argument("--max-units", type=int, default=None,
                    help="refuse a spec expanding to more units than this (default: studies.spec.MAX_UNITS)")
 
@@ -302,10 +307,25 @@ def _sweep(args, preset=None) -> int:
           f"{len(summary.skipped)} kept from before, {len(summary.recomputed)} recomputed; results in {out}")
     for why, n in summary.why_recomputed.items():
         print(f"recomputed {n} unit{'s' if n != 1 else ''}: {why}")
-    failed = 1 if summary.failed else 0
+    # a unit that failed (a method's exception, a plugin's sys.exit) or whose steps failed is a
+    # measured result, stored with its message: the finished sweep exits 0, whichever code it was
+    failed = _failed_units(out) if getattr(args, "strict", False) else 0
     if getattr(args, "convergence", False):
         failed |= _convergence(args.scene, args.variant, spec.resolution, "skfem", out, quiet=args.quiet)
     return failed
+
+
+def _failed_units(out: Path) -> int:
+    """``--strict``: 1 when a unit stored in ``out`` (computed now or kept from before) failed, saying
+    how many on stderr; else 0. A unit that ran with failed steps is not a failed unit (its error
+    says it: infinite where a step failed)."""
+    from .studies.results import read_units
+
+    units = read_units(out)
+    bad = units[units["unit_status"] == "failed"]
+    if len(bad):
+        print(f"tissuebench: --strict: {len(bad)} of {len(units)} units failed", file=sys.stderr)
+    return 1 if len(bad) else 0
 
 
 def _say_formulation(case, variant, resolution) -> None:

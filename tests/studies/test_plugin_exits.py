@@ -231,15 +231,26 @@ def test_units_whose_code_exits_or_returns_nan_fail_and_the_sweep_goes_on(step_p
     and toy_nan stored as ok (19 ok steps, error inf, "0 failed")."""
     spec, out = _spec(tmp_path, "toy_exit", "toy_nan", "toy_kbi"), tmp_path / "out"
     extra = ["--executor", "processes", "--workers", "2"] if executor == "processes" else []
-    # exit 1: the sweep finished with failures stored (the CLI's exit codes); not 7, not 130
-    assert main(["sweep", spec, "--out", str(out), "--quiet", *extra]) == 1
+    # exit 0: the sweep finished, the plugins' failures are results stored with their messages (the
+    # CLI's exit codes); not 7, not 130, and not 1: a broken plugin fails its units, not the sweep
+    assert main(["sweep", spec, "--out", str(out), "--quiet", *extra]) == 0
     said = capsys.readouterr().out
     assert "4 units: 4 computed (2 failed; 1 with failed steps (" in said
     _check_units(out)
-    # --resume afterwards: every unit is stored (the failed ones too), nothing runs again
+    # --resume afterwards: every unit is stored (the failed ones too), nothing runs again; --strict
+    # exits 1 on the failed units kept from before, naming how many
     assert main(["sweep", spec, "--out", str(out), "--quiet", "--resume", *extra]) == 0
     assert "4 units: 0 computed (0 failed), 4 kept from before" in capsys.readouterr().out
+    assert main(["sweep", spec, "--out", str(out), "--quiet", "--resume", "--strict", *extra]) == 1
+    assert "--strict: 2 of 4 units failed" in capsys.readouterr().err
     _check_units(out)
+
+
+def test_strict_exits_0_when_no_unit_failed(tmp_path, capsys):
+    """The other side of --strict's rule: a sweep whose units are all ok exits 0 with it."""
+    spec, out = _spec(tmp_path, "pod_interp"), tmp_path / "out"
+    assert main(["sweep", spec, "--out", str(out), "--quiet", "--strict"]) == 0
+    assert "--strict" not in capsys.readouterr().err
 
 
 def exits_for_nearest(unit) -> UnitOutcome:

