@@ -25,16 +25,37 @@ SOFA/Vega method), per Gauss point on Q1 hexahedra (SOFA's hexahedra take one ro
 element instead; the two agree to the variation of the rotation over a cell).
 
 Its consistent tangent (Newton converges quadratically; a central finite difference of the
-force converges to it at O(h^2), tested) needs dR: with ``Omega = R^T dR`` skew and its
-axial vector ``w``, ``R^T dF - dF^T R = Omega S + S Omega``, i.e.
-``w = (tr(S) I - S)^{-1} axial(R^T dF - dF^T R)`` (Twizell-Ogden; Chen and Wheeler 1993), so::
+force converges to it at O(h^2), tested) needs dR. In the frame of the signed SVD
+``F = U diag(s) V^T`` (Teran, Sifakis, Irving, Fedkiw 2005, "Robust quasistatic finite elements
+and flesh simulation", SCA) it is the linear elastic tangent plus one term per pair of singular
+values, along the pair's *twist* ``T_ab = (u_a v_b^T - u_b v_a^T) / sqrt 2`` (the variation of R)::
 
-    dP = 2 mu dF + lambda (R : dF) R + (lambda (tr S - 3) - 2 mu) R [w]_x.
+    A = 2 mu I + lambda R (x) R + sum_{a<b} gamma_ab T_ab (x) T_ab,
+    gamma_ab = 2 (lambda (tr S - 3) - 2 mu) / (s_a + s_b),
 
-``tr(S) I - S`` has the eigenvalues ``s_i + s_j`` (pairs of singular values): it is singular
-only for a cell inverted through zero volume. The polar decomposition is taken by SVD
-(``F = U diag(s) V^T``, ``R = U V^T``) with the sign of the smallest singular value flipped
-when ``det F < 0`` (Irving, Teran, Fedkiw 2004), so ``R`` is always a proper rotation.
+the same as ``dP = 2 mu dF + lambda (R : dF) R + (lambda (tr S - 3) - 2 mu) R [w]_x`` with
+``w = (tr(S) I - S)^{-1} axial(R^T dF - dF^T R)`` (Twizell-Ogden; Chen and Wheeler 1993), whose
+``(tr S I - S)`` has the eigenvalues ``s_a + s_b``. The twist stiffness ``2 mu + gamma_ab`` is
+negative in a compressed cell (it is 0 at rest: an infinitesimal rotation costs nothing); it is
+kept (clamping it at 0, Teran et al.'s positive definite projection, turns Newton's quadratic
+convergence into a linear one under a point load: measured, no convergence in 15 iterations).
+``s_a + s_b`` vanishes only in a cell inverted with its two smallest stretches equal, where R is
+not differentiable (which stretch carries the sign switches: the energy has a kink there); the
+tangent takes ``s_a + s_b >= 1e-8`` so that it stays finite. Where the kink is convex
+(``lambda (tr S - 3) > 2 mu``) an energy minimum can sit on it, and then the model has no
+equilibrium to converge to (no zero residual): measured on a soft half ellipsoid (E = 3 kPa,
+nu = 0.49, 4.5k nodes) under a 1.5 N probe, a cell at stretches (4.23, 0.1475, -0.1475) holds
+the residual at 8e-4 N whatever the solver; the static step then fails within its budget.
+
+The polar decomposition is taken by SVD (``R = U V^T``) with the sign of the smallest singular
+value flipped when ``det F < 0`` (Irving, Teran, Fedkiw 2004, "Invertible finite elements for
+robust simulation of large deformation", SCA), so ``R`` is always a proper rotation and W, P and A
+are defined through inversion: :attr:`Corotational.invertible` tells the static Newton
+(:mod:`~tissuebench.refsolvers.newton`) not to refuse a state with ``det F <= 0``, as it must
+for the hyperelastic materials (``log J``). This is the model's own answer, not a tolerance:
+under a point load the corotational equilibrium itself inverts the cells under the load (no
+energy barrier as ``J -> 0``; the neo-Hookean reference has one), from 0.275 N on the tutorial's
+kidney (4.5k nodes); refusing them stopped every step from there on.
 
 Properties (tested): the tangent at F = I is the linear elastic one (same Lame constants),
 so corotational FE equals linear FE at small load; W and the internal force vanish under any
@@ -60,6 +81,10 @@ from .materials import (Guccione, LinearElastic, Material, MooneyRivlin, NeoHook
 __all__ = ["Corotational", "polar_decomposition", "small_strain_moduli"]
 
 _I = np.eye(3)
+_I4 = np.einsum("ik,JL->iJkL", _I, _I)  # dF_iJ / dF_kL
+
+#: the smallest ``s_a + s_b`` the tangent divides by (module docstring): stretches are O(1)
+PAIR_FLOOR = 1e-8
 
 
 def polar_decomposition(F):
@@ -82,20 +107,6 @@ def polar_decomposition(F):
     return R, S, s, V
 
 
-def _axial(W):
-    """``(W21 - W12, W02 - W20, W10 - W01)`` of ``W`` (..., 3, 3): ``2 w`` for a skew ``W = [w]_x``."""
-    return np.stack([W[..., 2, 1] - W[..., 1, 2], W[..., 0, 2] - W[..., 2, 0], W[..., 1, 0] - W[..., 0, 1]],
-                    axis=-1)
-
-
-def _skew(w):
-    """``[w]_x`` of vectors (..., 3): the matrix with ``[w]_x v = w x v``."""
-    z = np.zeros(w.shape[:-1])
-    return np.stack([np.stack([z, -w[..., 2], w[..., 1]], -1),
-                     np.stack([w[..., 2], z, -w[..., 0]], -1),
-                     np.stack([-w[..., 1], w[..., 0], z], -1)], -2)
-
-
 @dataclass(frozen=True)
 class Corotational(_EnuMaterial):
     """Corotated linear elasticity W = mu |S - I|^2 + lambda/2 tr(S - I)^2 (module docstring).
@@ -107,6 +118,9 @@ class Corotational(_EnuMaterial):
     """
 
     name = "corotational"
+    #: W, P and A are defined (and continuous) for det F <= 0 (the Irving flip): Newton need not
+    #: refuse an inverted state, which is where the model's equilibrium lies under a point load
+    invertible = True
 
     def energy(self, F):
         lam, mu = self.lame
@@ -130,19 +144,17 @@ class Corotational(_EnuMaterial):
         """``(P, A)`` with ``A[..., i, J, k, L] = dP_iJ / dF_kL`` (consistent, module docstring)."""
         lam, mu = self.lame
         F = np.asarray(F, dtype=float)
-        P, R, S, trS = self._stress(F)
-        G = np.linalg.inv(trS[..., None, None] * _I - S)  # (tr S I - S)^-1
-        c_rot = (lam * (trS - 3.0) - 2.0 * mu)[..., None, None]
-        A = np.zeros(F.shape[:-2] + (3, 3, 3, 3))
-        for k in range(3):
-            for L in range(3):
-                # M = R^T E_kL: row a, column L holds R[k, a]
-                M = np.zeros(F.shape)
-                M[..., :, L] = R[..., k, :]
-                w = 0.5 * np.einsum("...ab,...b->...a", G, _axial(M - np.swapaxes(M, -1, -2)))
-                dP = c_rot * (R @ _skew(w)) + lam * R[..., k, L][..., None, None] * R
-                dP[..., k, L] += 2.0 * mu
-                A[..., :, :, k, L] = dP
+        R, _, s, V = polar_decomposition(F)
+        U = R @ V  # the signed SVD's left vectors (det +1)
+        trS = np.sum(s, axis=-1)
+        P = 2.0 * mu * (F - R) + lam * (trS - 3.0)[..., None, None] * R
+        c_rot = lam * (trS - 3.0) - 2.0 * mu
+        A = 2.0 * mu * _I4 + lam * R[..., :, :, None, None] * R[..., None, None, :, :]
+        for a, b in ((0, 1), (0, 2), (1, 2)):
+            # s_a + s_b >= 0 (the negated one is the smallest); 0 only on the kink (module docstring)
+            gamma = 2.0 * c_rot / np.maximum(s[..., a] + s[..., b], PAIR_FLOOR)
+            T = (U[..., :, a, None] * V[..., None, :, b] - U[..., :, b, None] * V[..., None, :, a]) / np.sqrt(2.0)
+            A += gamma[..., None, None, None, None] * T[..., :, :, None, None] * T[..., None, None, :, :]
         return P, A
 
     def pk2(self, F, tangent=True):

@@ -304,11 +304,13 @@ def _update(backend, eq, u, du, du_c, res, opts):
     Returns (new state or None, its residual norm or None, step length).
     """
     step, res_new = 1.0, None
+    # a material defined through inversion (corotational: its equilibrium may invert cells) is not refused there
+    invertible = getattr(getattr(backend.problem, "material", None), "invertible", False)
     for _ in range(6 if opts.line_search else 1):
         trial = u.copy()
         trial[eq.free] += step * du
         trial[eq.fixed] += step * du_c
-        if backend.min_jacobian(trial) > 0:
+        if invertible or backend.min_jacobian(trial) > 0:
             res_new = _norm(eq.residual(trial)[0])
             if not opts.line_search or res_new <= (1 - 1e-4 * step) * res or du_c.any():
                 return trial, res_new, step

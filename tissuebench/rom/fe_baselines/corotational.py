@@ -9,17 +9,22 @@ needs a symbolic energy, which the polar decomposition has not: the reason is in
 :mod:`tissuebench.refsolvers.corotational`; the operators are built on scikit-fem whatever
 the case's backend, on the same mesh and dof numbering, so the field compares as is).
 
-* Statics (``kind = "path"``): Newton load stepping along the path, warm-started, with the
-  consistent tangent (:class:`~.stepping.NewtonPathModel`); the scene's dead loads and
-  Dirichlet data. A follower pressure is kept as the scene's own.
+* Statics (``kind = "path"``): Newton with the consistent tangent, continued from the last
+  converged state and its load factor to the step's, kept on the descent of the potential
+  energy (:class:`~.continuation.ContinuationPathModel`); the scene's dead loads and Dirichlet
+  data. A follower pressure is kept as the scene's own. The material is defined through
+  inversion (:mod:`tissuebench.refsolvers.corotational`): under a point load its equilibrium
+  inverts the cells under the load and snaps through as they go, and the step follows it.
 * Dynamics (``kind = "trajectory"``): the scene's integrator (or ``integrator``; SOFA's
   default is backward Euler) with Newton iterations per step on the corotational forces.
 
 Options: ``rtol``, ``max_iterations``, ``min_increment`` (the Newton of a static step,
-:func:`~tissuebench.refsolvers.newton.newton_solve`; a step is one increment from the last state,
-cut at most 4 times: past the path's end, where Newton stalls, a failed step costs at most ~75
-iterations instead of 175), ``linear_solver`` ("auto": NGSolve's
-sparse Cholesky from 1000 unknowns, SuperLU below; "amg-cg"), ``integrator``.
+:mod:`~.continuation`: a step goes from the last converged load factor to its own, an
+increment that fails is halved down to ``min_increment`` of the step; a step spends at most
+``max_iterations x (1 + log2(1 / min_increment))`` Newton iterations, 75 by default, and is
+then a failed step: past where the model has an equilibrium, a sweep or a dense check carries
+on at that cost), ``linear_solver`` ("auto": NGSolve's sparse Cholesky from 1000 unknowns,
+SuperLU below; "amg-cg"), ``integrator``.
 """
 from __future__ import annotations
 
@@ -30,8 +35,9 @@ from ...refsolvers.backends import make_backend
 from ...refsolvers.corotational import Corotational, small_strain_moduli
 from ..base import Applies, RomMethod, Training, register
 from .common import FieldMap, contact_nodes_of, intact_backend, replace_material, scene_of
+from .continuation import ContinuationPathModel
 from .linear import _contact_of, is_dynamic
-from .stepping import (NewtonPathModel, TrajectoryModel, dynamic_system, integrator_choice, load_history,
+from .stepping import (TrajectoryModel, dynamic_system, integrator_choice, load_history,
                        newton_options, with_atol)
 
 __all__ = ["CorotationalFe", "corotational_backend", "roundoff_force"]
@@ -104,6 +110,7 @@ class CorotationalFe(RomMethod):
         opts["atol"] = atol
         info["linear_solver"] = opts["linear_solver"]
         contact = _contact_of(be.problem)
-        model = NewtonPathModel(self.name, be, fmap, info, opts, contact)
+        model = ContinuationPathModel(self.name, be, fmap, info, opts, contact)
+        model.info["step_budget"] = model.budget
         model.accessible_nodes = contact_nodes_of(scene, be.problem) if contact else None
         return model
