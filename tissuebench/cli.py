@@ -590,6 +590,10 @@ def _print_check(result, args) -> None:
         what += (f"; {len(held)} unit{'s' if len(held) > 1 else ''} slower by ratio but held by the latency floor "
                  f"({', '.join(f'{f * 1e6:g} us' for f in floors)}: {', '.join(k[1] for k in held)}; "
                  "--latency-floor-s 0 gates microsecond steps)")
+    declared = result.declared_slowdowns  # this commit's latency_change: judged against it, noted
+    if declared:
+        what += (f"; {len(declared)} declared slowdown{'s' if len(declared) > 1 else ''} (" + ", ".join(
+            f"{k[1]} x{result.ab[k].ratio:.3g}, declared x{result.ab[k].expected:g}" for k in declared) + ")")
     units = len([k for k in result.per_unit if k[1] != "*"])
     if result.ok:
         print(f"check: {units} units hold ({what})")

@@ -128,7 +128,7 @@ def test_a_number_too_large_for_a_float(tmp_path):
     ("[[unit]]\n" + UNIT.replace("flagged_steps = 0\n", ""), "{p}: unit[0].flagged_steps: missing required key"),
     ("[[unit]]\n" + UNIT.replace('case = "cube"', "case = 1"), "{p}: unit[0].case = 1: expected a string"),
     ("[[unit]]\n" + UNIT + "speed = 1\n", "{p}: unit[0].speed: unknown key (valid: " + str(
-        sorted(bl.UNIT_KEYS) + sorted(DEFAULTS)) + ")"),
+        sorted(bl.UNIT_KEYS) + sorted(DEFAULTS) + sorted(bl.DECLARATION_KEYS)) + ")"),
     ("[[unit]]\n" + UNIT + "error_rtol = -1.0\n", "{p}: unit[0].error_rtol = -1.0: must be >= 0"),
     ("[[unit]]\n" + UNIT + 'error_rtol = "a"\n', "{p}: unit[0].error_rtol = 'a': expected a number"),
     ("[[unit]]\n" + UNIT.replace('{"n":2,"a":1}', "[2]"), "{p}: unit[0].options = '[2]': expected a JSON object"),

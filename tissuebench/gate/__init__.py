@@ -25,11 +25,19 @@ Three checks of a sweep's results folder, at least one asked for:
   (:mod:`tissuebench.gate.latency`); a unit regresses when its HEAD/REF median ratio
   is judged ``slower`` against ``latency_tolerance`` (default 1.3) and its step grew by at
   least ``latency_floor_s`` (default 10 us; ``--latency-floor-s``; rule in
-  :mod:`tissuebench.gate.stats`); a unit the floor held is said in the verdict line.
+  :mod:`tissuebench.gate.stats`); a unit the floor held is said in the verdict line. An intended
+  slowdown is declared like an error change, in the same commit: the unit's baseline entry gets
+  ``latency_change`` (the factor its step grows by, > 1) and ``latency_change_reason``; while the
+  commit adds or edits them (the file compared with the same file at REF) the A/B expects that
+  factor (the slowdown to catch is ``latency_change * latency_tolerance``, the threshold
+  ``latency_change * sqrt(latency_tolerance)``; a failure names both factors), and the declared
+  change is noted with the measured ratio, its interval and the reason. The next commit, the
+  entry unchanged against its REF, is gated at the normal tolerance again (the keys may stay).
   Without REF (no ``--against``, a shallow clone) latency is **not gated**: the baseline file's
   ratios (haptic median / calibration kernel) move 2-3x between runs of identical code for
   microsecond steps (a user's gate failed 5 of 9 runs of identical code at x1.3), so they are
-  printed for information (``file_latency_tolerance``, ``latency_floor``), never a regression.
+  printed for information (``file_latency_tolerance``, ``latency_floor``), never a regression;
+  a declared ``latency_change`` is shown, nothing else.
 * **Absolute requirements** (``--require "rate>=500Hz, error<=2%"``, the report's grammar and
   p99 rule, :mod:`tissuebench.reports.recommend`): every case needs a unit that meets them.
 
@@ -196,8 +204,9 @@ def _against_ref(out, results_dir, rows, ok_rows, units, defaults, baseline, rep
             ref_rows, _ = read_gate_results(tmp / "ref-sweep")
         except ValueError as exc:
             ran, why = False, f"its results cannot be read here: {exc}"
+    errors_declared, slowdowns = _declared(repo, sha, baseline, units)
     if ran:
-        checks.errors_against_ref(out, rows, ref_rows, units, defaults, _declared(repo, sha, baseline, units), name)
+        checks.errors_against_ref(out, rows, ref_rows, units, defaults, errors_declared, name)
     elif units:
         out.notes.append(f"errors: {name} could not run the sweep ({why}): compared with the baseline file")
         checks.errors_against_baseline(out, rows, units, defaults)
@@ -205,24 +214,36 @@ def _against_ref(out, results_dir, rows, ok_rows, units, defaults, baseline, rep
         raise ValueError(f"--against {against}: REF's sweep did not run ({why}) and there is no --baseline")
     if ok_rows:
         samples = checks.latency_ab(out, results_dir, ok_rows, units, defaults, ref_code, head, name, settings,
-                                    log, workdir=tmp)
+                                    log, workdir=tmp, declared=slowdowns)
         note = write_ab_artifacts(results_dir, samples, out.ab, against, sha)
         if note:
             out.notes.append(note)
 
 
-def _declared(repo, sha: str, baseline, units: list) -> set:
-    """Identities whose baseline entry (error, flagged steps) this change adds or edits: the
-    baseline file now against the same file at REF."""
+def _declared(repo, sha: str, baseline, units: list) -> tuple[set, dict]:
+    """What this change declares, the baseline file now against the same file at REF:
+    ``(identities whose entry's error or flagged steps it adds or edits, {identity:
+    (latency_change, reason)} of the entries whose slowdown declaration it adds or edits)``. A
+    declaration unchanged against REF (made by an earlier commit) is not one of this change."""
     if baseline is None:
-        return set()
+        return set(), {}
     text = file_at_ref(repo, sha, baseline)
     if text is None:  # a baseline outside the repository: no commit can declare a change
-        return set()
+        return set(), {}
     old = {}
     try:
         for t in (tomlkit.parse(text).unwrap().get("unit", []) if text else []):
-            old[unit_identity(t["case"], t["method"], t["options"])] = (t.get("error"), t.get("flagged_steps"))
+            old[unit_identity(t["case"], t["method"], t["options"])] = t
     except Exception:  # REF's file is damaged or of another format: every entry counts as edited
         old = {}
-    return {u["_identity"] for u in units if old.get(u["_identity"]) != (u["error"], u["flagged_steps"])}
+
+    def at_ref(u, keys):
+        t = old.get(u["_identity"])
+        return None if t is None else tuple(t.get(k) for k in keys)
+
+    errors = {u["_identity"] for u in units if at_ref(u, ("error", "flagged_steps")) != (u["error"],
+                                                                                           u["flagged_steps"])}
+    keys = ("latency_change", "latency_change_reason")
+    slowdowns = {u["_identity"]: (float(u[keys[0]]), u[keys[1]]) for u in units
+                 if keys[0] in u and at_ref(u, keys) != (u[keys[0]], u[keys[1]])}
+    return errors, slowdowns

@@ -56,6 +56,9 @@ class CheckResult:
     ab: dict = field(default_factory=dict)
     project: str = ""  # with --against: the repository REF is found in, and why that one
     sides: list = field(default_factory=list)  # with REF: what each side runs (repository, commit, package versions)
+    # identity -> what this commit's baseline update declared and the gate accepted (an error change, a slowdown),
+    # each also a note; the JUnit file gives them as the unit's system-out
+    declared: dict = field(default_factory=dict)
 
     @property
     def held_by_floor(self) -> list:
@@ -65,6 +68,16 @@ class CheckResult:
     @property
     def ok(self) -> bool:
         return not self.regressions
+
+    @property
+    def declared_slowdowns(self) -> list:
+        """The units whose A/B was judged against a slowdown declared in this commit (``latency_change``)."""
+        return sorted(k for k, v in self.ab.items() if v.expected != 1.0)
+
+    def declare(self, key, text: str) -> None:
+        """Note a change this commit declared for unit ``key`` (in the notes and in ``declared``)."""
+        self.notes.append(f"{' '.join(key)}: {text}")
+        self.declared.setdefault(key, []).append(text)
 
     def add(self, key, finding: Finding | None = None) -> None:
         """Record that unit ``key`` was checked, with ``finding`` when it regressed."""

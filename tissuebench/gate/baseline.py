@@ -18,9 +18,14 @@
     latency_per_calibration = 0.012 # haptic median / 256x256 matmul (file mode; in the report)
     latency_per_reference = 0.0004  # haptic median / the reference's step (in the report)
     flagged_steps = 0               # failed + extrapolated + beyond validity + not reached
+    latency_change = 2.2            # optional: an intended slowdown, the factor the step grows by
+    latency_change_reason = "mean-dilatation hexahedra: assembly ~2x Q1's"  # required with it
 
 Latency is gated by the A/B only (``--against REF``); the file's latency ratios are printed
-for information, never a regression (:mod:`tissuebench.gate`). :data:`DEFAULT_NOTES`
+for information, never a regression (:mod:`tissuebench.gate`). ``latency_change`` (> 1) and its
+``latency_change_reason`` (:data:`DECLARATION_KEYS`) declare an intended slowdown of a unit: the
+A/B of the commit that adds or edits them expects that factor (:mod:`tissuebench.gate`); the
+next commits, the entry unchanged against their REF, ignore them. :data:`DEFAULT_NOTES`
 are the comments a new file's ``[defaults]`` is written with: what each key is, its default,
 and how to set ``latency_floor_s`` for a microsecond ROM.
 
@@ -41,8 +46,8 @@ import tomlkit
 
 from ..studies.atomic_files import output_file, write_text
 
-__all__ = ["DEFAULTS", "DEFAULT_NOTES", "UNIT_KEYS", "BaselineError", "load_baseline", "unit_identity",
-           "update_baseline"]
+__all__ = ["DEFAULTS", "DEFAULT_NOTES", "UNIT_KEYS", "DECLARATION_KEYS", "BaselineError", "load_baseline",
+           "unit_identity", "update_baseline"]
 
 DEFAULTS = {"error_rtol": 1e-3, "error_atol": 1e-9, "latency_tolerance": 1.3, "file_latency_tolerance": 1.3,
             "latency_floor": 0.0, "latency_floor_s": 1e-5}
@@ -63,12 +68,15 @@ DEFAULT_NOTES = {
 _RETIRED = {"reference_latency_tolerance"}
 UNIT_KEYS = {"case": str, "method": str, "options": str, "error": float, "latency_per_calibration": float,
              "latency_per_reference": float, "flagged_steps": int}
+#: a unit's optional declaration of an intended slowdown (both or neither): the factor its step is
+#: expected to grow by (> 1: a speed-up needs no declaration) and why (printed by the gate)
+DECLARATION_KEYS = {"latency_change": float, "latency_change_reason": str}
 # (lowest value, whether the lowest is allowed)
 _RANGES = {"error_rtol": (0.0, True), "error_atol": (0.0, True), "latency_tolerance": (1.0, False),
            "file_latency_tolerance": (1.0, False),
            "latency_floor": (0.0, True), "latency_floor_s": (0.0, True), "error": (0.0, True),
            "latency_per_calibration": (0.0, True),
-           "latency_per_reference": (0.0, True), "flagged_steps": (0, True)}
+           "latency_per_reference": (0.0, True), "flagged_steps": (0, True), "latency_change": (1.0, False)}
 
 
 class BaselineError(ValueError):
@@ -168,14 +176,40 @@ def _check_unit(i, u):
         if kind is not str:
             _number(f"unit[{i}].{k}", u[k], kind)
     for k in u:
-        if k not in UNIT_KEYS and k not in DEFAULTS and k not in _RETIRED:
-            raise BaselineError(f"unit[{i}].{k}: unknown key (valid: {sorted(UNIT_KEYS) + sorted(DEFAULTS)})")
+        if k not in UNIT_KEYS and k not in DEFAULTS and k not in DECLARATION_KEYS and k not in _RETIRED:
+            raise BaselineError(f"unit[{i}].{k}: unknown key (valid: "
+                                f"{sorted(UNIT_KEYS) + sorted(DEFAULTS) + sorted(DECLARATION_KEYS)})")
         if k in DEFAULTS:
             _number(f"unit[{i}].{k}", u[k], float)
     try:
         unit_identity(u["case"], u["method"], u["options"])
     except BaselineError as exc:
         raise BaselineError(f"unit[{i}].{exc}") from None
+    _check_declaration(i, u)
+
+
+def _check_declaration(i, u):
+    """``latency_change`` (a finite number > 1) and ``latency_change_reason`` (a non-empty string),
+    both or neither; the message names the key, the unit and the value."""
+    if not any(k in u for k in DECLARATION_KEYS):
+        return
+    unit = f"unit[{i}] ({u['case']} {u['method']} {u['options']})"
+    if "latency_change" not in u:
+        raise BaselineError(f"{unit}.latency_change_reason = {u['latency_change_reason']!r}: needs latency_change, "
+                            "the factor the step is expected to grow by (e.g. latency_change = 2.2)")
+    try:
+        _number(f"{unit}.latency_change", u["latency_change"], float)
+    except BaselineError as exc:
+        # > 1: the A/B expects the step that much slower; a speed-up or no change needs no declaration
+        raise BaselineError(f"{exc} (the factor the step is expected to grow by; a speed-up needs no "
+                            "declaration)") from None
+    reason = u.get("latency_change_reason")
+    if reason is None:
+        raise BaselineError(f"{unit}.latency_change_reason: missing, required with latency_change = "
+                            f"{u['latency_change']!r} (why the step is slower on purpose: the gate prints it)")
+    if not isinstance(reason, str) or not reason.strip():
+        raise BaselineError(f"{unit}.latency_change_reason = {reason!r}: expected a non-empty string (why the step "
+                            "is slower on purpose: the gate prints it)")
 
 
 def update_baseline(rows: dict, baseline) -> int:

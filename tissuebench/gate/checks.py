@@ -42,8 +42,8 @@ def _value_findings(out, key, was: dict, now: dict, tol: dict, against: str, dec
     """Error and flagged-step findings of one ok unit against ``was`` (REF's or the baseline's)."""
     if _error_changed(was["error"], now["error"], tol):
         if declared:
-            out.notes.append(f"{' '.join(key)}: error {was['error']:.6g} -> {now['error']:.6g}, declared by the "
-                             "baseline update of this commit")
+            out.declare(key, f"error {was['error']:.6g} -> {now['error']:.6g}, declared by the baseline update of this "
+                             "commit")
         else:
             out.add(key, Finding(*key, "error", was["error"], now["error"],
                                  f"changed against {against} by more than {tol['error_rtol']:g} relative / "
@@ -131,6 +131,10 @@ def latency_from_file(out, rows: dict, units: list, defaults: dict, why: str) ->
         now = unit_values(row)["latency_per_calibration"]
         if not now <= limit:
             above.append(f"{' '.join(key)}: {base:.4g} -> {now:.4g} (limit {limit:.4g})")
+        if "latency_change" in u:  # shown, nothing else: only the A/B of the commit that declares it uses it
+            out.notes.append(f"{' '.join(key)}: the baseline declares latency_change = {u['latency_change']:g} "
+                             f"({u['latency_change_reason']}): used only by the A/B (--against REF) of the commit "
+                             "that adds or edits it")
     shown = "; ".join(above[:5]) + (f"; {len(above) - 5} more" if len(above) > 5 else "")
     out.notes.append(f"{why}latency not gated (the A/B of --against REF gates it): the baseline file's ratios "
                      "(haptic median / calibration kernel) move 2-3x between runs of identical code for microsecond "
@@ -139,9 +143,13 @@ def latency_from_file(out, rows: dict, units: list, defaults: dict, why: str) ->
 
 
 def latency_ab(out, results_dir, ok_rows: dict, units: list, defaults: dict, ref_root, head_root, against: str,
-               settings, log, workdir=None) -> pd.DataFrame:
+               settings, log, workdir=None, declared: dict | None = None) -> pd.DataFrame:
     """Every ok unit re-timed A/B (:mod:`tissuebench.gate.latency`); returns the samples.
-    ``workdir``: the folder its scratch files go in (default: the temporary folder)."""
+    ``workdir``: the folder its scratch files go in (default: the temporary folder);
+    ``declared``: ``{identity: (latency_change, reason)}``, the slowdowns this commit declares
+    (:func:`tissuebench.gate._declared`): those units are judged against ``latency_change``
+    times their tolerance (:func:`.stats.verdicts`' ``expected``) and noted."""
+    declared = declared or {}
     table = pd.DataFrame([{**r, "case": k[0], "method": k[1], "options": k[2]} for k, r in ok_rows.items()])
     ab = ab_units(results_dir, table, workdir)
     by_uid = {u.uid: k for u, k in zip(ab, ok_rows)}
@@ -149,17 +157,21 @@ def latency_ab(out, results_dir, ok_rows: dict, units: list, defaults: dict, ref
     unit_tol = {uid: tolerances(base.get(k), defaults) for uid, k in by_uid.items()}
     tol = {uid: t["latency_tolerance"] for uid, t in unit_tol.items()}
     floor = {uid: t["latency_floor_s"] for uid, t in unit_tol.items()}
+    expected = {uid: declared[k][0] for uid, k in by_uid.items() if k in declared}
     inject = {uid: f for uid, k in by_uid.items() for ik, f in (settings.inject or {}).items()
               if unit_identity(*ik) == k}
     log(f"A/B latency: {len(ab)} units, {against} against this code, {settings.min_rounds}-{settings.max_rounds} "
         f"rounds of {settings.blocks} blocks")
-    samples, failures = run_ab(ab, ref_root, head_root, decided_units(tol), settings.min_rounds,
+    samples, failures = run_ab(ab, ref_root, head_root, decided_units(tol, expected), settings.min_rounds,
                                settings.max_rounds, settings.blocks, settings.budget_s, inject=inject or None, log=log,
                                workdir=workdir)
     out.latency_mode = "ab"
-    for uid, v in verdicts(samples, tol, floor_s=floor).items():
+    for uid, v in verdicts(samples, tol, floor_s=floor, expected=expected).items():
         key = by_uid[uid]
         out.ab[key] = v
+        if key in declared:
+            _declared_slowdown(out, key, v, declared[key], tol[uid], against)
+            continue
         out.add(key, Finding(*key, "latency_ab", 1.0, v.ratio, f"{v.verdict}: {v.text()}") if v.regressed else None)
     for uid, sides in failures.items():
         key = by_uid[uid]
@@ -173,6 +185,23 @@ def latency_ab(out, results_dir, ok_rows: dict, units: list, defaults: dict, ref
     return samples.assign(case=samples["uid"].map(lambda u: by_uid[u][0]),
                           method=samples["uid"].map(lambda u: by_uid[u][1]),
                           options=samples["uid"].map(lambda u: by_uid[u][2]))
+
+
+def _declared_slowdown(out, key, v, declaration: tuple, tolerance: float, against: str) -> None:
+    """A unit whose slowdown this commit declares: noted with the measured ratio, its interval and
+    the reason when it holds; a regression naming the declared and the measured factor when it is
+    slower than declared (beyond ``latency_change * latency_tolerance``, :func:`.stats.verdicts`)."""
+    factor, reason = declaration
+    measured = f"HEAD/REF {v.ratio:.3f} " + (f"[{v.low:.3f}, {v.high:.3f}]" if v.has_interval else
+                                              "(interval n/a, one sample)")
+    if v.regressed:
+        out.add(key, Finding(*key, "latency_ab", factor, v.ratio,
+                             f"slower than declared: measured {measured} against {against}, declared latency_change "
+                             f"= {factor:g} ({reason}) x latency_tolerance {tolerance:g}: {v.text()}"))
+        return
+    out.add(key)
+    out.declare(key, f"latency {measured} against {against}, declared latency_change = {factor:g} by the baseline "
+                     f"update of this commit: {reason}")
 
 
 def requirement_met(out, rows: dict, requirement, metric: str) -> None:

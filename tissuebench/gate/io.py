@@ -88,7 +88,8 @@ def write_ab_artifacts(results_dir, samples: pd.DataFrame, verdicts: dict, again
                            "low": v.low, "high": v.high, "threshold": v.threshold, "ref_median_s": v.ref_median_s,
                            "head_median_s": v.head_median_s, "rounds": v.rounds, "blocks": v.blocks,
                            "verdict": v.verdict, "decided": v.decided, "floor_s": v.floor_s,
-                           "held_by_floor": v.held_by_floor, "against": against, "ref_commit": sha}
+                           "held_by_floor": v.held_by_floor, "expected": v.expected, "against": against,
+                           "ref_commit": sha}
                           for k, v in verdicts.items()])
     try:
         folder.mkdir(exist_ok=True)
@@ -131,7 +132,8 @@ def _plot(table: pd.DataFrame, path: Path, against: str) -> None:
 
 
 def write_junit(result, path) -> None:
-    """One test case per unit checked (a failure per finding), and with REF the project and each
+    """One test case per unit checked (a failure per finding; the changes this commit declared
+    for it, ``result.declared``, as its ``system-out``), and with REF the project and each
     side as properties (``project``, ``ref``, ``head``); atomic
     (:func:`~tissuebench.studies.atomic_files.replacing`). GateOutputError naming the path when
     it cannot be written, OutputPathError (a ValueError) when it is not a regular file."""
@@ -148,6 +150,9 @@ def write_junit(result, path) -> None:
         tc = ET.SubElement(suite, "testcase", classname=f"{case}.{method}", name=options)
         for f in found:
             ET.SubElement(tc, "failure", message=f"{f.metric} regressed", type="regression").text = f.line()
+        if result.declared.get((case, method, options)):
+            ET.SubElement(tc, "system-out").text = "\n".join(f"declared: {t}" for t in
+                                                             result.declared[(case, method, options)])
     for case, method, options in result.new_units:
         if (case, method, options) not in cases:
             ET.SubElement(suite, "testcase", classname=f"{case}.{method}", name=options).append(

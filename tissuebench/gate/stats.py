@@ -37,6 +37,12 @@ unit is judged by its estimate alone (``slower`` above the threshold: a slowdown
 excluded fails the gate). The A/B itself always runs ``min_rounds`` >= 2 rounds
 (:func:`.latency.run_ab`), so every unit it completes has two observations per side at least.
 
+A unit may be *expected* slower (``expected``: the ``latency_change`` a commit declares in the
+baseline file, :mod:`tissuebench.gate`): the same rule then judges the ratio divided by that factor
+(threshold ``expected * sqrt(tolerance)``, the geometric midpoint between the declared factor and
+``expected * tolerance``, the slowdown beyond it to catch), the floor counts the increase beyond
+the declared one (HEAD minus ``expected`` x REF), and ``faster`` still means faster than REF.
+
 A slowdown must also be one a user could see: ``floor_s`` (the gate's ``latency_floor_s``,
 default 10 us, 1 % of a 1 kHz haptic step) is the least increase of the level, HEAD minus REF,
 that counts. Microsecond steps move 1.6x between processes with the memory layout (pod_interp
@@ -76,6 +82,7 @@ class ABVerdict:
     decided: bool
     floor_s: float = 0.0  # the least level increase [s] that counts as slower
     held_by_floor: bool = False  # the ratio says slower; the increase is below floor_s
+    expected: float = 1.0  # the declared HEAD/REF factor (latency_change) the ratio is judged against
 
     @property
     def regressed(self) -> bool:
@@ -90,8 +97,11 @@ class ABVerdict:
         how = "" if self.decided else (" (undecided: judged by the estimate and the interval)" if self.has_interval
                                        else " (undecided: one sample on a side, judged by the estimate alone)")
         if self.held_by_floor:
-            how += f" (below the floor: +{(self.head_median_s - self.ref_median_s) * 1e6:.3g} us < " \
-                   f"{self.floor_s * 1e6:.3g} us)"
+            beyond = " beyond the declared" if self.expected != 1.0 else ""
+            how += f" (below the floor: +{(self.head_median_s - self.expected * self.ref_median_s) * 1e6:.3g} us" \
+                   f"{beyond} < {self.floor_s * 1e6:.3g} us)"
+        if self.expected != 1.0:
+            how += f" (declared x{self.expected:g}: slower above {self.threshold:.3g})"
         interval = f"[{self.low:.3f}, {self.high:.3f}]" if self.has_interval else "interval n/a (one sample)"
         return (f"HEAD/REF {self.ratio:.3f} {interval} ({self.head_median_s * 1e6:.4g} vs "
                 f"{self.ref_median_s * 1e6:.4g} us, {self.rounds} rounds x {self.blocks} blocks){how}")
@@ -135,9 +145,10 @@ def ratio_interval(ref: pd.DataFrame, head: pd.DataFrame, confidence: float = CO
 
 
 def verdicts(samples: pd.DataFrame, tolerance: float | dict = 1.3, final: bool = True,
-             floor_s: float | dict = 0.0) -> dict:
+             floor_s: float | dict = 0.0, expected: dict | None = None) -> dict:
     """``{uid: ABVerdict}`` of every unit with samples on both sides; ``tolerance`` and
-    ``floor_s`` [s] a number or ``{uid: number}``. With ``final=False`` undecided units are left
+    ``floor_s`` [s] a number or ``{uid: number}``; ``expected``: ``{uid: declared factor}``
+    (module docstring; 1 for a unit it lacks). With ``final=False`` undecided units are left
     out (the A/B goes on)."""
     out = {}
     if samples.empty:
@@ -149,7 +160,9 @@ def verdicts(samples: pd.DataFrame, tolerance: float | dict = 1.3, final: bool =
             continue
         tol = tolerance.get(uid, 1.3) if isinstance(tolerance, dict) else tolerance
         floor = float(floor_s.get(uid, 0.0) if isinstance(floor_s, dict) else floor_s)
-        thr = math.sqrt(float(tol))
+        base = math.sqrt(float(tol))
+        exp = float((expected or {}).get(uid, 1.0))
+        thr = exp * base  # judged on ratio / exp by the same rule: its threshold scaled back
         ratio, lo, hi = ratio_interval(ref, head)
         decided = lo > thr or hi < thr  # False without an interval (NaN)
         if not decided and not final:
@@ -158,15 +171,16 @@ def verdicts(samples: pd.DataFrame, tolerance: float | dict = 1.3, final: bool =
         head_level = float(np.quantile(head["median_s"], LEVEL_QUANTILE))
         # undecided: the estimate, and an interval clear of faster; without one (one sample) the estimate
         # alone: a slowdown that cannot be excluded fails the gate
-        by_ratio = lo > thr if decided else (ratio > thr and (math.isnan(lo) or lo > 1 / thr))
-        slower = by_ratio and head_level - ref_level >= floor
-        verdict = "slower" if slower else ("faster" if (hi if decided else ratio) < 1 / thr else "holds")
+        by_ratio = lo > thr if decided else (ratio > thr and (math.isnan(lo) or lo > exp / base))
+        slower = by_ratio and head_level - exp * ref_level >= floor
+        # faster than REF, whatever was declared (a declared unit that did not slow down at all)
+        verdict = "slower" if slower else ("faster" if (hi if decided else ratio) < 1 / base else "holds")
         rounds = int(head["round"].nunique())
         out[uid] = ABVerdict(uid, ratio, lo, hi, ref_level, head_level, rounds, len(head) // rounds, thr,
-                             verdict, decided, floor, by_ratio and not slower)
+                             verdict, decided, floor, by_ratio and not slower, exp)
     return out
 
 
-def decided_units(tolerance: float | dict = 1.3):
+def decided_units(tolerance: float | dict = 1.3, expected: dict | None = None):
     """The ``decide`` callback of :func:`.latency.run_ab`: the uids whose interval is clear."""
-    return lambda samples: set(verdicts(samples, tolerance, final=False))
+    return lambda samples: set(verdicts(samples, tolerance, final=False, expected=expected))
