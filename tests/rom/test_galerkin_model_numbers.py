@@ -260,6 +260,9 @@ class _Integrator:
         self.started = (x0, v0, dt, t0)
         self.t, self.dt = t0, dt
 
+    def prime(self):  # Integrator.prime: the first Newton matrix (nothing to form here)
+        pass
+
     def step(self):
         ok, iterations, message = self.script.pop(0)
         if ok:

@@ -204,7 +204,7 @@ def ranking_table(name: str, ranked: pd.DataFrame) -> dict:
         meets = {"text": "seen", "cls": "seen"} if r.seen else \
             {"text": "meets" if r.meets else "no", "cls": "pass" if r.meets else "fail"}
         cells = [r.label, meets, number(r.margin, 3), seconds(r.p99_s), p99_samples(r), hz(r.rate_hz),
-                 seconds(r.haptic_median_s),
+                 seconds(r.haptic_median_s), number(r.p99_s / r.haptic_median_s, 3) if r.haptic_median_s > 0 else "-",
                  seconds(f), number(e, 2), percent(r.error), percent(sr),
                  f"{number(a, 3)} {lu or ''}".rstrip() if np.isfinite(a) else "-",
                  f"{number(la, 3)} / {int(nc)}" if np.isfinite(la) and nc > 0 else "-",
@@ -212,14 +212,15 @@ def ranking_table(name: str, ranked: pd.DataFrame) -> dict:
         # a unit evaluated on its training data: greyed, with the reason (recommend.SEEN_REASON)
         rows.append([c if isinstance(c, dict) else {"text": c, "cls": "seen"} for c in cells] if r.seen else cells)
     cols = ["unit", "meets", "margin", "haptic p99", "timed steps behind the p99", "rate on p99", "haptic median",
-            "arithmetic floor",
+            "p99 / median (the tail: a frame missed at the p99, not the median)", "arithmetic floor",
             "efficiency (floor / median)", "error", "state-relative worst (max_rel_l2)",
             "absolute error (max_abs_error)", "load average / CPUs while timed", "points seen in training",
             "misses by"]
     keep = ["case", "label", "options", "unit_key", "meets", "seen", "margin", "closeness", "p99_s", "p99_n",
             "p99_tail", "rate_hz", "haptic_median_s",
             "error", "misses"] + [c for c in ranked.columns if c.startswith("headroom_")]
-    return Table(name, cols, rows, ranked[keep].assign(floor_s=floor, efficiency=eff, n_seen=n_seen, max_rel_l2=state,
+    tail = ranked["p99_s"] / ranked["haptic_median_s"].where(ranked["haptic_median_s"] > 0)
+    return Table(name, cols, rows, ranked[keep].assign(p99_over_median=tail, floor_s=floor, efficiency=eff, n_seen=n_seen, max_rel_l2=state,
                                                        max_abs_error=absolute, load_average=load, n_cpus=cpus))
 
 

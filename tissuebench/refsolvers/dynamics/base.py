@@ -155,6 +155,11 @@ class Integrator(ABC):
     def _setup(self):
         """Hook: factorisations and step-size checks once ``system`` and ``dt`` are known."""
 
+    def prime(self) -> None:
+        """Hook: do now the work the next step would do first and that does not change its
+        numbers (an implicit scheme's first Newton matrix), so that the step costs what the
+        steps after it do. Called by a caller that times steps, after :meth:`start`; nothing here."""
+
     def solve_mass(self, rhs):
         """M_ff^{-1} rhs with a factorisation computed once per system."""
         if getattr(self, "_mass_lu", None) is None or self._mass_lu[0] is not self.system:

@@ -16,7 +16,7 @@ import numpy as np
 
 from .base import Integrator, StepReport
 from ..newton import scaled_norm
-from .step_newton import StepSolver, newton, newton_options
+from .step_newton import REUSE_MIN_DOFS, LinearSolverError, StepSolver, newton, newton_options
 
 
 def _force_scale(integ, sys) -> float:
@@ -71,6 +71,36 @@ class NewmarkFamily(Integrator):
         """(v_{n+1}, a_{n+1}) of the free dofs from the candidate u_{n+1}."""
         return self._kin(u1, self.u, self.v, self.a)
 
+    def _jacobian(self, u1, t1, uc1):
+        """The step's Newton matrix at the candidate ``u1`` (free dofs)."""
+        sys, dt, al = self.system, self.dt, self.alpha
+        J = sys.M_ff / (self.beta * dt * dt) + (1.0 + al) * sys.K_t(u1, t1, uc1)
+        if sys.C_ff is not None:
+            J = J + (1.0 + al) * self.gamma / (self.beta * dt) * sys.C_ff
+        return J
+
+    def _predictor(self):
+        """The step's first iterate: constant acceleration over the step."""
+        dt = self.dt
+        return self.u + dt * self.v + 0.5 * dt * dt * self.a
+
+    def prime(self) -> None:
+        """Factorise the next step's Newton matrix at its predictor now, the matrix that step's
+        modified Newton (``newton_tangent = "reuse"``) would form at its first iteration: the same
+        numbers, and the step costs what the steps after it do. A system stepped by full Newton
+        (a matrix per iteration) or a linear one is left as it is."""
+        sys, opts = self.system, self.newton_opts
+        if sys.linear or not (opts.tangent == "reuse" or (opts.tangent == "auto" and len(self.u) >= REUSE_MIN_DOFS)):
+            return
+        t1 = self.t + self.dt
+        uc1 = sys.prescribed_values(t1) if sys.has_prescribed else self.uc
+        u_pred = self._predictor()
+        self._lu.refresh()
+        try:
+            self._lu.solve_cached("newton", lambda: self._jacobian(u_pred, t1, uc1), np.zeros(len(u_pred)))
+        except LinearSolverError:  # the step forms it again and reports the singular matrix itself
+            self._lu.refresh()
+
     def _advance(self):
         sys, dt, al = self.system, self.dt, self.alpha
         t1 = self.t + dt
@@ -87,13 +117,9 @@ class NewmarkFamily(Integrator):
             return sys.M_ff @ a1 + inertia_c + (1.0 + al) * new - al * old
 
         def jacobian(u1):
-            J = sys.M_ff / (self.beta * dt * dt) + (1.0 + al) * sys.K_t(u1, t1, uc1)
-            if sys.C_ff is not None:
-                J = J + (1.0 + al) * self.gamma / (self.beta * dt) * sys.C_ff
-            return J
+            return self._jacobian(u1, t1, uc1)
 
-        # predictor: constant acceleration over the step
-        u_pred = self.u + dt * self.v + 0.5 * dt * dt * self.a
+        u_pred = self._predictor()
         r_ref = _force_scale(self, sys)
         u1, rep = newton(u_pred, residual, jacobian, r_ref, self.newton_opts, sys.linear, self._lu,
                          sys.round_off_floor, self._force_peak)
