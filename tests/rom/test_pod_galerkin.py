@@ -209,3 +209,40 @@ def test_a_first_step_other_than_foreseen_binds_again_and_gives_the_same_numbers
     again = _steps(model, mus, {"time": 0.25, "load_factor": 1.0})
     assert model._bound_for is None
     assert np.array_equal(again, _steps(model, mus, None))
+
+
+@pytest.mark.parametrize("method", ["linear_fe", "corotational_fe"])
+def test_the_fe_baselines_in_time_start_their_integrator_in_start_too(point_load, monkeypatch, method):
+    """The practitioners' models in time (fe_baselines.stepping.TrajectoryModel): the same start,
+    the same numbers; the linear model's constant matrix factorised by start, not by its first step."""
+    from tissuebench.refsolvers.dynamics.implicit import NewmarkFamily
+
+    model = make_method(method).build(point_load[0])
+    mus = [{"time": float(k * DT), "load_factor": _history(k * DT)} for k in range(1, 21)]
+    system, K_t = model.system, type(model.system).K_t
+    formed = []
+
+    def run(mu0):
+        formed[:] = [0]  # the start's own
+        model.start(mu0, dt=DT)
+        formed.pop()
+        qs = []
+        for mu in mus:
+            formed.append(0)
+            res = model.step(mu)
+            assert res.ok, res.message
+            qs.append(np.array(res.q, copy=True))
+        return np.array(qs)
+
+    def counting(*args, **kwargs):
+        formed[-1] += 1
+        return K_t(system, *args, **kwargs)
+
+    monkeypatch.setattr(system, "K_t", counting, raising=False)
+    started = run({"time": 0.0, "load_factor": 0.0})
+    first_started = formed[0]
+    monkeypatch.setattr(NewmarkFamily, "prime", lambda self: None)
+    lazy = run(None)
+    assert np.array_equal(started, lazy)
+    if method == "linear_fe":  # one matrix for the run: formed by start, by the first step without it
+        assert first_started == 0 and formed[0] >= 1

@@ -220,8 +220,9 @@ def ranking_table(name: str, ranked: pd.DataFrame) -> dict:
             "p99_tail", "rate_hz", "haptic_median_s",
             "error", "misses"] + [c for c in ranked.columns if c.startswith("headroom_")]
     tail = ranked["p99_s"] / ranked["haptic_median_s"].where(ranked["haptic_median_s"] > 0)
-    return Table(name, cols, rows, ranked[keep].assign(p99_over_median=tail, floor_s=floor, efficiency=eff, n_seen=n_seen, max_rel_l2=state,
-                                                       max_abs_error=absolute, load_average=load, n_cpus=cpus))
+    data = ranked[keep].assign(p99_over_median=tail, floor_s=floor, efficiency=eff, n_seen=n_seen,
+                               max_rel_l2=state, max_abs_error=absolute, load_average=load, n_cpus=cpus)
+    return Table(name, cols, rows, data)
 
 
 def extremes_table_view(name: str, ext: pd.DataFrame) -> dict:

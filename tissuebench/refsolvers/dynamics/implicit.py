@@ -85,19 +85,23 @@ class NewmarkFamily(Integrator):
         return self.u + dt * self.v + 0.5 * dt * dt * self.a
 
     def prime(self) -> None:
-        """Factorise the next step's Newton matrix at its predictor now, the matrix that step's
-        modified Newton (``newton_tangent = "reuse"``) would form at its first iteration: the same
-        numbers, and the step costs what the steps after it do. A system stepped by full Newton
-        (a matrix per iteration) or a linear one is left as it is."""
+        """Factorise the next step's Newton matrix at its predictor now, the matrix the step would
+        form at its first iteration and keep: a linear system's constant one, or modified Newton's
+        (``newton_tangent = "reuse"``). The same numbers, and the step costs what the steps after
+        it do. A system stepped by full Newton (a matrix per iteration) is left as it is."""
         sys, opts = self.system, self.newton_opts
-        if sys.linear or not (opts.tangent == "reuse" or (opts.tangent == "auto" and len(self.u) >= REUSE_MIN_DOFS)):
+        if sys.linear:
+            key = "linear"
+        elif opts.tangent == "reuse" or (opts.tangent == "auto" and len(self.u) >= REUSE_MIN_DOFS):
+            key = "newton"
+        else:
             return
         t1 = self.t + self.dt
         uc1 = sys.prescribed_values(t1) if sys.has_prescribed else self.uc
         u_pred = self._predictor()
         self._lu.refresh()
         try:
-            self._lu.solve_cached("newton", lambda: self._jacobian(u_pred, t1, uc1), np.zeros(len(u_pred)))
+            self._lu.solve_cached(key, lambda: self._jacobian(u_pred, t1, uc1), np.zeros(len(u_pred)))
         except LinearSolverError:  # the step forms it again and reports the singular matrix itself
             self._lu.refresh()
 

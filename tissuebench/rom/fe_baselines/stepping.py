@@ -25,6 +25,7 @@ from ..base import StepResult, check_parameters
 from .common import DeadLoads, FeModel
 
 __all__ = ["NewtonPathModel", "TrajectoryModel", "newton_options", "dynamic_system", "integrator_choice",
+           "first_step_time", "start_binding_holds",
            "load_history", "with_atol", "ScaledHistory"]
 
 
@@ -164,6 +165,27 @@ class ScaledHistory:
         return ""
 
 
+def first_step_time(mu0, dt) -> float | None:
+    """The time of a run's first step when ``start`` knows it (``mu0``, the start state's
+    parameters, holds ``"time"``: that time plus ``dt``), else None. A trajectory model binds its
+    integrator and primes it there (:meth:`~tissuebench.refsolvers.dynamics.base.Integrator.prime`):
+    the integrator's start is work of the run's start, untimed, not of its first step, which would
+    otherwise miss a haptic frame (10 of the 20 samples beyond the p99 of a 2000-step timing that
+    restarts its 200-step trajectory)."""
+    return float(mu0["time"]) + float(dt) if mu0 is not None and "time" in mu0 else None
+
+
+def start_binding_holds(bound_for: float, dt: float, t: float, history) -> bool:
+    """Whether the integrator bound by ``start`` for a first step at ``bound_for`` (with the history's
+    scale 1) is the one the step at ``t`` would bind after its drive: the step is the one foreseen,
+    and the scale does not reach the start state (its load factor is 0, or the scale is still 1)."""
+    if t != bound_for:
+        return False
+    if not isinstance(history, ScaledHistory) or history.scale == 1.0:
+        return True
+    return float(history.history(bound_for - dt)) == 0.0
+
+
 def load_history(training, scene) -> ScaledHistory:
     """The load factor versus time of a dynamic case: the training's, else the scene's, scaled
     by the driven load factor of each step (:class:`ScaledHistory`)."""
@@ -211,11 +233,12 @@ class TrajectoryModel(FeModel):
         self.system, (self.integrator_name, self.integrator_options) = system, integrator
         self.history = history
         self.info.update(integrator=self.integrator_name, integrator_options=dict(self.integrator_options))
-        self._integ = self._pending = self._stopped = None
+        self._integ = self._pending = self._stopped = self._bound_for = None
 
     def start(self, mu0=None, state0=None, dt=None) -> None:
-        """Prepare a run at ``dt`` from ``state0`` (default rest); the integrator is bound at the first
-        step, at the time ``mu["time"] - dt`` (the start time, whatever ``mu0`` holds)."""
+        """Prepare a run at ``dt`` from ``state0`` (default rest). The integrator is bound at the
+        start time ``mu0["time"]`` and primed (:func:`first_step_time`); without a time in ``mu0``,
+        at the first step, at ``mu["time"] - dt``."""
         if dt is None:
             raise ValueError(f"{self.name}.start: a trajectory model needs the time step dt")
         u0 = v0 = None
@@ -224,6 +247,15 @@ class TrajectoryModel(FeModel):
         self._pending, self._integ, self._stopped = (u0, v0, float(dt)), None, None
         if isinstance(self.history, ScaledHistory):
             self.history.scale = 1.0
+        self._bound_for = first_step_time(mu0, dt)
+        if self._bound_for is not None:
+            self._bind(self._bound_for)
+
+    def _bind(self, t):
+        u0, v0, dt = self._pending
+        self._integ = make_integrator(self.integrator_name, **self.integrator_options)
+        self._integ.start(self.system, u0, v0, dt, t - dt)
+        self._integ.prime()
 
     def _initial(self, x):
         if x is None:
@@ -243,12 +275,14 @@ class TrajectoryModel(FeModel):
         if "load_factor" in mu and isinstance(self.history, ScaledHistory):  # the driven load (load_scale folded
             # in) reaches the system, not the training's; before the first step binds the integrator (its a0)
             unrepresented = self.history.drive(t, float(mu["load_factor"]))
+        if getattr(self, "_bound_for", None) is not None:  # bound by start: for this step, else again here
+            if not start_binding_holds(self._bound_for, self._pending[2], t, self.history):
+                self._integ = None
+            self._bound_for = None
         if self._integ is None:
             if getattr(self, "_pending", None) is None:
                 raise RuntimeError(f"{self.name}: call start(mu0, state0, dt) before step()")
-            u0, v0, dt = self._pending
-            self._integ = make_integrator(self.integrator_name, **self.integrator_options)
-            self._integ.start(self.system, u0, v0, dt, t - dt)
+            self._bind(t)
         integ = self._integ
         if self._stopped is not None:  # a failed step left the state behind: the run has ended there
             return StepResult(None, "failed", self._stopped, {"iterations": 0}, mu=dict(mu))

@@ -16,6 +16,7 @@ from scipy.linalg import lapack
 
 from ...refsolvers.dynamics import make_integrator
 from ..base import LinearReconstruction, OnlineModel, StepResult, check_parameters
+from ..fe_baselines.stepping import first_step_time, start_binding_holds
 
 __all__ = ["GalerkinModel"]
 
@@ -79,15 +80,9 @@ class GalerkinModel(LinearReconstruction, OnlineModel):
             x0, v0 = parts
         self._pending, self._integ, self._stopped = (x0, v0, float(dt)), None, None
         self.history.scale = 1.0
-        self._bound_for = None
-        if mu0 is not None and "time" in mu0:
-            # the integrator's start (its first Newton matrix factorised, the initial acceleration)
-            # is work of the run's start, not of its first step (a haptic loop's first frame would
-            # miss its deadline: 10 of the 20 samples beyond the p99 of a 2000-step timing that
-            # restarts every 200 steps). mu0 is the start state's; the first step is dt later
-            first = float(mu0["time"]) + float(dt)
-            self._bind(first)
-            self._bound_for = first
+        self._bound_for = first_step_time(mu0, dt)  # the integrator's start: work of the run's start
+        if self._bound_for is not None:
+            self._bind(self._bound_for)
 
     def _bind(self, t):
         x0, v0, dt = self._pending
@@ -112,12 +107,8 @@ class GalerkinModel(LinearReconstruction, OnlineModel):
         mu = check_parameters(mu, ("time",), self.name)
         t = float(mu["time"])
         unrepresented = self.history.drive(t, float(mu["load_factor"])) if "load_factor" in mu else ""
-        if self._bound_for is not None:
-            # bound by start with the history's scale 1: the same start as binding here, after this
-            # step's drive, when the step is the one foreseen and the scale does not reach the
-            # start state (its load factor is 0, or the scale is still 1); else bound again here
-            t0 = self._bound_for - self._pending[2]
-            if t != self._bound_for or (self.history.scale != 1.0 and float(self.history.history(t0)) != 0.0):
+        if self._bound_for is not None:  # bound by start: for this step, else bound again here
+            if not start_binding_holds(self._bound_for, self._pending[2], t, self.history):
                 self._integ = None
             self._bound_for = None
         if self._integ is None:
