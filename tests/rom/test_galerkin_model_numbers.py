@@ -58,6 +58,18 @@ def test_each_number_option_on_both_sides_of_its_bound(option, ok, bad, kind):
     assert str(err.value) == f"pod_galerkin option {option} must be {kind}, got {bad!r}"
 
 
+@pytest.mark.parametrize("value, ok", [(1, True), (1.0, True), (2.5, True), (1 - 1e-12, False), (0.5, False),
+                                       (float("nan"), False), (float("inf"), False), (True, False), ("2", False)])
+def test_deim_oversampling_is_at_least_one(value, ok):
+    if ok:
+        got = make_method("pod_galerkin", deim_oversampling=value).options["deim_oversampling"]
+        assert got == float(value) and type(got) is float
+        return
+    with pytest.raises(ValueError) as err:
+        make_method("pod_galerkin", deim_oversampling=value)
+    assert str(err.value) == f"pod_galerkin option deim_oversampling must be a finite number >= 1, got {value!r}"
+
+
 @pytest.mark.parametrize("energy, ok", [(1, True), (1.0, True), (1e-12, True), (0.0, False), (1.0 + 1e-12, False),
                                         (True, False), ("0.5", False)])
 def test_energy_lies_in_0_1(energy, ok):
@@ -71,7 +83,8 @@ def test_energy_lies_in_0_1(energy, ok):
 def test_default_options():
     assert make_method("pod_galerkin").options == {
         "n_modes": None, "energy": 0.99999, "inner": "euclidean", "velocities": False, "hyper": "ecsw",
-        "ecsw_tol": 5e-3, "deim_modes": None, "hyper_states": 60, "integrator": None, "rtol": 1e-6,
+        "ecsw_tol": 5e-3, "deim_modes": None, "deim_oversampling": 2.0, "hyper_states": 60, "integrator": None,
+        "rtol": 1e-6,
         "newton_tangent": "reuse", "max_iterations": 20}
 
 
@@ -559,8 +572,9 @@ def test_hyper_reduction_of_the_training_states(hyper, keys):
     model = make_method("pod_galerkin", n_modes=2, hyper=hyper, hyper_states=6).build(training)
     info = model.info["hyper"]
     assert set(info) == keys and info["scheme"] == hyper
-    if hyper == "deim":  # twice the basis: 4 force modes (the force snapshots have rank >= 4)
-        assert info["force_modes"] == 4 == info["interpolation_dofs"] and model.info["elements_per_evaluation"] > 0
+    if hyper == "deim":  # twice the basis: 4 force modes (the force snapshots have rank >= 4), sampled at 8 dofs
+        assert info["force_modes"] == 4 and info["interpolation_dofs"] == 8
+        assert model.info["elements_per_evaluation"] > 0
     else:
         # the 6 states evenly through the run: the first, at rest, has no force
         assert info["training_states"] + info["heldout_states"] == 5 and info["tol"] == 5e-3
@@ -633,3 +647,56 @@ def test_a_large_mesh_samples_the_ecsw_candidates_on_its_own_cells(monkeypatch):
     monkeypatch.setattr(ecsw, "MAX_ENTRIES", 1)  # past it: max(1 // rows, 4 r) = 8 candidates
     model = make_method("pod_galerkin", n_modes=2, hyper="ecsw", ecsw_tol=0.5, hyper_states=4).build(training)
     assert model.info["hyper"]["candidates"] == 8 < n_cells
+
+
+# ---------------------------------------------------------------- DEIM on a nearly incompressible organ in motion
+def _dome_in_motion(tmp_path):
+    """The extremes preset's dome at ci (P1, ~270 vertices), nu = 0.49, its 2 N apex load ramped on over 0.25 s
+    and released: HHT at 5 ms for 0.15 s (issue 52's held-out organ, coarse and short)."""
+    from pathlib import Path
+
+    from tissuebench.cases.scene import load
+
+    text = (Path(__file__).resolve().parents[2] / "tissuebench" / "studies" / "presets" / "scenes" / "dome.toml"
+            ).read_text()
+    for old, new in (("nu = 0.499", "nu = 0.49"), ("[mesh]\n", '[mesh]\nelement = "P1"\n'),
+                     ('name = "neo_hookean"\n', 'name = "neo_hookean"\ndensity = 1000.0\n'),
+                     ('history = { type = "ramp", t0 = 0.0, t1 = 1.0 }',
+                      'history = { type = "ramp_hold_release", t_ramp = 0.25, t_hold = 0.0, t_release = 0.25 }'),
+                     ('type = "static"\nload_steps = 6\n',
+                      'type = "dynamic"\nintegrator = "hht"\nintegrator_options = { alpha = -0.05 }\ndt = 0.005\n'
+                      't_end = 0.15\n')):
+        assert old in text, old
+        text = text.replace(old, new, 1)
+    path = tmp_path / "dome_motion.toml"
+    path.write_text(text)
+    return load(path)
+
+
+def _run(model, training, scale):
+    """Full displacements of ``model`` driven through the training run's times at ``scale`` of its load."""
+    model.start(None, None, training.dt)
+    out = []
+    for mu in training.parameters[1:]:
+        res = model.step({"time": mu["time"], "load_factor": scale * mu["load_factor"]})
+        assert res.status != "failed", res.message
+        out.append(model.reconstruct(res))
+    return np.array(out)
+
+
+def test_deim_on_a_nearly_incompressible_organ_in_motion_follows_full_assembly(tmp_path):
+    """Issue 52 (3): DEIM of the whole internal force (commit a24e7fa) had a reduced tangent with negative
+    eigenvalues here: at 0.75 of the training load its run blew up at t = 0.085 s ("non-finite residual"; on
+    finer domes, a singular Newton matrix). The force less its linear part, with 8 modes, follows full assembly
+    on the same modes to 0.9 % of the run's peak fitted at twice as many dofs as force modes (the default), 1.4 %
+    interpolated at as many."""
+    from tissuebench.studies.trajectories import trajectory_training
+
+    training = trajectory_training(_dome_in_motion(tmp_path))
+    full = _run(make_method("pod_galerkin", n_modes=8, hyper="none").build(training), training, 0.75)
+    peak = np.linalg.norm(full, axis=1).max()
+    for oversampling in (2.0, 1.0):
+        model = make_method("pod_galerkin", n_modes=8, hyper="deim", deim_oversampling=oversampling).build(training)
+        assert model.info["hyper"]["interpolation_dofs"] == 16 * oversampling
+        error = np.linalg.norm(_run(model, training, 0.75) - full, axis=1).max() / peak
+        assert error < 0.02, (oversampling, error)

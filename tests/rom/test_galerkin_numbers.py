@@ -17,7 +17,8 @@ from _fe_helpers import element_mesh, material_set
 from tissuebench.refsolvers import Dirichlet, Problem, make_backend
 from tissuebench.refsolvers.materials import NeoHookean
 from tissuebench.rom.galerkin.basis import snapshot_basis, training_states
-from tissuebench.rom.galerkin.deim import deim_forces, deim_indices
+from tissuebench.rom.galerkin.deim import (deim_forces, deim_indices, least_squares_coefficients,
+                                            oversampled_indices)
 from tissuebench.rom.galerkin.ecsw import ecsw_rule, greedy_nnls
 from tissuebench.rom.galerkin.forces import LinearForces, element_forces
 from tissuebench.rom.galerkin.kernel import ElementKernel, cell_geometry
@@ -70,6 +71,59 @@ def test_deim_indices_by_hand():
     idx = deim_indices(U)
     assert idx.tolist() == [1, 2] and idx.dtype == np.int64
     assert deim_indices([[0.0], [2.0], [-1.0]]).tolist() == [1]  # a list: read as an array
+
+
+def test_oversampled_indices_by_hand():
+    """U = [(4, 0), (0, 1), (3, 0), (0, 0.5)]: DEIM takes rows 0 and 1 (P^T U = diag(4, 1): s = (4, 1), the
+    smallest's right vector w = (0, 1), g = 16 - 1 = 15). Row 2 = (3, 0): a = 15 + 9, gain 24 - sqrt(24^2 - 0) = 0;
+    row 3 = (0, 0.5): a = 15.25, gain 15.25 - sqrt(15.25^2 - 4 15 0.25) = 15.25 - 14.75 = 0.5. Row 3 comes next,
+    although row 2 is the larger (the largest-norm rule would take it): it raises s_min^2 from 1 to 1.25 (half the
+    gain: exact for two modes), row 2 leaves it at 1."""
+    U = np.array([[4.0, 0.0], [0.0, 1.0], [3.0, 0.0], [0.0, 0.5]])
+    assert oversampled_indices(U, 2).tolist() == deim_indices(U).tolist() == [0, 1]  # p = m: DEIM's
+    idx = oversampled_indices(U, 3)
+    assert idx.tolist() == [0, 1, 3] and idx.dtype == np.int64
+    assert np.linalg.svd(U[idx], compute_uv=False)[-1] ** 2 == pytest.approx(1.25, rel=1e-14)
+    assert np.linalg.svd(U[[0, 1, 2]], compute_uv=False)[-1] ** 2 == pytest.approx(1.0, rel=1e-14)
+    assert oversampled_indices(U, 4).tolist() == [0, 1, 3, 2]
+    # one mode: the largest u_i^2 after DEIM's row (1): rows 2 (1) then 3 (0.25)
+    assert oversampled_indices([[0.0], [2.0], [-1.0], [0.5]], 3).tolist() == [1, 2, 3]
+    for samples in (1, 5):  # below the modes, above the rows
+        with pytest.raises(ValueError) as err:
+            oversampled_indices(U, samples)
+        assert str(err.value) == ("oversampled_indices: samples must lie in [2, 4] (the force modes, the rows), "
+                                  f"got {samples}")
+
+
+def test_least_squares_coefficients_interpolate_when_square_and_fit_the_pseudo_inverse_when_oversampled():
+    rng = np.random.default_rng(11)
+    VtU = rng.standard_normal((3, 2))
+    square = np.array([[2.0, 1.0], [0.0, 1.0]])
+    np.testing.assert_allclose(least_squares_coefficients(VtU, square), VtU @ np.linalg.inv(square), rtol=1e-14)
+    tall = np.array([[2.0, 1.0], [0.0, 1.0], [1.0, -1.0]])
+    D = least_squares_coefficients(VtU, tall)
+    np.testing.assert_allclose(D, VtU @ np.linalg.pinv(tall), rtol=1e-13)
+    # exact on the span of the force modes: a force U c sampled at the dofs gives V^T U c
+    c = np.array([0.3, -1.7])
+    np.testing.assert_allclose(D @ (tall @ c), VtU @ c, rtol=1e-13)
+    # but not an interpolation: a sample off the span is fitted, not met (residual orthogonal to the span)
+    b = np.array([1.0, 0.0, 0.0])
+    fit = tall @ (np.linalg.pinv(tall) @ b)
+    assert not np.allclose(fit, b) and abs(tall.T @ (b - fit)).max() < 1e-14
+
+
+@pytest.mark.parametrize("PtU, refused", [
+    (np.array([[1.0, 2.0], [2.0, 4.0], [0.0, 0.0]]), True),  # rank 1 of 2 modes
+    (np.array([[1.0, 2.0], [2.0, 4.0 + 1e-6], [0.0, 0.0]]), False),  # rank 2, barely (s_min / s_max ~ 1e-7)
+])
+def test_least_squares_coefficients_refuse_sampled_rows_that_cannot_tell_the_modes_apart(PtU, refused):
+    if not refused:
+        assert np.all(np.isfinite(least_squares_coefficients(np.eye(2), PtU)))
+        return
+    with pytest.raises(ValueError, match=r"^pod_galerkin DEIM: the sampled rows of the force basis have rank below "
+                                         r"its 2 modes \(singular values of P\^T U from 5\.000e\+00 to .*\): fewer "
+                                         r"deim_modes$"):
+        least_squares_coefficients(np.eye(2), PtU)
 
 
 # ---------------------------------------------------------------- training states
@@ -382,7 +436,8 @@ def test_deim_forces_record_what_they_sample_and_their_tangent_is_the_force_deri
     deim = deim_forces(be, V[free], free, V, fixed, states, 3)
     info = dict(deim.info)
     assert 0.0 <= info.pop("offline_s") < 100.0 and np.isfinite(info.pop("condition_PtU"))
-    sampled = free[deim_indices(np.linalg.svd(np.column_stack([be.internal_force(u)[free] for u in states]),
+    K0 = be.tangent(np.zeros(pb.ndof))  # the snapshots: the force less its linear part at rest
+    sampled = free[deim_indices(np.linalg.svd(np.column_stack([(be.internal_force(u) - K0 @ u)[free] for u in states]),
                                               full_matrices=False)[0][:, :3])]
     touching = int(np.isin(be.element_dofs(), sampled).any(axis=1).sum())
     assert info == {"force_modes": 3, "force_rank": 4, "elements": touching, "interpolation_dofs": 3,
@@ -391,6 +446,33 @@ def test_deim_forces_record_what_they_sample_and_their_tangent_is_the_force_deri
     f, K = deim.force_and_tangent(q, uc)
     np.testing.assert_array_equal(deim.tangent(q, uc), K)
     assert not np.allclose(deim.tangent(q), K)  # the prescribed values enter the tangent
+
+
+@pytest.mark.parametrize("oversampling, samples", [(1.0, 3), (1.5, 5), (100.0, None)])
+def test_deim_reduces_the_linear_part_exactly_and_samples_as_many_dofs_as_asked(oversampling, samples):
+    """Issue 52 (3): the force less its linear part at rest is what DEIM fits; V^T K_0 V and V^T K_0fc are exact.
+    At rest the tangent is V^T K_0 V to round-off, and a small state (prescribed values included) gets the
+    linearised force V^T K_0 u to first order, whatever the three force modes miss (the whole-force DEIM of
+    commit a24e7fa was off there by the interpolation's error of the linear part). p = ceil(oversampling m),
+    at most the free dofs."""
+    pb, be, V, fixed, _, q, uc, _ = _reduced("neo_hookean")
+    free = pb.free_dofs
+    states = []
+    for s in (0.5, 1.0, -0.7, 0.3):
+        u = V @ (s * q)
+        u[fixed] = s * uc
+        states.append(u)
+    deim = deim_forces(be, V[free], free, V, fixed, states, 3, oversampling)
+    assert deim.info["interpolation_dofs"] == (samples or len(free))
+    K0 = be.tangent(np.zeros(pb.ndof))
+    K_r0 = V.T @ (K0 @ V)
+    np.testing.assert_allclose(deim.tangent(np.zeros(3), np.zeros(len(fixed))), K_r0, rtol=0,
+                               atol=1e-10 * np.abs(K_r0).max())
+    eps = 1e-7
+    u = V @ (eps * q)
+    u[fixed] = eps * uc
+    lin = V.T @ (K0 @ u)
+    np.testing.assert_allclose(deim.force(eps * q, eps * uc), lin, rtol=0, atol=1e-5 * np.abs(lin).max())
 
 
 # ---------------------------------------------------------------- the POD basis of the snapshots

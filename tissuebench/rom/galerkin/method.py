@@ -41,6 +41,13 @@ def _number(name, value, low, integer=False, allow_none=False):
     return int(value) if integer else float(value)
 
 
+def _at_least_one(name, value):
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    if not ok or not np.isfinite(value) or value < 1:
+        raise ValueError(f"pod_galerkin option {name} must be a finite number >= 1, got {value!r}")
+    return float(value)
+
+
 @register
 class PodGalerkin(RomMethod):
     """POD-Galerkin trajectory ROM with ECSW or DEIM hyper-reduction (module docstring).
@@ -60,7 +67,13 @@ class PodGalerkin(RomMethod):
     ecsw_tol : float
         Largest relative residual of the ECSW fit on the training states.
     deim_modes : int or None
-        Force modes of DEIM (None: twice the basis size).
+        Force modes of DEIM (None: twice the basis size), of the internal force less its linear
+        part at rest, which is reduced exactly (:mod:`.deim`).
+    deim_oversampling : float >= 1
+        Sampled dofs of DEIM per force mode: 1 interpolates the force modes at as many dofs;
+        above 1 (default 2) the force is fitted by least squares at more dofs (gappy POD), which
+        bounds the amplification of what the force modes miss, at the cost of a larger reduced
+        mesh (measured in :mod:`.deim`).
     hyper_states : int
         At most this many training states (evenly through the runs) fit the hyper-reduction.
     integrator : str or None
@@ -81,8 +94,8 @@ class PodGalerkin(RomMethod):
     applies = Applies(dead_loads=True)
 
     def __init__(self, n_modes=None, energy=0.99999, inner="euclidean", velocities=False, hyper="ecsw",
-                 ecsw_tol=5e-3, deim_modes=None, hyper_states=60, integrator=None, rtol=1e-6, max_iterations=20,
-                 newton_tangent="reuse"):
+                 ecsw_tol=5e-3, deim_modes=None, deim_oversampling=2.0, hyper_states=60, integrator=None, rtol=1e-6,
+                 max_iterations=20, newton_tangent="reuse"):
         for name, value, valid in (("inner", inner, _INNER), ("hyper", hyper, HYPER),
                                    ("velocities", velocities, (True, False)),
                                    ("newton_tangent", newton_tangent, ("reuse", "iteration"))):
@@ -94,6 +107,7 @@ class PodGalerkin(RomMethod):
         self.options = dict(n_modes=_number("n_modes", n_modes, 0, True, True), energy=float(energy), inner=inner,
                             velocities=bool(velocities), hyper=hyper, ecsw_tol=_number("ecsw_tol", ecsw_tol, 0),
                             deim_modes=_number("deim_modes", deim_modes, 0, True, True),
+                            deim_oversampling=_at_least_one("deim_oversampling", deim_oversampling),
                             hyper_states=_number("hyper_states", hyper_states, 1, True), integrator=integrator,
                             rtol=_number("rtol", rtol, 0), newton_tangent=newton_tangent,
                             max_iterations=_number("max_iterations", max_iterations, 0, True))
@@ -156,7 +170,7 @@ class PodGalerkin(RomMethod):
                 u[fixed] = uc
             full_u.append(u)
         modes = o["deim_modes"] or 2 * V.shape[1]
-        deim = deim_forces(be, V, free, basis_full, fixed, full_u, modes)
+        deim = deim_forces(be, V, free, basis_full, fixed, full_u, modes, o["deim_oversampling"])
         return deim, {"scheme": "deim", **deim.info}
 
     def _integrator(self, training) -> tuple[str, dict]:
