@@ -36,3 +36,21 @@ def test_the_example_dome_scenes_pass_scene_check(coarse_dome, scene, capsys):
     assert main(["scene", "check", str(coarse_dome / scene), "--out", "-"]) == 0, capsys.readouterr().err
     said = capsys.readouterr()
     assert "error" not in said.err.lower()
+
+
+@pytest.mark.parametrize("element, refused", [('element = "P1"\n', False), ("", True)])
+def test_pod_galerkin_is_refused_up_front_on_an_average_nodal_pressure_reference(coarse_dome, element, refused):
+    """At nu = 0.49 the reference takes the average nodal pressure tetrahedra unless the scene asks for
+    P1: its force has no element split, and every pod_galerkin unit failed at build
+    ("AnpBackend does not provide cell kernels"); now ``methods`` and a spec say so before any work."""
+    from tissuebench.cases.scene import load
+    from tissuebench.rom import method_class
+
+    text = (FOLDER / "dome_motion.toml").read_text()
+    assert 'element = "P1"\n' in text
+    path = coarse_dome / f"motion{'_anp' if refused else ''}.toml"
+    path.write_text(text.replace('element = "P1"\n', element))
+    why = method_class("pod_galerkin").why_not(load(path))
+    assert (why != "") == refused
+    if refused:
+        assert why.startswith("the reference uses average nodal pressure tetrahedra") and 'mesh.element = "P1"' in why

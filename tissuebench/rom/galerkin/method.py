@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 
+from ...reference.formulation import formulation_of
 from ...refsolvers.dynamics import INTEGRATORS, make_integrator
 from ..base import Applies, RomMethod, Training, check_choice, register
 from ..fe_baselines.stepping import ScaledHistory
@@ -92,6 +93,20 @@ class PodGalerkin(RomMethod):
     nested = ()
     training_kinds = ("trajectory",)
     applies = Applies(dead_loads=True)
+
+    @classmethod
+    def why_not(cls, scene, options=None) -> str:
+        """Besides :attr:`applies`: the reduced forces are sums over elements (every one, or an ECSW
+        or DEIM sample), which the average nodal pressure formulation of a nearly incompressible
+        scene's reference does not have (its pressure couples the elements around each node)."""
+        why = super().why_not(scene, options)
+        if why or not getattr(scene, "is_fe", False):
+            return why
+        if formulation_of(scene).name == "anp":
+            return ("the reference uses average nodal pressure tetrahedra (nearly incompressible: P1 locks), whose "
+                    "force does not split into element forces for the reduced model to sum or sample; ask for "
+                    'mesh.element = "P1" (the locking P1 as reference) to use it')
+        return ""
 
     def __init__(self, n_modes=None, energy=0.99999, inner="euclidean", velocities=False, hyper="ecsw",
                  ecsw_tol=5e-3, deim_modes=None, deim_oversampling=2.0, hyper_states=60, integrator=None, rtol=1e-6,
