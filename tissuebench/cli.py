@@ -409,7 +409,12 @@ latency_floor_s [s] (default 1e-5: 10 us, 1 % of a 1 kHz haptic step) is the lea
 of the step that counts as slower: a 1.5x slowdown of a 6 us step adds 3 us and passes it. For
 a microsecond ROM give --latency-floor-s 0 (the ratio alone decides) or the least increase
 that matters, e.g. 1e-6; a baseline file sets it in [defaults] or per [[unit]] (a unit's own
-value wins over the command). A unit the floor held is said in the verdict line."""
+value wins over the command). A unit the floor held is said in the verdict line.
+
+An intended slowdown is declared in the baseline file, in the commit that makes it: a unit's
+entry gets latency_change = FACTOR (> 1) and latency_change_reason = "why". That commit's A/B
+judges the unit against FACTOR (slower above FACTOR x sqrt(latency_tolerance)) and notes it; the
+next commit, finding the entry unchanged at its REF, gates the unit as before."""
 
 
 def _fit_parser(sub):
@@ -502,8 +507,8 @@ def _check_parser(sub):
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     chk.add_argument("results", type=Path, help="a sweep's results folder")
     chk.add_argument("--baseline", type=Path, default=None, help="baseline TOML: errors gated exactly (e.g. "
-                     "baselines/ci.toml) when there is no --against, and declared error changes with it; its "
-                     "latency ratios are shown for information only")
+                     "baselines/ci.toml) when there is no --against, and declared error changes and slowdowns "
+                     "(latency_change) with it; its latency ratios are shown for information only")
     chk.add_argument("--against", default=None, metavar="REF", help="git ref (e.g. HEAD~1, the merge base) of the "
                      "project under test: REF's code runs the same sweep (errors) and every unit is re-timed with "
                      "REF's code and this code, their processes timed in turn on one core (A/B); in a shallow "
