@@ -266,3 +266,22 @@ def test_a_trajectory_step_starts_from_the_last_one_and_refuses_another_time():
     for t in (0.3 + 1.1e-7, 0.4, 0.2):
         with pytest.raises(ValueError, match=r"m\.step: mu\['time'\] = .* is not the next step 0\.3"):
             step_start("m", t, 0.2, 0.1)
+
+
+@pytest.mark.parametrize("element, refused", [('element = "P1"\n', False), ("", True)])
+def test_romtools_ecsw_is_refused_where_pod_galerkin_is(tmp_path, element, refused, monkeypatch):
+    """Its element rule and online model are pod_galerkin's: a reference with average nodal pressure
+    tetrahedra (the example dome in motion without element = "P1") has no element split for either."""
+    pytest.importorskip("gmsh")
+    from tissuebench.cases.scene import load
+
+    folder = PEERS.parent / "examples" / "nearly_incompressible_organ"
+    monkeypatch.syspath_prepend(str(folder.parent / "bring_your_own_organ"))  # make_dome.py imports gmsh_body
+    spec = importlib.util.spec_from_file_location("make_dome", folder / "make_dome.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    module.dome_mesh(str(tmp_path / "dome.msh"), 30.0)
+    scene = tmp_path / "dome_motion.toml"
+    scene.write_text((folder / "dome_motion.toml").read_text().replace('element = "P1"\n', element))
+    why = RomtoolsEcsw.why_not(load(scene))
+    assert (why != "") == refused and (not refused or "average nodal pressure" in why)

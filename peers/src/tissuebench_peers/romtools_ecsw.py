@@ -28,7 +28,7 @@ import io
 import time
 
 import numpy as np
-from tissuebench.rom import Applies, OnlineModel, RomMethod, Training, element_kernel, galerkin_model
+from tissuebench.rom import Applies, OnlineModel, RomMethod, Training, element_kernel, galerkin_model, method_class
 
 from ._common import evenly, fraction, missing, positive, positive_int
 
@@ -71,6 +71,12 @@ class RomtoolsEcsw(RomMethod):
     @classmethod
     def unavailable(cls) -> str:
         return missing("romtools")
+
+    @classmethod
+    def why_not(cls, scene, options=None) -> str:
+        """Besides :attr:`applies`: the element rule and the online model are ``pod_galerkin``'s, so
+        what refuses it refuses this (a reference whose force has no element split)."""
+        return super().why_not(scene, options) or method_class("pod_galerkin").why_not(scene)
 
     def build(self, training: Training) -> OnlineModel:
         if training.snapshots is None or training.system is None or training.dt is None:
