@@ -76,6 +76,15 @@ def site(tmp_path, monkeypatch):
 
 
 # ---------------------------------------------------------------- raised by the code, or sent by the user
+@pytest.fixture(autouse=True)
+def python_sigint():
+    """Each test starts from Python's own SIGINT handler, whatever a test before it in the same worker
+    process left (a SIGINT raised at the system default ends the worker: CI saw it once), and the
+    disposition it found is put back after."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
+
 
 
 def test_a_system_exit_is_always_the_codes_a_keyboard_interrupt_only_without_a_signal():
