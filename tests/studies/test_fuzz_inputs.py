@@ -208,10 +208,7 @@ def _apply_defect(data, pts, cells, cell_type, defect):
     return pts, cells
 
 
-@pytest.mark.parametrize("cell_type", ["tetra", "hexahedron"])
-@FUZZ
-@given(data=st.data())
-def test_defective_meshes_read_or_name_the_cells(cell_type, folder, data):
+def _defective_mesh_example(cell_type, folder, data):
     pts, cells = _base_mesh(cell_type)
     blocks = [(cell_type, cells)]
     defects = data.draw(st.lists(st.sampled_from(MESH_DEFECTS), min_size=1, max_size=3), label="defects")
@@ -263,6 +260,21 @@ def _slow_variant(test):
     where the fast variant runs 10 000)."""
     return pytest.mark.slow(pytest.mark.skipif(FUZZ_PROFILE, reason="the fuzz profile runs 10 000 examples "
                                                "in the fast variant")(test))
+
+
+@pytest.mark.parametrize("cell_type", ["tetra", "hexahedron"])
+@settings(FUZZ, max_examples=_examples(80))  # 80 (200 before: CI time); the slow variant runs LONG_EXAMPLES
+@given(data=st.data())
+def test_defective_meshes_read_or_name_the_cells(cell_type, folder, data):
+    _defective_mesh_example(cell_type, folder, data)
+
+
+@_slow_variant
+@pytest.mark.parametrize("cell_type", ["tetra", "hexahedron"])
+@settings(FUZZ, max_examples=LONG_EXAMPLES)
+@given(data=st.data())
+def test_defective_meshes_read_or_name_the_cells_long(cell_type, folder, data):
+    _defective_mesh_example(cell_type, folder, data)
 
 
 @pytest.fixture(scope="module")
