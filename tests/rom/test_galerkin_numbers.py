@@ -425,14 +425,20 @@ def test_a_large_fit_samples_its_candidates_by_furthest_points(monkeypatch):
     assert ecsw_rule(_Elements(table, own), _states(2), 0.9)[2]["candidates"] == 12  # no mesh: every element
 
 
-def test_deim_forces_record_what_they_sample_and_their_tangent_is_the_force_derivative():
+def _deim_training():
+    """The neo-Hookean reduced problem and four scaled states (prescribed values with them) DEIM learns."""
     pb, be, V, fixed, _, q, uc, _ = _reduced("neo_hookean")
-    free = pb.free_dofs
     states = []
     for s in (0.5, 1.0, -0.7, 0.3):
         u = V @ (s * q)
         u[fixed] = s * uc
         states.append(u)
+    return pb, be, V, fixed, q, uc, states
+
+
+def test_deim_forces_record_what_they_sample_and_their_tangent_is_the_force_derivative():
+    pb, be, V, fixed, q, uc, states = _deim_training()
+    free = pb.free_dofs
     deim = deim_forces(be, V[free], free, V, fixed, states, 3)
     info = dict(deim.info)
     assert 0.0 <= info.pop("offline_s") < 100.0 and np.isfinite(info.pop("condition_PtU"))
@@ -455,13 +461,8 @@ def test_deim_reduces_the_linear_part_exactly_and_samples_as_many_dofs_as_asked(
     linearised force V^T K_0 u to first order, whatever the three force modes miss (the whole-force DEIM of
     commit a24e7fa was off there by the interpolation's error of the linear part). p = ceil(oversampling m),
     at most the free dofs."""
-    pb, be, V, fixed, _, q, uc, _ = _reduced("neo_hookean")
+    pb, be, V, fixed, q, uc, states = _deim_training()
     free = pb.free_dofs
-    states = []
-    for s in (0.5, 1.0, -0.7, 0.3):
-        u = V @ (s * q)
-        u[fixed] = s * uc
-        states.append(u)
     deim = deim_forces(be, V[free], free, V, fixed, states, 3, oversampling)
     assert deim.info["interpolation_dofs"] == (samples or len(free))
     K0 = be.tangent(np.zeros(pb.ndof))
