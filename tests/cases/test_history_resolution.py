@@ -15,33 +15,10 @@ from tissuebench.cases.histories import MAX_CYCLES_PER_STEP, check_history_resol
 from tissuebench.cases.scene import CATALOGUE_DIR, load
 from tissuebench.cli import main
 
-BAR = """
-[case]
-name = "bar_sine"
-description = "a bar clamped at x = 0, its tip shaken by a sine"
-[units]
-length = "m"
-force = "N"
-time = "s"
-[mesh]
-builder = "box"
-element = "P1"
-[mesh.params]
-lengths = [1.0, 0.1, 0.1]
-cell_type = "tetra"
-[mesh.ci]
-divisions = [4, 1, 1]
-[mesh.paper]
-divisions = [4, 1, 1]
-[material]
-name = "neo_hookean"
-E = 1000.0
-nu = 0.3
-density = 1000.0
-[[dirichlet]]
-region = { plane = "x", value = 0.0, tol = 1e-9 }
-components = "xyz"
-[[load]]
+from _box_scene import box_scene
+
+BAR = box_scene("bar_sine", "a bar clamped at x = 0, its tip shaken by a sine", (1.0, 0.1, 0.1), (4, 1, 1), 1000.0,
+                0.3) + """[[load]]
 type = "point"
 value = [0.0, -1.0, 0.0]
 region = { plane = "x", value = 1.0, tol = 1e-9 }

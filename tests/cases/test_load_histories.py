@@ -9,34 +9,12 @@ import pytest
 from tissuebench.cases.scene import load
 from tissuebench.cli import main
 
-_SCENE = """
-[case]
-name = "probed_block"
-description = "a soft block held at its base, weighed down by gravity and pressed by a probe"
-[units]
-length = "m"
-force = "N"
-time = "s"
-[mesh]
-builder = "box"
-element = "P1"
-[mesh.params]
-lengths = [0.04, 0.04, 0.02]
-cell_type = "tetra"
-[mesh.ci]
-divisions = [2, 2, 1]
-[mesh.paper]
-divisions = [2, 2, 1]
-[material]
-name = "neo_hookean"
-E = 5000.0
-nu = 0.45
-density = 1000.0
-[[dirichlet]]
-name = "base"
-region = {{ plane = "z", value = 0.0, tol = 1e-9 }}
-components = "xyz"
-[[load]]
+from _box_scene import box_scene
+
+_BLOCK = box_scene("probed_block", "a soft block held at its base, weighed down by gravity and pressed by a probe",
+                   (0.04, 0.04, 0.02), (2, 2, 1), 5000.0, 0.45, clamp="z", clamp_name="base")
+#: what the scene adds to the block: its two loads, its analysis, a monitor, its variants
+_SCENE = """[[load]]
 name = "gravity"
 type = "body"
 value = [0.0, 0.0, -9810.0]
@@ -63,8 +41,8 @@ _RELEASE = 'history = { type = "ramp_hold_release", t_ramp = 0.01, t_hold = 0.01
 
 def _write(tmp_path, gravity_history="", probe_history="", analysis=_DYNAMIC, variants=""):
     path = tmp_path / "probed.toml"
-    path.write_text(_SCENE.format(gravity_history=gravity_history, probe_history=probe_history, analysis=analysis,
-                                  variants=variants), encoding="utf-8")
+    path.write_text(_BLOCK + _SCENE.format(gravity_history=gravity_history, probe_history=probe_history,
+                                           analysis=analysis, variants=variants), encoding="utf-8")
     return path
 
 

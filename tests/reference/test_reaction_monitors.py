@@ -13,33 +13,18 @@ from tissuebench.cases.scene import load
 from tissuebench.refsolvers.backends import make_backend
 from tissuebench.reference.runner import solve
 
-_SCENE = """
-[case]
-name = "reaction_block"
-description = "block clamped at x = 0, loaded on its top face or by gravity"
-[units]
-length = "m"
-force = "N"
-[mesh]
-builder = "box"
-element = "{element}"
-[mesh.params]
-lengths = [0.04, 0.02, 0.02]
-cell_type = "tetra"
-[mesh.ci]
-divisions = [{divisions}]
-[mesh.paper]
-divisions = [{divisions}]
-[material]
-name = "neo_hookean"
-E = 5000.0
-nu = 0.3
-density = 1000.0
-[[dirichlet]]
-name = "clamped"
-region = {{ plane = "x", value = 0.0, tol = 1e-9 }}
-components = "xyz"
-[[load]]
+from _box_scene import box_scene
+
+
+def _block(divisions=(4, 2, 2), element="P1", material="neo_hookean") -> str:
+    """The block, 40 x 20 x 20 mm clamped at x = 0 (:func:`_box_scene.box_scene`)."""
+    return box_scene("reaction_block", "block clamped at x = 0, loaded on its top face or by gravity",
+                     (0.04, 0.02, 0.02), divisions, 5000.0, 0.3, element=element, material=material, time=False,
+                     clamp_name="clamped")
+
+
+#: what the scene adds to the block: its load, analysis and reaction monitors
+_SCENE = """[[load]]
 {load}
 [analysis]
 type = "static"
@@ -73,8 +58,8 @@ LOADS = {
 
 def _scene(tmp_path, load_toml, element="P1", mixed=False):
     path = tmp_path / "block.toml"
-    path.write_text(_SCENE.format(load=load_toml, element=element, divisions="2, 1, 1" if mixed else "4, 2, 2",
-                                  formulation='formulation = "mixed"' if mixed else ""), encoding="utf-8")
+    text = _SCENE.format(load=load_toml, formulation='formulation = "mixed"' if mixed else "")
+    path.write_text(_block((2, 1, 1) if mixed else (4, 2, 2), element) + text, encoding="utf-8")
     return load(path)
 
 
@@ -132,8 +117,8 @@ def _dynamic_scene(tmp_path, integrator, dt, extra=""):
     """The block under the top-face traction applied at once (a step), integrated for 20 steps, with a
     displacement monitor beside the reactions (the trajectory training's output functional)."""
     load_toml = LOADS["traction"] + '\nhistory = { type = "step", t0 = 0.0 }'
-    text = _SCENE.format(load=load_toml, element="P1", divisions="4, 2, 2", formulation="")
-    text = text.replace('name = "neo_hookean"', 'name = "linear"').replace(
+    text = _block(material="linear") + _SCENE.format(load=load_toml, formulation="")
+    text = text.replace(
         'type = "static"\nload_steps = 2', f'type = "dynamic"\nintegrator = "{integrator}"\ndt = {dt}\n'
                                            f't_end = {20 * dt}\n{extra}')
     text += '[[monitor]]\nname = "tip_ux"\nquantity = "displacement"\npoint = [0.04, 0.01, 0.02]\ncomponent = "x"\n'
