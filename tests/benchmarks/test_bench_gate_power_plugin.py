@@ -39,24 +39,13 @@ from tissuebench.studies.spec import load_spec
 from tissuebench.studies.sweep import run_sweep
 
 from _gate_repo import commit, example_repo
+from _gate_spec import HELD_OUT, cornea_spec
 from _plugin_dist import on_path
 from _venv import chained_venv, tissuebench_command
 
-SPEC = """[sweep]
-name = "plugin-power"
-resolution = "ci"
-[protocol]
-latency_steps = 300
-warmup = 30
-reference_samples = 1
-[[case]]
-name = "cornea_pinch"
-training = { kind = "path", every = 2 }
-evaluation = { kind = "path", held_out = true }
-[[method]]
-name = "podreg.method:PodPolyReg"
-list = [{ n_modes = 4, degree = 3 }, { n_modes = 2, degree = 2 }]
-"""
+SPEC = cornea_spec("plugin-power", [("podreg.method:PodPolyReg",
+                                     "list = [{ n_modes = 4, degree = 3 }, { n_modes = 2, degree = 2 }]")],
+                   latency_steps=300, warmup=30, evaluation=HELD_OUT, sweep='resolution = "ci"')
 INJECTED = '{"degree":3,"n_modes":4}'
 
 

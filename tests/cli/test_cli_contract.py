@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from _gate_spec import PATH, cornea_spec
 from _report_store import build_store
 from tissuebench.cli import _parser, main
 from tissuebench.studies.sweep_manifest import read_sweep_manifest
@@ -23,20 +24,7 @@ ROOT = Path(__file__).resolve().parents[2]
 SUBCOMMANDS = ["run", "cases", "sweep", "study", "cache", "report", "check", "verify", "describe", "scene", "methods",
                "fit"]
 
-ONE = """
-[sweep]
-name = "one"
-[protocol]
-latency_steps = 5
-warmup = 1
-reference_samples = 1
-[[case]]
-name = "cornea_pinch"
-training = { kind = "path", every = 2 }
-evaluation = { kind = "path" }
-[[method]]
-name = "nearest"
-"""
+ONE = cornea_spec("one", ["nearest"], latency_steps=5, warmup=1, evaluation=PATH)
 
 
 def cli(argv, capsys):

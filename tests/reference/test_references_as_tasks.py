@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from _gate_spec import BEYOND, cornea_spec
 from _workers import RunLog
 
 import tissuebench.reference.cache as cache_module
@@ -30,23 +31,9 @@ from tissuebench.studies.units import unit_references
 
 distributed = pytest.importorskip("distributed")
 
-FIVE = """
-[sweep]
-name = "five"
-[protocol]
-latency_steps = 5
-warmup = 1
-reference_samples = 1
-[[case]]
-name = "cornea_pinch"
-training = { kind = "path", every = 2 }
-evaluation = { kind = "path", beyond = [2.0] }
-[[method]]
-name = "nearest"
-[[method]]
-name = "pod_interp"
-grid = { n_modes = [2, 4], interpolation = ["linear", "rbf"] }
-"""
+FIVE = cornea_spec(
+    "five", ["nearest", ("pod_interp", 'grid = { n_modes = [2, 4], interpolation = ["linear", "rbf"] }')],
+    latency_steps=5, warmup=1, evaluation=BEYOND)
 
 
 @pytest.fixture()

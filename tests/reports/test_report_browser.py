@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+from _gate_spec import BEYOND, cornea_spec
 from _report_store import EVIL, build_store, rename_case
 from tissuebench.reports.html import write_report
 
@@ -129,25 +130,10 @@ def test_the_error_collector_catches_an_error(tmp_path):
     assert "no_such_function is not defined" in "".join(element(dom, "js-errors").text)
 
 
-TINY = """
-[sweep]
-name = "report_tiny"
-description = "cornea_pinch at ci: ANM-POD against the baselines (report test)"
-[protocol]
-latency_steps = 30
-warmup = 3
-reference_samples = 1
-[[case]]
-name = "cornea_pinch"
-training = { kind = "path", every = 2 }
-evaluation = { kind = "path", beyond = [2.0] }
-[[method]]
-name = "anm_pod"
-options = { eps = 1e-6, max_segments = 1 }
-grid = { n_modes = [2, 4], order = [1, 6] }
-[[method]]
-name = "nearest"
-"""
+TINY = cornea_spec("report_tiny", [("anm_pod", "options = { eps = 1e-6, max_segments = 1 }\n"
+                                               "grid = { n_modes = [2, 4], order = [1, 6] }"), "nearest"],
+                   latency_steps=30, warmup=3, evaluation=BEYOND,
+                   sweep='description = "cornea_pinch at ci: ANM-POD against the baselines (report test)"')
 
 
 @pytest.mark.slow  # ~20 s: a 5-unit sweep at ci, then the browser

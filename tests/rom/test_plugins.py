@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 import tissuebench
+from _gate_spec import cornea_spec
 from _plugin_dist import Installed, toy_source, write_dist
 from tissuebench.cli import main
 from tissuebench.rom import METHODS, make_method, method_class
@@ -122,29 +123,17 @@ def test_a_bad_module_class_name_is_refused_naming_it(installed, source, message
     assert message in str(exc.value) and ("tb_shadow" not in source or "tb_shadow:Toy" in str(exc.value))
 
 
-SPEC = """
-[sweep]
-name = "plug"
-[protocol]
-latency_steps = 20
-warmup = 2
-reference_samples = 1
-[[case]]
-name = "cornea_pinch"
-training = {{ kind = "path", every = 2 }}
-[[method]]
-name = "{name}"
-"""
+
 
 
 def test_a_spec_names_a_method_by_module_class_and_its_units_carry_it(installed, tmp_path):
     installed.root.mkdir(parents=True, exist_ok=True)
     (installed.root / "tb_spec.py").write_text(toy_source("spec_toy"))
     spec = tmp_path / "s.toml"
-    spec.write_text(SPEC.format(name="tb_spec:Toy"))
+    spec.write_text(cornea_spec("plug", ["tb_spec:Toy"]))
     units = expand_units(load_spec(spec))
     assert [(u.method, u.source) for u in units] == [("spec_toy", "tb_spec:Toy")]
-    spec.write_text(SPEC.format(name="tb_nowhere_xyz:Toy"))
+    spec.write_text(cornea_spec("plug", ["tb_nowhere_xyz:Toy"]))
     with pytest.raises(ValueError, match=r"method\[0\].name: method 'tb_nowhere_xyz:Toy': cannot import"):
         load_spec(spec)
 

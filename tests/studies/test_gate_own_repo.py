@@ -21,23 +21,11 @@ from pathlib import Path
 import pytest
 
 from _gate_repo import EXAMPLE, commit, example_repo, git, init
+from _gate_spec import HELD_OUT, cornea_spec
 from _venv import chained_venv, tissuebench_command
 
-SPEC = """[sweep]
-name = "podreg_gate"
-resolution = "ci"
-[protocol]
-latency_steps = 200
-warmup = 20
-reference_samples = 1
-[[case]]
-name = "cornea_pinch"
-training = { kind = "path", every = 2 }
-evaluation = { kind = "path", held_out = true }
-[[method]]
-name = "pod_polyreg"
-options = { n_modes = 4, degree = 3 }
-"""
+SPEC = cornea_spec("podreg_gate", [("pod_polyreg", "options = { n_modes = 4, degree = 3 }")], latency_steps=200,
+                   warmup=20, evaluation=HELD_OUT, sweep='resolution = "ci"')
 STEP = ("        q = (lam / self._top) ** self._powers @ self._coeffs  # a new array each step: it belongs to the "
         "result\n")
 # (a) the polynomial evaluated three times: the step about 1.5x slower (measured 1.5-1.7 by the gate here)

@@ -26,23 +26,10 @@ from tissuebench.cli import main
 from tissuebench.gate import HEAD_ROOT, check
 
 from _gate_repo import readme_history, recipe_calls, recipe_env, recipe_repo
+from _gate_spec import cornea_spec
 from _plugin_dist import Installed, toy_source, write_dist
 
-SPEC = """
-[sweep]
-name = "scope"
-[protocol]
-latency_steps = 20
-warmup = 2
-reference_samples = 1
-[[case]]
-name = "cornea_pinch"
-training = { kind = "path", every = 2 }
-[[method]]
-name = "tb_scope_plug"
-[[method]]
-name = "nearest"
-"""
+SPEC = cornea_spec("scope", ["tb_scope_plug", "nearest"])
 
 
 @pytest.fixture(scope="module")

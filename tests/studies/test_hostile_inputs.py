@@ -9,6 +9,7 @@ import time
 import pandas as pd
 import pytest
 
+from _gate_spec import PATH, cornea_spec
 from _report_store import build_store
 from tissuebench.cli import main
 from tissuebench.reports.html import write_report
@@ -17,20 +18,10 @@ from tissuebench.studies.sweep_manifest import SweepManifestError, read_sweep_ma
 from tissuebench.studies.spec import expand_units, load_spec
 from tissuebench.studies.sweep import run_sweep
 
-ONE = """
-[sweep]
-name = "{name}"
-[protocol]
-latency_steps = 5
-warmup = 1
-reference_samples = 1
-[[case]]
-name = "cornea_pinch"
-training = {{ kind = "path", every = 2 }}
-evaluation = {{ kind = "path" }}
-[[method]]
-name = "{method}"
-"""
+
+def _one(name: str, method: str) -> str:
+    """A sweep ``name`` of one method on the cornea's path, timed over 5 steps."""
+    return cornea_spec(name, [method], latency_steps=5, warmup=1, evaluation=PATH)
 
 
 def spec_file(tmp_path, text, name="spec.toml"):
@@ -40,7 +31,7 @@ def spec_file(tmp_path, text, name="spec.toml"):
 
 
 def one(tmp_path, method="nearest", name="one", extra="", file="one.toml"):
-    return spec_file(tmp_path, ONE.format(name=name, method=method) + extra, file)
+    return spec_file(tmp_path, _one(name=name, method=method) + extra, file)
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +77,7 @@ def test_2_the_default_results_folder_is_made_safe_from_the_spec_name(tmp_path, 
     ("every = 2", "every = 100000"),
 ])
 def test_3_every_protocol_and_training_count_has_a_named_maximum(tmp_path, edit, key):
-    text = ONE.format(name="one", method="nearest").replace(edit, key)
+    text = _one(name="one", method="nearest").replace(edit, key)
     changed = key.split("\n")[-1].split(" = ")[0]
     with pytest.raises(ValueError, match=rf"{changed} = .*expected an integer from .* to .*LIMITS\['{changed}'\]"):
         load_spec(spec_file(tmp_path, text))
@@ -98,7 +89,7 @@ def test_3_every_protocol_and_training_count_has_a_named_maximum(tmp_path, edit,
     ('{ kind = "path" }', '{ kind = "path", beyond = [' + ", ".join(["2.0"] * 101) + "] }", r"evaluation.beyond"),
 ])
 def test_3_positions_and_held_out_counts_have_named_maxima(tmp_path, training, evaluation, message):
-    text = ONE.format(name="one", method="nearest")
+    text = _one(name="one", method="nearest")
     text = text.replace('training = { kind = "path", every = 2 }', f"training = {training}")
     text = text.replace('evaluation = { kind = "path" }', f"evaluation = {evaluation}")
     with pytest.raises(ValueError, match=message):
@@ -108,7 +99,7 @@ def test_3_positions_and_held_out_counts_have_named_maxima(tmp_path, training, e
 def _grid(tmp_path, n_modes, n_energies):
     modes = ", ".join(str(i + 1) for i in range(n_modes))
     energies = ", ".join(str(0.9 + 0.09 * i / n_energies) for i in range(n_energies))
-    text = ONE.format(name="grid", method="pod_interp") + f"grid = {{ n_modes = [{modes}], energy = [{energies}] }}\n"
+    text = _one(name="grid", method="pod_interp") + f"grid = {{ n_modes = [{modes}], energy = [{energies}] }}\n"
     return spec_file(tmp_path, text)
 
 
@@ -160,7 +151,7 @@ def test_4_resume_into_the_folder_of_another_spec_is_refused_naming_both_hashes(
     summary = run_sweep(load_spec(both), out, resume=True, progress=False)
     assert len(summary.skipped) == 1 and len(summary.computed) == 1
     # one spec's cases run one --cases selection at a time into one folder: the same spec
-    two = spec_file(tmp_path, ONE.format(name="two", method="nearest") + '[[case]]\nid = "again"\n'
+    two = spec_file(tmp_path, _one(name="two", method="nearest") + '[[case]]\nid = "again"\n'
                     'name = "cornea_pinch"\ntraining = { kind = "path", every = 2 }\n', "two.toml")
     run_sweep(load_spec(two, only=["cornea_pinch"]), tmp_path / "by_case", progress=False)
     summary = run_sweep(load_spec(two, only=["again"]), tmp_path / "by_case", resume=True, progress=False)
@@ -182,7 +173,7 @@ def test_4_resume_into_the_folder_of_another_spec_is_refused_naming_both_hashes(
     ('{ kind = "path", repeat = true }', '{ kind = "path" }', r"case\[0\].training.repeat = True"),
 ])
 def test_5_training_and_evaluation_values_are_checked_at_spec_load(tmp_path, training, evaluation, message):
-    text = ONE.format(name="one", method="pod_interp")
+    text = _one(name="one", method="pod_interp")
     text = text.replace('training = { kind = "path", every = 2 }', f"training = {training}")
     text = text.replace('evaluation = { kind = "path" }', f"evaluation = {evaluation}")
     with pytest.raises(ValueError, match=message):
@@ -213,7 +204,7 @@ def test_6_a_selection_of_no_unit_is_refused(tmp_path, capsys):
         assert main(["sweep", str(spec), "--cases", cases, "--quiet", "--out", str(tmp_path / "o")]) == 2
         assert "--cases = " in capsys.readouterr().err
     extra = '[[case]]\nid = "second"\nname = "cornea_pinch"\n'
-    spec = spec_file(tmp_path, ONE.format(name="two", method="nearest") + 'cases = ["cornea_pinch"]\n' + extra)
+    spec = spec_file(tmp_path, _one(name="two", method="nearest") + 'cases = ["cornea_pinch"]\n' + extra)
     with pytest.raises(ValueError, match="--cases = 'second': no method of the spec runs on these cases"):
         load_spec(spec, only=["second"])
     assert main(["sweep", str(spec), "--cases", "second", "--quiet", "--out", str(tmp_path / "o")]) == 2
@@ -349,7 +340,7 @@ def test_an_odd_store_layout_reads_as_nothing_with_names(tmp_path):
 def test_minor_modes_warmup_and_threads_beyond_what_runs_are_said_in_the_row(tmp_path):
     import os
 
-    text = ONE.format(name="capped", method="pod_interp").replace("warmup = 1", "warmup = 1000\nblas_threads = 200")
+    text = _one(name="capped", method="pod_interp").replace("warmup = 1", "warmup = 1000\nblas_threads = 200")
     path = spec_file(tmp_path, text + "grid = { n_modes = [2, 40] }\n")
     run_sweep(load_spec(path), tmp_path / "out", progress=False)
     units = read_units(tmp_path / "out").set_index("options")

@@ -8,6 +8,8 @@ import pytest
 from tissuebench.cli import main
 from tissuebench.rom.base import METHODS, OnlineModel, RomMethod, StepResult, Training, register
 
+from _gate_spec import cornea_spec
+
 
 class _ScaledModel(OnlineModel):
     """u(lam) = (lam / lam_last) u_last: the last training snapshot scaled linearly."""
@@ -47,20 +49,7 @@ class ScaledLast(RomMethod):
         return _ScaledModel(training.snapshots[:, j].copy(), float(lams[j]), self.gain)
 
 
-SPEC = """
-[sweep]
-name = "toy"
-[protocol]
-latency_steps = 50
-warmup = 5
-reference_samples = 1
-[[case]]
-name = "cornea_pinch"
-training = { kind = "path", every = 2 }
-[[method]]
-name = "scaled_last"
-list = [{ gain = 1.0 }]
-"""
+SPEC = cornea_spec("toy", [("scaled_last", "list = [{ gain = 1.0 }]")], latency_steps=50, warmup=5)
 
 
 @pytest.fixture

@@ -9,26 +9,14 @@ import os
 import pytest
 
 from _gate_repo import EXAMPLE
+from _gate_spec import HELD_OUT, cornea_spec
 from _plugin_dist import Installed, forget_modules, on_path, write_dist
 from _workers import run_saying_where
 from tissuebench.studies.executors import execute
 from tissuebench.studies.spec import expand_units, load_spec
 
-SPEC = """
-[sweep]
-name = "plugin-executors"
-[protocol]
-latency_steps = 20
-warmup = 2
-reference_samples = 1
-[[case]]
-name = "cornea_pinch"
-training = { kind = "path", every = 2 }
-evaluation = { kind = "path", held_out = true }
-[[method]]
-name = "pod_polyreg"
-list = [{ n_modes = 2, degree = 2 }]
-"""
+SPEC = cornea_spec("plugin-executors", [("pod_polyreg", "list = [{ n_modes = 2, degree = 2 }]")],
+                   evaluation=HELD_OUT)
 
 
 @pytest.fixture

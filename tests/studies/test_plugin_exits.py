@@ -15,6 +15,7 @@ import threading
 
 import pytest
 
+from _gate_spec import HELD_OUT, cornea_spec
 from _plugin_dist import Installed, toy_source, write_dist
 from tissuebench.cli import main
 from tissuebench.exits import Terminated, exit_text, raised_by_code, user_signals
@@ -26,22 +27,6 @@ from tissuebench.studies.spec import expand_units, load_spec
 from tissuebench.studies.units import UnitOutcome
 from tissuebench.studies.sweep_manifest import read_sweep_manifest
 
-#: a shipped method beside the plugins: "nearest", fast on the cornea's path
-SPEC = """
-[sweep]
-name = "plugin-exits"
-[protocol]
-latency_steps = 20
-warmup = 2
-reference_samples = 1
-[[case]]
-name = "cornea_pinch"
-training = {{ kind = "path", every = 2 }}
-evaluation = {{ kind = "path", held_out = true }}
-{methods}
-[[method]]
-name = "nearest"
-"""
 IMPORT_EXITS = {"sys.exit(5)": ("import sys\nsys.exit(5)\n", "SystemExit(5) raised by its code"),
                 "KeyboardInterrupt": ("raise KeyboardInterrupt\n", "KeyboardInterrupt() raised by its code")}
 _STEP = "        mu = check_parameters(mu,"
@@ -56,7 +41,8 @@ def _step_plugin(name: str, first_line: str) -> str:
 
 def _spec(tmp_path, *methods) -> str:
     path = tmp_path / "spec.toml"
-    path.write_text(SPEC.format(methods="".join(f'[[method]]\nname = "{m}"\n' for m in methods)))
+    # a shipped method beside the plugins: "nearest", fast on the cornea's path
+    path.write_text(cornea_spec("plugin-exits", [*methods, "nearest"], evaluation=HELD_OUT))
     return str(path)
 
 

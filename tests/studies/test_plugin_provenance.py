@@ -9,27 +9,14 @@ import sys
 
 import pytest
 
+from _gate_spec import cornea_spec
 from _plugin_dist import Installed, toy_source, write_dist
 from tissuebench.cli import main
 from tissuebench.reports.report_sections import provenance_rows
 from tissuebench.rom.plugins import _files_hash
 from tissuebench.studies.results import read_units
 
-SPEC = """
-[sweep]
-name = "prov"
-[protocol]
-latency_steps = 20
-warmup = 2
-reference_samples = 1
-[[case]]
-name = "cornea_pinch"
-training = { kind = "path", every = 2 }
-[[method]]
-name = "tb_prov_plug"
-[[method]]
-name = "nearest"
-"""
+SPEC = cornea_spec("prov", ["tb_prov_plug", "nearest"])
 
 
 @pytest.fixture

@@ -19,27 +19,14 @@ import time
 
 import pytest
 
+from _gate_spec import cornea_spec
 from _plugin_dist import Installed, toy_source, write_dist
 from tissuebench.studies.results import ResultsStore, read_units
 from tissuebench.studies.spec import load_spec
 from tissuebench.studies.sweep import run_sweep
 from tissuebench.studies.sweep_manifest import read_sweep_manifest
 
-SPEC = """
-[sweep]
-name = "signals"
-[protocol]
-latency_steps = 20
-warmup = 2
-reference_samples = 1
-[[case]]
-name = "cornea_pinch"
-training = { kind = "path", every = 2 }
-[[method]]
-name = "nearest"
-[[method]]
-name = "toy_wait"
-"""
+SPEC = cornea_spec("signals", ["nearest", "toy_wait"])
 _STEP = "        mu = check_parameters(mu,"
 #: the step: say it started, then wait while the file $TB_TEST_WAIT exists
 WAIT = ("        import os, pathlib, time\n"
