@@ -1,10 +1,13 @@
 """The gmsh steps of the example organs: a body built with gmsh's OpenCASCADE kernel, meshed with
-linear tetrahedra of a target size and written as a gmsh file. Shared by ``make_kidney.py`` (beside
-this file) and ``../nearly_incompressible_organ/make_dome.py``, which only build their bodies.
+linear tetrahedra of a target size and written as a gmsh file, and the command line that does it.
+Shared by ``make_kidney.py`` (beside this file) and ``../nearly_incompressible_organ/make_dome.py``,
+which only build their bodies.
 
 Needs gmsh (``pip install gmsh``, or tissuebench's extra ``pip install "tissuebench[mesh]"``).
 """
 from __future__ import annotations
+
+import argparse
 
 
 def mesh_body(path, name: str, build, size: float, quiet: bool = True) -> str:
@@ -33,3 +36,15 @@ def mesh_body(path, name: str, build, size: float, quiet: bool = True) -> str:
     finally:
         gmsh.finalize()
     return str(path)
+
+
+def mesh_main(argv, description: str, mesh, size: float, nodes: str) -> int:
+    """The command line ``OUT [--size SIZE]`` of an example organ: ``mesh(OUT, SIZE)`` writes the mesh
+    file; ``size`` is the default element size [mm], ``nodes`` about how many nodes it gives."""
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("out", help="the mesh file to write (.msh)")
+    p.add_argument("--size", type=float, default=size, help=f"target element size [mm] (default {size}: {nodes})")
+    args = p.parse_args(argv)
+    mesh(args.out, args.size)
+    print(f"wrote {args.out}")
+    return 0

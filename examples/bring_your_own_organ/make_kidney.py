@@ -8,15 +8,15 @@ tetrahedra, written as a gmsh file in millimetres::
     python make_kidney.py kidney.msh            # 4534 nodes, 21727 tetrahedra (mesh size 3.3 mm)
     python make_kidney.py kidney.msh --size 9   # a coarse one (396 nodes: the test's)
 
-The gmsh steps after the body (element sizes, algorithm, the file) are ``gmsh_body.py``'s, beside
-this file. Needs gmsh (``pip install gmsh``, or tissuebench's extra ``pip install "tissuebench[mesh]"``).
+The gmsh steps after the body (element sizes, algorithm, the file) and the command line are
+``gmsh_body.py``'s, beside this file. Needs gmsh (``pip install gmsh``, or tissuebench's extra
+``pip install "tissuebench[mesh]"``).
 """
 from __future__ import annotations
 
-import argparse
 import sys
 
-from gmsh_body import mesh_body  # beside this file: the gmsh steps the example organs share
+from gmsh_body import mesh_body, mesh_main  # beside this file: the gmsh steps the example organs share
 
 
 def kidney_body(occ) -> None:
@@ -33,13 +33,7 @@ def kidney_mesh(path: str, size: float = 3.3, quiet: bool = True) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("out", help="the mesh file to write (.msh)")
-    p.add_argument("--size", type=float, default=3.3, help="target element size [mm] (default 3.3: ~4.5k nodes)")
-    args = p.parse_args(argv)
-    kidney_mesh(args.out, args.size)
-    print(f"wrote {args.out}")
-    return 0
+    return mesh_main(argv, __doc__.splitlines()[0], kidney_mesh, 3.3, "~4.5k nodes")
 
 
 if __name__ == "__main__":

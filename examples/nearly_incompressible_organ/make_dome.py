@@ -10,13 +10,12 @@ The scene ``dome.toml`` clamps the base and pushes the apex sideways with 2 N on
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 # the gmsh steps the example organs share: examples/bring_your_own_organ/gmsh_body.py
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bring_your_own_organ"))
-from gmsh_body import mesh_body  # noqa: E402
+from gmsh_body import mesh_body, mesh_main  # noqa: E402
 
 
 def dome_mesh(path: str, size: float = 5.6, semi_axes=(60.0, 60.0, 120.0), quiet: bool = True) -> str:
@@ -33,13 +32,7 @@ def dome_mesh(path: str, size: float = 5.6, semi_axes=(60.0, 60.0, 120.0), quiet
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("out", help="the mesh file to write (.msh)")
-    p.add_argument("--size", type=float, default=5.6, help="target element size [mm] (default 5.6: ~5k nodes)")
-    args = p.parse_args(argv)
-    dome_mesh(args.out, args.size)
-    print(f"wrote {args.out}")
-    return 0
+    return mesh_main(argv, __doc__.splitlines()[0], dome_mesh, 5.6, "~5k nodes")
 
 
 if __name__ == "__main__":
