@@ -113,12 +113,16 @@ def test_below_the_threshold_the_element_is_kept_without_an_indicator(indicator,
     assert form.label == "Q1 displacement" and "bulk_modulus" not in form.manifest()
 
 
-def test_hexahedra_above_the_threshold_are_warned_about(indicator):
-    form = fm.formulation_of(_Scene(nu=0.45, element="Q1"))
-    assert form == fm.Formulation("displacement", "Q1", "the scene's element", warning=(
-        "WARNING: K/G = 9.667 >= 9.667 (nu >= 0.45): trilinear hexahedra may lock, and no formulation that does "
-        "not lock is available on hexahedra to measure it"))
-    assert indicator["calls"] == []
+def test_hexahedra_above_the_threshold_are_measured(indicator):
+    """Issue 54: Q1 gets the indicator too (against mean-dilatation hexahedra; the rules on both sides
+    of the tolerance: test_hex_locking.py); neo-Hookean has no mean-dilatation hexahedra here."""
+    scene = _Scene(nu=0.45, element="Q1")
+    form = fm.formulation_of(scene)
+    assert form == fm.Formulation("displacement", "Q1", "kept: material 'neo_hookean' has no mean-dilatation "
+                                  "hexahedra here", indicator=LOCKS, warning=(
+                                      "WARNING: TEXT(True, mm); no formulation that does not lock on hexahedra for "
+                                      "material 'neo_hookean' (mean-dilatation hexahedra: linear, svk)"))
+    assert indicator["calls"] == [(scene, "skfem")]
 
 
 def test_p2_above_the_threshold_is_kept_and_points_to_the_mixed_formulation(indicator):

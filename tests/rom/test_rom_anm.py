@@ -6,8 +6,10 @@ import pytest
 import scipy.sparse.linalg as spla
 
 from tissuebench.cases.meshes import box_mesh
+from tissuebench.cases.scene import load
 from tissuebench.refsolvers import Dirichlet, NeoHookean, PointLoad, Problem, SaintVenantKirchhoff, make_backend
 from tissuebench.reference import solve
+from tissuebench.reference.formulation import scene_backend
 from tissuebench.refsolvers.newton import newton_solve
 from tissuebench.rom.anm import anm_path, anm_series, reduced_path, reduced_series
 from tissuebench.rom.anm_pod import AnmPod, AnmPodModel
@@ -39,7 +41,7 @@ def series10(cantilever):
 @pytest.fixture(scope="module")
 def cornea():
     r = solve("cornea_pinch")
-    be = make_backend("skfem", r.problem)
+    be = scene_backend(load("cornea_pinch"), "skfem", r.problem)  # the reference's (mean-dilatation Q1)
     S = r.displacement.reshape(len(r.steps), -1).T
     return r, Training(S, [{"load_factor": float(lam)} for lam in r.steps], be)
 
@@ -168,16 +170,20 @@ def test_anm_pod_matches_the_reference_on_cornea_pinch(cornea):
     r, training = cornea
     assert METHODS["anm_pod"] is AnmPod
     for order in range(1, 7):
-        model = make_method("anm_pod", n_modes=9, order=order).build(training)
+        # order 2 needs 191 segments to load factor 1 on the mean-dilatation cornea (issue 54; the default 100 held
+        # the locking Q1's path)
+        model = make_method("anm_pod", n_modes=9, order=order, max_segments=300).build(training)
         assert isinstance(model, AnmPodModel) and model.envelope == {"load_factor": (0.0, 1.0)}
         for k, lam in enumerate(r.steps[1:], 1):
             res = model.step({"load_factor": float(lam)})
             assert res.status == "ok" and res.q.shape == (model.n_reduced,)
             ref = r.displacement[k].ravel()
             err = _rel(model.reconstruct(res), ref)
-            assert err < (1e-2 if order == 1 else 1e-4), (order, lam, err)
-    # the ci path is nearly linear: the snapshot set has numerical rank 4, so 9 asked -> 4
-    assert model.info["n_modes"] == 4 and model.info["segments"] == 1
+            # order 1 at most 1.9e-2, order 2 6.3e-5 (the mean-dilatation cornea, issue 54: it moves 1.6x the
+            # locking Q1's, whose order 1 was within 1e-2)
+            assert err < (2.5e-2 if order == 1 else 1e-4), (order, lam, err)
+    # the ci path is nearly linear: the snapshot set has numerical rank 5 (4 on the locking Q1), so 9 asked -> 5
+    assert model.info["n_modes"] == 5 and model.info["segments"] == 1
 
 
 def test_anm_pod_flags_extrapolation_and_beyond_validity(cornea):
@@ -207,7 +213,8 @@ def test_online_series_options_agree_with_the_precomputed_path(cornea):
     assert _rel(corr.step({"load_factor": 0.9}).q, pre.step({"load_factor": 0.9}).q) < 1e-6
     s = pre.series_at(pre.step({"load_factor": 0.5}).q, 0.5)  # a series from a given state
     q, lam = s.evaluate(s.load_factor_to_a(0.7))
-    assert lam == pytest.approx(0.7) and _rel(q, pre.step({"load_factor": 0.7}).q) < 1e-8
+    # 1.3e-7: both order-4 series, each within its truncation (1e-8 held on the stiffer, locking Q1)
+    assert lam == pytest.approx(0.7) and _rel(q, pre.step({"load_factor": 0.7}).q) < 1e-6
 
 
 def test_reduced_path_with_a_full_basis_direction_matches_full_order(cantilever):

@@ -46,16 +46,17 @@ def test_error_against_the_full_svk_newton_solve(cornea_cut_pgd, model, referenc
         m = model if n == 10 else make_method("pgd_svk", n_modes=n).build(cornea_cut_pgd)
         u = m.reconstruct(m.step({"node": node}))
         err[n] = np.linalg.norm(u - reference) / np.linalg.norm(reference)
-    # measured 0.45 (2 modes) and 0.22 (10 modes): a point-load vademecum over the 57
-    # anterior positions needs many modes (the response is local); the SVK solve itself is exact
-    assert err[10] < 0.25 and err[10] < 0.6 * err[2], err
-    # SVK matters at 0.1 N: the full linear response differs from the SVK one by 7.9 % at ci,
-    # the reduced ones (10 modes) by 2.5 %
+    # measured 0.53 (2 modes) and 0.40 (10 modes) on the mean-dilatation Q1 (issue 54; the locking Q1
+    # before: 0.45 and 0.22): a point-load vademecum over the 57 anterior positions needs many modes
+    # (the response is local); the SVK solve itself is exact
+    assert err[10] < 0.45 and err[10] < 0.8 * err[2], err
+    # SVK matters at 0.1 N: the full linear response differs from the SVK one by 22 % at ci, the
+    # reduced ones (10 modes) by 27 % (the locking Q1 before issue 54, 1.6x stiffer: 7.9 % and 2.5 %)
     u_lin = linear_reference(cornea_cut_pgd.backend)[0]
-    assert np.linalg.norm(u_lin - reference) / np.linalg.norm(reference) > 0.05
+    assert np.linalg.norm(u_lin - reference) / np.linalg.norm(reference) > 0.15
     lin = make_method("pgd", n_modes=10).build(cornea_cut_pgd)
     u_rl, u_rs = (m.reconstruct(m.step({"node": node})) for m in (lin, model))
-    assert 0.01 < np.linalg.norm(u_rl - u_rs) / np.linalg.norm(u_rs) < 0.05
+    assert 0.15 < np.linalg.norm(u_rl - u_rs) / np.linalg.norm(u_rs) < 0.35
 
 
 def test_bad_positions_and_options(cornea_cut_pgd, model):

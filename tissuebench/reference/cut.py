@@ -30,8 +30,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..refsolvers import PointLoad
-from ..refsolvers.backends import make_backend
 from ..refsolvers.sparse_direct import factorized
+from .formulation import scene_backend
 from .memo import MEMO
 
 __all__ = ["cut_problem", "linear_reference", "cut_references", "l2_error"]
@@ -84,7 +84,7 @@ def cut_references(scene, backend: str, strip, force) -> list:
         solved = []
         for c in lengths:
             t0 = time.perf_counter()
-            be = make_backend(backend, cut_problem(scene, strip, c, force))
+            be = scene_backend(scene, backend, cut_problem(scene, strip, c, force))  # the reference's formulation
             u, _ = linear_reference(be)
             solved.append((u, time.perf_counter() - t0))
         return solved

@@ -71,7 +71,7 @@ def check_meta(root, entry) -> tuple[dict | None, str]:
     plan = meta.get("plan")
     if not isinstance(plan, dict) or not isinstance(plan.get("reasons"), list) or not all(
             isinstance(r, list) for r in plan["reasons"]) \
-            or plan.get("formulation", "displacement") not in ("displacement", "anp", "mixed"):
+            or plan.get("formulation", "displacement") not in ("displacement", "anp", "mixed", "mean_dilatation"):
         return None, "meta.json plan is malformed"
     for k in ("case", "resolution", "backend", "cell_type"):
         if not isinstance(meta.get(k), str):

@@ -5,7 +5,10 @@
   where it locks; the locking indicator (:mod:`.locking`) then states by how much.
 * neither: P1 (or Q1 on hexahedra), unless the locking indicator says P1 locks on this mesh
   (nu >= 0.45 and P1's monitored displacement or strain energy more than 2 % off), then the
-  average nodal pressure tetrahedra (:mod:`~tissuebench.refsolvers.anp`), which do not lock.
+  average nodal pressure tetrahedra (:mod:`~tissuebench.refsolvers.anp`), which do not lock;
+  on hexahedra the indicator measures Q1 against mean-dilatation hexahedra
+  (:mod:`~tissuebench.refsolvers.mean_dilatation`, :mod:`.locking`) and the reference takes
+  those where Q1 locks (linear and Saint Venant-Kirchhoff materials).
 
 Why ANP and not P2 or the mixed P2-P1 by default: on the same mesh they have the same unknowns
 as P1 (3 per vertex, the reference's cost stays that of P1 within a small factor; P2 has about
@@ -21,6 +24,7 @@ from dataclasses import dataclass
 from ..cases.sections import VOLUMETRIC_MATERIALS
 from ..refsolvers.anp import AnpBackend, volumetric_modulus
 from ..refsolvers.backends import make_backend
+from ..refsolvers.mean_dilatation import MEAN_DILATATION_MATERIALS, MeanDilatationBackend
 from .locking import LOCKING_BULK_TO_SHEAR, bulk_to_shear, indicator_text, locking_indicator
 
 __all__ = ["Formulation", "formulation_of", "scene_backend", "FORMULATION_LABELS"]
@@ -28,15 +32,16 @@ __all__ = ["Formulation", "formulation_of", "scene_backend", "FORMULATION_LABELS
 #: the materials average nodal pressure tetrahedra can model (a volumetric part U(J), or linear)
 ANP_MATERIALS = VOLUMETRIC_MATERIALS + ("linear",)
 FORMULATION_LABELS = {"displacement": "displacement", "anp": "average nodal pressure tetrahedra (ANP)",
-                      "mixed": "mixed u-p (Taylor-Hood P2-P1)"}
+                      "mixed": "mixed u-p (Taylor-Hood P2-P1)",
+                      "mean_dilatation": "mean-dilatation trilinear hexahedra (Q1, B-bar)"}
 
 
 @dataclass(frozen=True)
 class Formulation:
-    """The formulation of a reference run: ``name`` ("displacement" | "anp" | "mixed"), the
-    ``element`` of its displacement, the ``reason`` it was chosen, the ``warning`` a user must
-    see (P1 asked for where it locks), the locking ``indicator`` (dict, may be empty) and, for the
-    mixed formulation, its ``bulk_modulus`` (None: J = 1 imposed)."""
+    """The formulation of a reference run: ``name`` ("displacement" | "anp" | "mixed" |
+    "mean_dilatation"), the ``element`` of its displacement, the ``reason`` it was chosen, the
+    ``warning`` a user must see (P1 or Q1 asked for where it locks), the locking ``indicator``
+    (dict, may be empty) and, for the mixed formulation, its ``bulk_modulus`` (None: J = 1 imposed)."""
 
     name: str
     element: str
@@ -82,9 +87,7 @@ def formulation_of(scene, backend: str = "skfem") -> Formulation:
         return Formulation("displacement", element, "the scene's element" if scene.element_given
                            else "not nearly incompressible: K/G below the locking threshold")
     if element == "Q1":
-        return Formulation("displacement", "Q1", "the scene's element", warning=(
-            f"WARNING: K/G = {ratio:.4g} >= {LOCKING_BULK_TO_SHEAR:.4g} (nu >= 0.45): trilinear hexahedra may lock, "
-            "and no formulation that does not lock is available on hexahedra to measure it"))
+        return _hexahedra(scene, asked, ratio, backend)
     if element == "P2":
         return Formulation("displacement", "P2", "the scene's element (P2 locks less than P1; the mixed "
                            "formulation does not: analysis.formulation = 'mixed')")
@@ -106,12 +109,46 @@ def formulation_of(scene, backend: str = "skfem") -> Formulation:
     return Formulation("displacement", "P1", text if ind.get("computed") else ind.get("why", ""), indicator=ind)
 
 
+def _hexahedra(scene, asked, ratio, backend):
+    """Q1 of a nearly incompressible scene: measured against mean-dilatation hexahedra
+    (:mod:`.locking`); kept with a note below the tolerance, replaced by them above it
+    unless Q1 is asked for (then a WARNING with the numbers)."""
+    ind = locking_indicator(scene, backend)
+    kept = "the scene's element" if scene.element_given else "Q1 on hexahedra"
+    if not ind.get("computed"):
+        return Formulation("displacement", "Q1", kept, indicator=ind, warning=(
+            f"WARNING: K/G = {ratio:.4g} >= {LOCKING_BULK_TO_SHEAR:.4g} (nu >= 0.45): trilinear hexahedra may lock "
+            f"and the locking indicator was not computed ({ind.get('why', '')})"))
+    text = indicator_text(ind, scene.units)
+    if not ind["locks"]:
+        return Formulation("displacement", "Q1", f"{kept}: {text}", indicator=ind)
+    name = scene.material["name"]
+    none = (f"no formulation that does not lock on hexahedra for material {name!r} (mean-dilatation hexahedra: "
+            f"{', '.join(MEAN_DILATATION_MATERIALS)})")
+    if scene.element_given or asked == "displacement":
+        how = "mesh.element = 'Q1'" if scene.element_given else "analysis.formulation = 'displacement'"
+        keys = " and ".join(k for k, on in (("mesh.element", scene.element_given),
+                                            ("analysis.formulation", asked == "displacement")) if on)
+        remedy = f"leave out {keys} for mean-dilatation hexahedra, which do not lock" \
+            if name in MEAN_DILATATION_MATERIALS else none
+        return Formulation("displacement", "Q1", f"{how} asked for ({text})", indicator=ind,
+                           warning=f"WARNING: {text}; {remedy}")
+    if name not in MEAN_DILATATION_MATERIALS:
+        return Formulation("displacement", "Q1", f"kept: material {name!r} has no mean-dilatation hexahedra here",
+                           indicator=ind, warning=f"WARNING: {text}; {none}")
+    return Formulation("mean_dilatation", "Q1", f"chosen because {text}", indicator=ind)
+
+
 def scene_backend(scene, backend="skfem", problem=None):
     """The backend a reference and the ROMs of ``scene`` use: the displacement backend of its
     problem, wrapped by :class:`~tissuebench.refsolvers.anp.AnpBackend` when the formulation is
-    ANP (the mixed formulation's runner builds its own). ``backend``: a name or a Backend class."""
+    ANP, by :class:`~tissuebench.refsolvers.mean_dilatation.MeanDilatationBackend` when it is
+    mean dilatation (the mixed formulation's runner builds its own). ``backend``: a name or a
+    Backend class."""
     pb = scene.to_problem() if problem is None else problem
     be = make_backend(backend, pb)
     if scene.is_fe and pb.element == "P1" and formulation_of(scene).name == "anp":
         return AnpBackend(pb, be)
+    if scene.is_fe and pb.element == "Q1" and formulation_of(scene).name == "mean_dilatation":
+        return MeanDilatationBackend(pb, be)
     return be

@@ -34,7 +34,7 @@ class ModelPlan:
     algorithm : str
         The solver that runs (``"newton_solve"``, ``"linear_static"``, ``"integrate:<name>"``).
     reasons : list of (item, reason)
-    formulation : {"displacement", "anp", "mixed"}
+    formulation : {"displacement", "anp", "mixed", "mean_dilatation"}
         The finite-element formulation (:mod:`.formulation`).
     """
 

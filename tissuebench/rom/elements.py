@@ -99,13 +99,14 @@ def element_kernel(training, cells=None) -> CellKernel:
     if getattr(be.problem, "mesh", None) is None:
         raise ValueError(f"{who}: the training's model has no finite-element mesh")
     cells = check_cells(cells, be.problem.mesh.n_cells)
-    linear = be.problem.material.is_linear
+    # the Voigt kernel reads a stress law at the Gauss points: linear elasticity has its matrix, and the
+    # mean-dilatation hexahedra a correction per cell besides (issue 54): the backend's own kernel
+    own_kernel = be.problem.material.is_linear or getattr(be, "formulation", "") == "mean_dilatation"
     try:  # a formulation whose energy does not split into cells (average nodal pressure) has no element quantities
-        own = be.cell_kernel(cells if linear else cells[:1])
+        own = be.cell_kernel(cells if own_kernel else cells[:1])
     except NotImplementedError as exc:
         raise ValueError(f"{who}: the {type(be).__name__} formulation has no element quantities ({exc})") from None
-    # the Voigt kernel reads a stress law; linear elasticity has its matrix: the backend's own kernel
-    return own if linear else ElementOperators(be, cells)
+    return own if own_kernel else ElementOperators(be, cells)
 
 
 def galerkin_model(training, basis, cells=None, weights=None, *, name: str = "galerkin", integrator=None,

@@ -40,7 +40,13 @@ def cell_geometry(backend, cells) -> tuple[np.ndarray, np.ndarray]:
     """``(grad (m, q, a, 3), dx (m, q))``: reference shape-function gradients and quadrature
     weights of ``cells``, from the backend's cell kernel, or from a scikit-fem backend on the
     same problem when the backend's kernel does not expose them (NGSolve: the two backends
-    integrate with the same rules, :mod:`~tissuebench.refsolvers.quadrature`)."""
+    integrate with the same rules, :mod:`~tissuebench.refsolvers.quadrature`). Refused for the
+    mean-dilatation hexahedra (issue 54): the Voigt kernel would integrate their volumetric part at
+    the Gauss points, where it locks, and leave their per-cell correction out."""
+    if getattr(backend, "formulation", "") == "mean_dilatation":
+        raise NotImplementedError("the Galerkin models' Voigt kernel integrates the material law at the Gauss points; "
+                                  "the mean-dilatation hexahedra take its volumetric part on each cell's mean "
+                                  "dilatation, which it does not (their element operators: element_kernel)")
     k = backend.cell_kernel(np.asarray(cells, dtype=np.int64))
     if not (hasattr(k, "grad") and hasattr(k, "dx")):
         k = make_backend("skfem", backend.problem).cell_kernel(np.asarray(cells, dtype=np.int64))
