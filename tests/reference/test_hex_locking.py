@@ -428,3 +428,22 @@ def test_run_cornea_pinch_prints_the_figure_and_no_warning(tmp_path, capsys):
     out, err = capsys.readouterr()
     assert "WARNING" not in err and "WARNING" not in out
     assert "formulation: mean_dilatation (Q1): chosen because Q1 locks" in out and "(-36.5 %)" in out
+
+
+@pytest.mark.parametrize("E, computed", [(2.0, True), (1e308, False)])
+def test_solves_that_fail_leave_the_indicator_uncomputed_with_the_reason(tmp_path, E, computed):
+    """At E = 1e308 the small-strain system overflows (a singular factor): the indicator says so and
+    the reference runs on Q1 with a warning, so its own Newton failure is the run's result (was: an
+    internal error before any result); at the catalogue's E = 2 it is computed."""
+    text = (CATALOGUE_DIR / "cornea_pinch.toml").read_text()
+    assert "E = 2.0" in text
+    (tmp_path / "cornea.toml").write_text(text.replace("E = 2.0", f"E = {E!r}", 1))
+    scene = load(tmp_path / "cornea.toml")
+    ind = locking.locking_indicator(scene)
+    assert ind["computed"] is computed
+    if not computed:
+        assert ind["why"].startswith("its small-strain solves failed (LinearSolverError: ") or \
+            ind["why"] == "its small-strain solves gave non-finite values"
+        form = formulation_of(scene)
+        assert form.name == "displacement" and "the locking indicator was not computed (its small-strain" in \
+            form.warning

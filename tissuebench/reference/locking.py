@@ -37,6 +37,7 @@ from ..refsolvers.anp import AnpBackend, anp_applies
 from ..refsolvers.backends import make_backend
 from ..refsolvers.materials import LinearElastic
 from ..refsolvers.mean_dilatation import MeanDilatationBackend
+from ..refsolvers.solver_base import LinearSolverError
 from ..refsolvers.sparse_direct import factorized
 from .memo import MEMO
 
@@ -121,10 +122,27 @@ def locking_indicator(scene, backend: str = "skfem") -> dict:
     if not scene.is_fe or ratio is None or ratio < LOCKING_BULK_TO_SHEAR:
         return {**out, "why": "not nearly incompressible" if ratio is not None else "no bulk and shear modulus"}
     if scene.mesh.cell_type == "hexahedron":  # Q1 against mean-dilatation hexahedra
-        return MEMO.get("locking", (scene.content_hash(), backend), lambda: {**out, **_hex_indicator(scene, backend)})
+        return MEMO.get("locking", (scene.content_hash(), backend), lambda: {**out, **_solved(_hex_indicator, scene,
+                                                                                             backend)})
     if scene.mesh.cell_type != "tetra":
         return {**out, "why": f"{scene.mesh.cell_type} cells: no formulation that does not lock to compare with"}
-    return MEMO.get("locking", (scene.content_hash(), backend), lambda: {**out, **_indicator(scene, backend)})
+    return MEMO.get("locking", (scene.content_hash(), backend), lambda: {**out, **_solved(_indicator, scene, backend)})
+
+
+def _solved(indicator, scene, backend) -> dict:
+    """``indicator(scene, backend)``, or not computed with the reason when its linear solves fail
+    (a scene at the edge of the floating-point range, E = 1e308: a singular or non-finite
+    system): the reference's own solve then reports the failure as a result, which an internal
+    error here would hide."""
+    try:
+        with np.errstate(all="ignore"):
+            result = indicator(scene, backend)
+    except (LinearSolverError, FloatingPointError, np.linalg.LinAlgError) as exc:
+        return {"computed": False, "why": f"its small-strain solves failed ({type(exc).__name__}: {exc})"}
+    values = [q[k] for q in result.get("compared", {}).values() for k in q if isinstance(q[k], float)]
+    if not np.isfinite(values).all():
+        return {"computed": False, "why": "its small-strain solves gave non-finite values"}
+    return result
 
 
 def _indicator(scene, backend):
