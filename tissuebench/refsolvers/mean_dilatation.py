@@ -145,38 +145,60 @@ class MeanDilatationBackend(Backend):
         self.linear = type(problem.material) is LinearElastic
         self.dofs = (3 * cells[:, :, None] + np.arange(3)).reshape(len(cells), 24)
         self._pattern = None
+        # What does not depend on u, laid out once for batched matmul: the correction is evaluated at
+        # every Newton iteration, and with einsum over (cells, points, 24 dofs) it cost 0.6 to 1.7 times
+        # Q1's own assembly on the cornea (tools/bench_mean_dilatation.py). _gg: 27 MB at paper resolution.
+        e, q = self.dx.shape
+        self._gq = np.ascontiguousarray(self.grad.transpose(0, 1, 3, 2)).reshape(e, 3 * q, 8)  # [(q, J), a]
+        self._gg = np.matmul(self.grad, self.grad.transpose(0, 1, 3, 2)).reshape(e, q, 64)  # grad N_a . grad N_b
+        self._eye = np.tile(np.eye(3).ravel(), q)  # F^T = I + H^T in the layout [(q, J, i)]
+        self._sqrt_k_dx = np.sqrt(self.kappa * self.dx)[:, :, None]
+        self._dx_V = (self.dx / self.volumes[:, None])[:, None, :]
+        self._where = None  # (indptr, indices, positions of the cells' 24 x 24 entries in K.data)
 
     # ------------------------------------------------------------------ the correction, cell by cell
-    def _dilatation(self, u_loc, cells):
-        """theta_q (m, q) and its gradient d theta_q / d u_e (m, q, 24) of ``cells`` from their local
-        displacements ``u_loc`` (m, 24)."""
-        grad = self.grad[cells]
-        H = np.einsum("eai,eqaJ->eqiJ", u_loc.reshape(-1, 8, 3), grad)
-        if self.linear:
-            return np.trace(H, axis1=2, axis2=3), grad.reshape(*grad.shape[:2], 24)
-        theta = np.trace(H, axis1=2, axis2=3) + 0.5 * np.einsum("eqiJ,eqiJ->eq", H, H)  # tr E
-        F = H + np.eye(3)
-        return theta, np.einsum("eqiJ,eqaJ->eqai", F, grad).reshape(*grad.shape[:2], 24)  # d tr E / dF = F
-
     def cell_correction(self, u, tangent: bool = False, cells=None, local: bool = False):
         """The correction's cell energies (m,), forces (m, 24) and, with ``tangent``, tangents (m, 24, 24)
         of ``cells`` (all when None), from the full ``u`` (ndof,) or, with ``local``, the cells' local
-        displacements (m, 24) in the order of :attr:`dofs`."""
+        displacements (m, 24) in the order of :attr:`dofs`.
+
+        With ``theta_q = tr e_q`` and its gradient ``d_q = d theta_q / d u_e`` (24,), the energy is
+        ``kappa/2 (V mean^2 - sum_q dV_q theta_q^2)``, the force ``kappa sum_q w_q d_q`` with
+        ``w_q = dV_q (mean - theta_q)``, the tangent ``-kappa sum_q dV_q (d_q - d_mean)(d_q - d_mean)^T``
+        (the variance form of ``V d_mean d_mean^T - sum_q dV_q d_q d_q^T``: the two sums do not cancel,
+        and ``X^T X`` is symmetric) plus, for SVK, ``kappa sum_q w_q d2 theta_q / du2`` =
+        ``kappa delta_ik sum_q w_q grad N_a . grad N_b``.
+        """
         cells = slice(None) if cells is None else cells
         u_loc = np.asarray(u, float) if local else self._check_u(u)[self.dofs[cells]]
-        theta, d = self._dilatation(u_loc, cells)
         dx, V, k = self.dx[cells], self.volumes[cells], self.kappa
+        m, q = dx.shape
+        # H^T[(q, J), i] = sum_a dN_a/dX_J u_ai: the displacement gradient at every point in one product
+        Ht = np.matmul(self._gq[cells], u_loc.reshape(m, 8, 3)).reshape(m, 9 * q)
+        theta = np.einsum("eqii->eq", Ht.reshape(m, q, 3, 3))
+        if self.linear:
+            Ft = np.broadcast_to(self._eye, Ht.shape)  # d div u / d grad u = I
+        else:
+            H3 = Ht.reshape(m, q, 9)
+            theta = theta + 0.5 * np.einsum("eqk,eqk->eq", H3, H3)  # tr E = div u + |grad u|^2 / 2
+            Ft = Ht + self._eye  # d tr E / d grad u = F
         mean = np.einsum("eq,eq->e", dx, theta) / V
         energy = 0.5 * k * (V * mean**2 - np.einsum("eq,eq->e", dx, theta**2))
         weight = dx * (mean[:, None] - theta)
-        force = k * np.einsum("eq,eqk->ek", weight, d)
+        # d_q[(a, i)] = sum_J dN_a/dX_J F_iJ at each point, (m, q, 24); the force from it with or without
+        # the tangent (a cell kernel's two calls give the same force, to the bit)
+        d = np.matmul(self.grad[cells], Ft.reshape(m, q, 3, 3)).reshape(m, q, 24)
+        force = k * np.matmul(weight[:, None, :], d).reshape(m, 24)
         if not tangent:
             return energy, force, None
-        d_mean = np.einsum("eq,eqk->ek", dx, d) / V[:, None]
-        Ke = k * (V[:, None, None] * np.einsum("ek,el->ekl", d_mean, d_mean) - np.einsum("eq,eqk,eql->ekl", dx, d, d))
+        X = d - np.matmul(self._dx_V[cells], d)
+        X *= self._sqrt_k_dx[cells]
+        Ke = np.matmul(np.negative(X.transpose(0, 2, 1)), X)  # -X^T made contiguous; symmetric to the bit
         if not self.linear:  # d2 tr E / du_ai du_bk = delta_ik grad N_a . grad N_b
-            s = np.einsum("eq,eqaJ,eqbJ->eab", weight, self.grad[cells], self.grad[cells])
-            Ke += k * np.einsum("eab,ik->eaibk", s, np.eye(3)).reshape(-1, 24, 24)
+            s = (k * np.matmul(weight[:, None, :], self._gg[cells])).reshape(m, 8, 8)
+            K5 = Ke.reshape(m, 8, 3, 8, 3)
+            for i in range(3):
+                K5[:, :, i, :, i] += s
         return energy, force, Ke
 
     @property
@@ -187,14 +209,30 @@ class MeanDilatationBackend(Backend):
             self._pattern = _Pattern(self.dofs, self.ndof)
         return self._pattern
 
+    def _positions(self, K):
+        """Where each entry of the cells' 24 x 24 blocks sits in ``K.data``, or None when ``K``'s pattern
+        lacks some of them; computed once per pattern (the backend's tangents share one)."""
+        if self._where is not None and np.array_equal(self._where[0], K.indptr) \
+                and np.array_equal(self._where[1], K.indices):
+            return self._where[2]
+        n = K.shape[0]
+        keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(K.indptr)) * n + K.indices  # sorted: canonical K
+        wanted = (np.repeat(self.dofs, 24, axis=1).astype(np.int64) * n + np.tile(self.dofs, (1, 24))).ravel()
+        pos = np.minimum(np.searchsorted(keys, wanted), max(len(keys) - 1, 0))
+        pos = pos if len(keys) and np.array_equal(keys[pos], wanted) else None
+        self._where = (K.indptr.copy(), K.indices.copy(), pos)
+        return pos
+
     def _add(self, K, Ke):
-        """``K`` plus the assembled cell tangents, on ``K``'s pattern when it is the cells' (a sum
-        would drop the entries that come out zero, and the direct solvers keep a factorisation per pattern)."""
+        """``K`` plus the assembled cell tangents ``Ke``, on ``K``'s pattern when it holds the cells'
+        entries (a sum would drop the entries that come out zero, and the direct solvers keep a
+        factorisation per pattern): one ``bincount`` into a copy of ``K.data``, no second sparse matrix."""
         K = canonical_csr(K)
-        C = self.pattern.assemble(Ke)
-        if K.shape == C.shape and np.array_equal(K.indptr, C.indptr) and np.array_equal(K.indices, C.indices):
-            return sp.csr_matrix((K.data + C.data, K.indices, K.indptr), shape=K.shape)
-        return canonical_csr(K + C)
+        pos = self._positions(K) if K.shape == (self.ndof, self.ndof) else None
+        if pos is not None:
+            data = K.data + np.bincount(pos, weights=Ke.ravel(), minlength=len(K.data))
+            return sp.csr_matrix((data, K.indices, K.indptr), shape=K.shape)
+        return canonical_csr(K + self.pattern.assemble(Ke))
 
     def _scatter(self, fe):
         return np.bincount(self.dofs.ravel(), weights=fe.ravel(), minlength=self.ndof)
@@ -208,7 +246,7 @@ class MeanDilatationBackend(Backend):
 
     def internal_force_and_tangent(self, u):
         f, K = self.base.internal_force_and_tangent(u)
-        _, fe, Ke = self.cell_correction(u, tangent=True)
+        _, fe, Ke = self.cell_correction(u, tangent=True)  # force and tangent from one pass
         return f + self._scatter(fe), self._add(K, Ke)
 
     def strain_energy(self, u):
