@@ -400,17 +400,20 @@ def test_a_fit_says_why_no_unit_can_meet_a_requirement(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_a_fit_adds_stored_positions_where_the_moving_loads_model_errs_most(tmp_path):
-    """About 20 s: PODI on the cornea learns from 3 stored positions (6.35 %); the positions the fit
-    adds bring it under 2 % on the held-out positions, and under it at the dense check's thirds."""
+    """About 20 s: PODI on the cornea learns from 3 stored positions (7.6 % against the
+    mean-dilatation reference of issue 54; 6.35 % against the locking Q1); the positions the fit adds
+    bring it under 4 % on the held-out positions (2 added: 3.8 %), and near it at the dense check's
+    thirds (3.6 %). Its best is 2.9 % (4 added; more raise it again): the 2 % this test asked of the
+    locking Q1 is out of PODI's reach on the cornea that does not lock."""
     out = tmp_path / "fit"
-    assert main(["fit", "cornea_pinch", "--require", "error<=2%", "--methods", "podi", "--quiet", "--out",
+    assert main(["fit", "cornea_pinch", "--require", "error<=4%", "--methods", "podi", "--quiet", "--out",
                  str(out)]) == 0
     m = read_manifest(out)
     st = m["families"]["podi.positions"]
     assert st["axis"] == "position" and st["status"] == "met" and 1 <= st["refs_added"] <= 4
-    assert st["curve"][0]["error"] > 0.02 >= st["curve"][-1]["error"]
+    assert st["curve"][0]["error"] > 0.04 >= st["curve"][-1]["error"]
     assert all(-1.2 < a["value"] < 1.2 and a["value"] not in (-0.9, 0.6) for a in st["added"])
-    assert m["dense"][m["answer"]["point"]["unit_key"]]["error"] <= 0.03 and m["answer"]["reproduces"]
+    assert m["dense"][m["answer"]["point"]["unit_key"]]["error"] <= 0.05 and m["answer"]["reproduces"]
 
 
 def test_the_fit_command_refuses_bad_options_before_any_work(tmp_path, capsys):

@@ -22,6 +22,7 @@ import scipy.linalg as sla
 from .base import (Applies, LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, check_parameters,
                    register)
 from .online import parameter
+from ..refsolvers.newton import ROUND_OFF_FACTOR, scaled_norm
 
 __all__ = ["PodBasis", "pod_basis", "PodLinear", "PodNewton"]
 
@@ -344,9 +345,25 @@ class PodNewton(_PodStatic):
         model = _PodNewtonOnline(self.name, basis, free, be, self._envelope(training))
         model.rtol, model.max_iterations = self.rtol, self.max_iterations
         f1 = be.external_force(np.zeros(be.ndof), 1.0)[free]
-        # absolute floor of the tolerance, so that lam = 0 (zero load) converges at q = 0
-        model._atol = 1e-14 * max(float(np.linalg.norm(basis.modes.T @ f1)), 1e-300)
+        # absolute floor of the tolerance, so that lam = 0 (zero load) converges at q = 0, and
+        # never below the reduced residual's round-off floor (as the full Newton's,
+        # refsolvers.newton): eps x the reduced nodal forces of a unit dilation. A load tiny
+        # against the body's stiffness (a path's near-rest point, 1/5120 of its load, on the
+        # mean-dilatation cornea) has a residual that stalls there, above rtol x its load
+        model._atol = max(1e-14 * max(float(np.linalg.norm(basis.modes.T @ f1)), 1e-300),
+                          _round_off_floor(be, basis.modes, free))
         return model
+
+
+def _round_off_floor(backend, modes, free) -> float:
+    """``ROUND_OFF_FACTOR`` x eps x ``||Phi^T (K_0 X)_free||``: the reduced residual of the nodal
+    forces of a unit dilation ``X`` about the body's centre (:meth:`refsolvers.newton` 's floor,
+    projected on the basis)."""
+    nodes = np.asarray(backend.problem.nodes, float)
+    X = np.zeros(backend.ndof)
+    X[:nodes.size] = (nodes - nodes.mean(axis=0)).ravel()
+    K0 = backend.tangent(np.zeros(backend.ndof))
+    return ROUND_OFF_FACTOR * np.finfo(float).eps * scaled_norm(modes.T @ (K0 @ X)[free])
 
 
 class _PodNewtonOnline(_PodOnline):
