@@ -178,7 +178,12 @@ class StepMatrix:
             raise ValueError(f"step-matrix precision = {precision!r}: expected one of {PRECISIONS}")
         tic = time.perf_counter()
         H = np.asarray(H, dtype=float)
-        d = 1.0 / np.sqrt(np.diag(H))  # Jacobi scaling: the affine coordinates' scales differ by the body size
+        diag = np.diag(H)
+        if not np.all(np.isfinite(H)) or not np.all(diag > 0):  # the scaling's sqrt would hide it as NaN factors
+            bad = int(np.argmin(np.where(np.isfinite(diag), diag, -np.inf)))
+            raise np.linalg.LinAlgError(f"diagonal entry {bad} is {float(diag[bad]):.6g}"
+                                        if np.all(np.isfinite(H)) else "non-finite entries")
+        d = 1.0 / np.sqrt(diag)  # Jacobi scaling: the affine coordinates' scales differ by the body size
         c = sla.cho_factor(d[:, None] * H * d[None, :], lower=False, check_finite=False)[0]
         rng = np.random.default_rng(0)
         rhs = rng.standard_normal((max(3, int(timing_solves)), len(H)))

@@ -50,11 +50,17 @@ from .linsolve import StepMatrix
 from .kinematics import SCHEMES, Scheme, make_scheme  # noqa: F401  (re-exported)
 from .subspace import regularised
 
-__all__ = ["SCHEMES", "SOLVERS", "PREDICTORS", "HISTORIES", "Scheme", "ReducedStepper", "make_scheme"]
+__all__ = ["SCHEMES", "SOLVERS", "PREDICTORS", "HISTORIES", "Scheme", "ReducedStepper", "IndefiniteStepMatrix",
+           "make_scheme"]
 
 SOLVERS = ("lbfgs", "newton")
 PREDICTORS = ("explicit", "linearised")
 HISTORIES = ("step", "run")
+
+
+class IndefiniteStepMatrix(ValueError):
+    """The step matrix at the start state is not positive definite (the cubature's reduced
+    stiffness is indefinite there): the model cannot step; the message says why and what to change."""
 
 
 class ReducedStepper:
@@ -124,8 +130,24 @@ class ReducedStepper:
             K_z = T.T @ (T.T @ K.T).T
             H = regularised(self.scheme.c_m(dt) * self.M_z.toarray() + w * np.asarray(K_z))
             K_zb = w * np.asarray(T.T @ K[:, self.sub.bnd]) if len(self.sub.bnd) else np.zeros((self.sub.n_z, 0))
-            self._H[key] = (StepMatrix(H, self.linear_solver, self.precision), K_zb)
+            try:
+                op = StepMatrix(H, self.linear_solver, self.precision)
+            except np.linalg.LinAlgError as exc:
+                raise IndefiniteStepMatrix(self._indefinite(dt, exc)) from exc
+            self._H[key] = (op, K_zb)
         return self._H[key]
+
+    def _indefinite(self, dt, exc) -> str:
+        """Why the step matrix has no Cholesky factor, and what to change."""
+        cub = self.forces.cubature
+        negative = int(np.sum(np.asarray(cub.weights) < 0))
+        cause = (f"the {cub.scheme} cubature's {negative} negative weights (of {len(cub.weights)}) make the reduced "
+                 f"stiffness indefinite" if negative else
+                 f"the {cub.scheme} cubature's reduced stiffness is indefinite")
+        return (f"wsc: the step matrix c_m M_z + (1 + alpha) K_z at dt = {dt:g} s is not positive definite "
+                f"({exc}): {cause}, so the reduced dynamics are unstable at this state and its L-BFGS has no "
+                f"initial Hessian; take more cubature elements (cubature_elements), fewer handles (n_z = "
+                f"{self.sub.n_z}), or a rule with positive weights (cubature = 'rbf' or 'nnls')")
 
     # ------------------------------------------------------------------ run
     def start(self, z0, v0, qb0, vb0, lam0, dt):
