@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .backends.base import Backend, make_backend
+from .corrected_backend import CorrectedBackend
 from .materials import LinearElastic
 from .solver_base import SparsityPattern, canonical_csr
 
@@ -85,7 +85,7 @@ class _Geometry:
         self.n_v, self.ndof = n_v, 3 * n_v
 
 
-class AnpBackend(Backend):
+class AnpBackend(CorrectedBackend):
     """A P1 displacement backend with the volumetric energy averaged at the vertices.
 
     Parameters
@@ -98,14 +98,7 @@ class AnpBackend(Backend):
     """
 
     def __init__(self, problem, backend="skfem"):
-        why = anp_applies(problem)
-        if why:
-            raise ValueError(why)
-        self.base = backend if isinstance(backend, Backend) and backend.problem is problem \
-            else make_backend(backend, problem)
-        super().__init__(problem)
-        self.name = self.base.name
-        self.formulation = "anp"
+        super().__init__(problem, backend, anp_applies(problem), "anp")
         nodes, cells = problem.layout
         self.geo = _Geometry(nodes, cells)
         self.linear = isinstance(problem.material, LinearElastic)
@@ -200,18 +193,6 @@ class AnpBackend(Backend):
         """J_a of every vertex, shape (n_vertices,): the volume ratio the pressure sees."""
         return self._vertex_state(self._kinematics(u)[0])
 
-    def external_force(self, u, load_factor):
-        return self.base.external_force(u, load_factor)
-
-    def external_tangent(self, u, load_factor):
-        return self.base.external_tangent(u, load_factor)
-
-    def mass(self, lumped=False):
-        return self.base.mass(lumped)
-
-    def min_jacobian(self, u):
-        return self.base.min_jacobian(u)
-
     def element_strain_energies(self, u):
         raise NotImplementedError("the average nodal pressure energy does not split into cell energies "
                                   "(each vertex's volumetric term couples the cells around it)")
@@ -219,6 +200,3 @@ class AnpBackend(Backend):
     def element_internal_forces(self, u):
         raise NotImplementedError("the average nodal pressure force does not split into cell forces "
                                   "(each vertex's volumetric term couples the cells around it)")
-
-    def make_linear_solver(self, name="auto", **options):
-        return self.base.make_linear_solver(name, **options)

@@ -37,7 +37,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .backends.base import Backend, CellKernel, check_cells, make_backend
+from .backends.base import CellKernel, check_cells
+from .corrected_backend import CorrectedBackend
 from .materials import LinearElastic, SaintVenantKirchhoff
 from .mesh import HEX_CORNERS
 from .quadrature import default_order, volume_rule
@@ -117,7 +118,7 @@ class MeanDilatationKernel(CellKernel):
         return f + df, K + dK
 
 
-class MeanDilatationBackend(Backend):
+class MeanDilatationBackend(CorrectedBackend):
     """A Q1 displacement backend with the volumetric energy taken on each cell's mean dilatation.
 
     Parameters
@@ -129,14 +130,7 @@ class MeanDilatationBackend(Backend):
     """
 
     def __init__(self, problem, backend="skfem"):
-        why = mean_dilatation_applies(problem)
-        if why:
-            raise ValueError(why)
-        self.base = backend if isinstance(backend, Backend) and backend.problem is problem \
-            else make_backend(backend, problem)
-        super().__init__(problem)
-        self.name = self.base.name
-        self.formulation = "mean_dilatation"
+        super().__init__(problem, backend, mean_dilatation_applies(problem), "mean_dilatation")
         cells = problem.layout[1]
         self.grad, self.dx = hex_gradients(problem.layout[0], cells, problem.quadrature_order)
         self.volumes = self.dx.sum(axis=1)
@@ -260,18 +254,3 @@ class MeanDilatationBackend(Backend):
 
     def cell_kernel(self, cells=None):
         return MeanDilatationKernel(self, check_cells(cells, self.problem.mesh.n_cells))
-
-    def external_force(self, u, load_factor):
-        return self.base.external_force(u, load_factor)
-
-    def external_tangent(self, u, load_factor):
-        return self.base.external_tangent(u, load_factor)
-
-    def mass(self, lumped=False):
-        return self.base.mass(lumped)
-
-    def min_jacobian(self, u):
-        return self.base.min_jacobian(u)
-
-    def make_linear_solver(self, name="auto", **options):
-        return self.base.make_linear_solver(name, **options)
