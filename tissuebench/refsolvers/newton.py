@@ -174,6 +174,15 @@ _norm = scaled_norm
 ROUND_OFF_FACTOR = 1.0
 
 
+def unit_dilation(nodes, ndof: int) -> np.ndarray:
+    """The displacement (ndof,) of a unit dilation of ``nodes`` (n, 3) about their centre, zero on
+    any dof beyond the nodes' (a pressure): the round-off floors' unit strain (:data:`ROUND_OFF_FACTOR`)."""
+    nodes = np.asarray(nodes, dtype=float)
+    x = np.zeros(ndof)
+    x[:nodes.size] = (nodes - nodes.mean(axis=0)).ravel()
+    return x
+
+
 class _Equilibrium:
     """Residual and tangent at a fixed load factor (free/fixed partition of the dofs)."""
 
@@ -182,10 +191,7 @@ class _Equilibrium:
         pb = backend.problem
         self.free, self.fixed = pb.free_dofs, pb.fixed_dofs
         self._last = (None, None)  # (state, f_int) of the last residual evaluation
-        nodes = np.asarray(pb.nodes, float)
-        # the displacement of a unit dilation about the centre, zero on any other dof (a pressure)
-        self._dilation = np.zeros(backend.ndof)
-        self._dilation[:nodes.size] = (nodes - nodes.mean(axis=0)).ravel()
+        self._dilation = unit_dilation(pb.nodes, backend.ndof)
 
     def round_off_floor(self, K_f) -> float:
         """The residual norm below which round-off hides the equilibrium: ``ROUND_OFF_FACTOR`` x

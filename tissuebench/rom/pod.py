@@ -22,7 +22,7 @@ import scipy.linalg as sla
 from .base import (Applies, LinearReconstruction, OnlineModel, RomMethod, StepResult, Training, check_parameters,
                    register)
 from .online import parameter
-from ..refsolvers.newton import ROUND_OFF_FACTOR, scaled_norm
+from ..refsolvers.newton import ROUND_OFF_FACTOR, scaled_norm, unit_dilation
 
 __all__ = ["PodBasis", "pod_basis", "PodLinear", "PodNewton"]
 
@@ -359,10 +359,8 @@ def _round_off_floor(backend, modes, free) -> float:
     """``ROUND_OFF_FACTOR`` x eps x ``||Phi^T (K_0 X)_free||``: the reduced residual of the nodal
     forces of a unit dilation ``X`` about the body's centre (:meth:`refsolvers.newton` 's floor,
     projected on the basis)."""
-    nodes = np.asarray(backend.problem.nodes, float)
-    X = np.zeros(backend.ndof)
-    X[:nodes.size] = (nodes - nodes.mean(axis=0)).ravel()
     K0 = backend.tangent(np.zeros(backend.ndof))
+    X = unit_dilation(backend.problem.nodes, backend.ndof)
     return ROUND_OFF_FACTOR * np.finfo(float).eps * scaled_norm(modes.T @ (K0 @ X)[free])
 
 

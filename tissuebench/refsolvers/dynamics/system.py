@@ -25,7 +25,7 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 
-from ..newton import ROUND_OFF_FACTOR, scaled_norm
+from ..newton import ROUND_OFF_FACTOR, scaled_norm, unit_dilation
 from .checks import DENSE_LIMIT, check_spd_mass, check_vector  # noqa: F401  (re-exported)
 
 
@@ -323,12 +323,7 @@ def _unit_strain(problem) -> np.ndarray | None:
     """The displacement of a unit dilation of ``problem``'s nodes about their centre (zero on
     any dof beyond the nodes'), or None for a problem without nodes."""
     nodes = getattr(problem, "nodes", None)
-    if nodes is None:
-        return None
-    nodes = np.asarray(nodes, dtype=float)
-    x = np.zeros(problem.ndof)
-    x[:nodes.size] = (nodes - nodes.mean(axis=0)).ravel()
-    return x
+    return None if nodes is None else unit_dilation(nodes, problem.ndof)
 
 
 def _prescribed_motion(problem, load_history):
