@@ -30,6 +30,34 @@ def test_refined_scene_halves_the_cells_and_keeps_the_formulation():
         refined_scene(load("cornea_pinch"), "displacement")
 
 
+def test_the_refined_scene_takes_the_coarse_formulation_without_solving_its_own_indicator(monkeypatch):
+    """The h/2 mesh's indicator would be two linear solves of the refined size (1.5 min at 108k
+    dofs on the 5k-node organ), for a choice the h mesh made: not computed, and said why."""
+    import tissuebench.reference.locking as locking
+    from tissuebench.reference.formulation import formulation_of
+
+    scene = load(SCENES / "dome.toml")
+    fine = refined_scene(scene, "displacement")
+
+    def refuse(*_args):
+        raise AssertionError("the h/2 mesh solved its own locking indicator")
+
+    monkeypatch.setattr(locking, "_indicator", refuse)
+    for backend in ("skfem", "ngsolve"):
+        form = formulation_of(fine, backend)
+        assert form.name == "displacement" and not form.warning
+        assert not form.indicator["computed"] and "h mesh's" in form.indicator["why"]
+    # the other side: a scene not refined by the check computes its own (here: refused)
+    with pytest.raises(AssertionError, match="solved its own"):
+        formulation_of(_other_nu(scene))
+
+
+def _other_nu(scene):
+    import dataclasses
+
+    return dataclasses.replace(scene, material={**scene.material, "nu": 0.4991})
+
+
 @pytest.mark.slow
 def test_verify_convergence_writes_the_table_the_report_shows(tmp_path, capsys):
     from _report_store import build_store

@@ -24,6 +24,7 @@ import pandas as pd
 from ..cases.builtmesh import BuiltMesh
 from ..refsolvers.mesh import Mesh, node_layout
 from .formulation import formulation_of
+from .locking import decided_elsewhere
 from .progress_lines import SolveLines
 from .runner import solve
 
@@ -46,6 +47,7 @@ def refined_scene(scene, formulation: str):
     new = dataclasses.replace(scene, analysis={**scene.analysis, "formulation": formulation},
                               mesh_spec={**scene.mesh_spec, "element": scene.element, "refined": 1})
     new.__dict__["built"] = BuiltMesh(refined, {**scene.mesh_info, "refined": "uniform, h/2"})
+    decided_elsewhere(new, f"h/2 of the convergence check: the formulation ({formulation}) is the h mesh's")
     return new
 
 

@@ -42,7 +42,7 @@ from ..refsolvers.sparse_direct import factorized
 from .memo import MEMO
 
 __all__ = ["LOCKING_NU", "LOCKING_BULK_TO_SHEAR", "LOCKING_TOL", "HEX_METHOD", "bulk_to_shear",
-           "locking_indicator", "indicator_text"]
+           "locking_indicator", "indicator_text", "decided_elsewhere"]
 
 #: the Poisson ratio from which the indicator is computed
 LOCKING_NU = 0.45
@@ -127,6 +127,20 @@ def locking_indicator(scene, backend: str = "skfem") -> dict:
     if scene.mesh.cell_type != "tetra":
         return {**out, "why": f"{scene.mesh.cell_type} cells: no formulation that does not lock to compare with"}
     return MEMO.get("locking", (scene.content_hash(), backend), lambda: {**out, **_solved(_indicator, scene, backend)})
+
+
+def decided_elsewhere(scene, why: str, backends=("skfem", "ngsolve")) -> None:
+    """Record that ``scene``'s formulation was decided without its own indicator (``why``): the
+    h/2 mesh of the convergence check takes the h mesh's, and its two linear solves at rest, of
+    the size of the refined mesh, cost minutes on an organ (1.5 min at 108k dofs) for a number
+    nobody reads. :func:`locking_indicator` then returns it as not computed, saying ``why``."""
+    if not why:
+        raise ValueError("decided_elsewhere: why must say where the formulation was decided")
+    ratio = bulk_to_shear(scene.material)
+    entry = {"computed": False, "bulk_to_shear": ratio, "threshold": LOCKING_BULK_TO_SHEAR,
+             "tolerance": LOCKING_TOL, "why": why}
+    for backend in backends:
+        MEMO.get("locking", (scene.content_hash(), backend), lambda: dict(entry))
 
 
 def _solved(indicator, scene, backend) -> dict:
