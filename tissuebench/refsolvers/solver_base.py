@@ -32,6 +32,14 @@ class LinearSolver:
     def solve(self, K, b, rtol=None):
         raise NotImplementedError
 
+    #: True for solvers that keep the factors of their last :meth:`solve` (:meth:`solve_again`)
+    keeps_factors = False
+
+    def solve_again(self, b):
+        """``K^-1 b`` with the factors of the last :meth:`solve` (modified Newton: the tangent kept
+        across iterations); only where :attr:`keeps_factors`."""
+        raise LinearSolverError(f"{self.name or type(self).__name__} solver keeps no factors to solve again with")
+
     def reset(self):
         """Forget cached orderings, factors or hierarchies."""
 

@@ -90,13 +90,19 @@ class DirectSolver(LinearSolver):
     """
 
     name = "direct"
+    keeps_factors = True
 
     def __init__(self, permc_spec: str = "MMD_AT_PLUS_A", reuse_ordering: bool = True):
         self.permc_spec, self.reuse_ordering = permc_spec, bool(reuse_ordering)
         self.reset()
 
     def reset(self):
-        self._pattern, self._q = SparsityPattern(), None
+        self._pattern, self._q, self._last = SparsityPattern(), None, None
+
+    def solve_again(self, b):
+        if self._last is None:
+            raise LinearSolverError("direct solver: no factors yet (solve first)")
+        return self._last.solve(np.asarray(b, float))
 
     def factorize(self, K):
         """LU factors of ``K`` with ``.solve(b)``, reusing the ordering if the pattern matches."""
@@ -122,7 +128,9 @@ class DirectSolver(LinearSolver):
 
     def solve(self, K, b, rtol=None):
         t0, c0 = time.perf_counter(), time.process_time()
+        self._last = None
         lu, symbolic = self._factorize(K)
+        self._last = lu
         t1, c1 = time.perf_counter(), time.process_time()
         x = lu.solve(np.asarray(b, float))
         return x, {"solver": "scipy-splu", "iterations": 1, "factor_s": t1 - t0, "factor_cpu_s": c1 - c0,
@@ -150,6 +158,7 @@ class NgsolveSparseSolver(LinearSolver):
     """
 
     name = "cholesky"
+    keeps_factors = True
     TASKMANAGER_MIN_DOFS = 20000
 
     def __init__(self, symmetric=None, inverse=None, reuse: bool = True, taskmanager=None):
@@ -262,6 +271,17 @@ class NgsolveSparseSolver(LinearSolver):
                 "inverse": self._kind,
                 "solve_s": time.perf_counter() - t0 - factor_s, "symbolic": symbolic}
         return x.reshape(bb.shape), info
+
+    def solve_again(self, b):
+        if self._inv is None:
+            raise LinearSolverError(f"{self.name} solver: no factors yet (solve first)")
+        bv, xv = self._A.CreateColVector(), self._A.CreateColVector()
+        bv.FV().NumPy()[:] = np.asarray(b, dtype=float)
+        xv.data = self._inv * bv
+        x = xv.FV().NumPy().copy()
+        if not np.all(np.isfinite(x)):
+            raise LinearSolverError(f"{self.name} solver: non-finite solution (singular matrix?)")
+        return x
 
 
 class _Null:

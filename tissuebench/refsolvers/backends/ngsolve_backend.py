@@ -441,8 +441,15 @@ class NgsolveBackend(Backend):
         return lump_mass(self._mass, self.problem.element) if lumped else self._mass.copy()
 
     def make_linear_solver(self, name="auto", **options):
-        """``"direct"`` and ``"auto"``: NGSolve's sparse Cholesky/UMFPACK (:class:`NgsolveSparseSolver`,
-        also ``"cholesky"`` on every backend); other names: the shared solvers."""
-        if name in ("direct", "auto"):
+        """``"direct"``: NGSolve's sparse Cholesky/UMFPACK (:class:`NgsolveSparseSolver`, also
+        ``"cholesky"`` on every backend); ``"auto"``: the same, with its factors kept for CG from
+        :data:`~tissuebench.refsolvers.linear_solvers.KEPT_FACTORS_MIN_DOFS` unknowns on
+        (:class:`~tissuebench.refsolvers.linear_solvers.AutoDirectSolver` taking NGSolve at every
+        size); other names: the shared solvers."""
+        if name == "direct":
             return NgsolveSparseSolver(**options)
+        if name == "auto":
+            from ..linear_solvers import AutoDirectSolver
+
+            return AutoDirectSolver(ngsolve_from=0, **options)
         return super().make_linear_solver(name, **options)
