@@ -24,7 +24,8 @@ from tissuebench.refsolvers.dynamics.checks import DENSE_LIMIT, check_spd_mass, 
 from tissuebench.refsolvers.dynamics.driver import _n_steps
 
 NAMES = ["backward_euler", "bathe", "central_difference", "forward_euler", "hht", "newmark"]
-NEWTON_OPTS = "['newton_rtol', 'newton_atol', 'newton_utol', 'newton_max_iter', 'newton_tangent', 'linear_solver']"
+NEWTON_OPTS = ("['newton_rtol', 'newton_atol', 'newton_utol', 'newton_max_iter', 'newton_tangent', "
+               "'newton_iterations', 'linear_solver']")
 
 
 def one_dof(m=1.0, k=1.0):

@@ -249,7 +249,7 @@ def test_newton_options_from_keywords():
         newton_options("Bathe", {"newton_maxiter": 3, "alpha": 1})
     assert str(err.value) == ("Bathe: unknown option(s) ['alpha', 'newton_maxiter']; valid Newton options: "
                               "['newton_rtol', 'newton_atol', 'newton_utol', 'newton_max_iter', 'newton_tangent', "
-                              "'linear_solver']")
+                              "'newton_iterations', 'linear_solver']")
 
 
 def test_step_solver_names():
@@ -491,3 +491,34 @@ def test_a_run_whose_forces_were_resolved_is_converged_at_the_floor_not_refused(
     assert rep.converged and rep.iterations == 0 and u[0] == 0.0
     assert not newton(np.array([0.0]), linear_residual(4e-13), linear_jacobian, 5e-13, opts(), floor=FLOOR,
                       peak=FLOOR)[1].converged
+
+
+# ------------------------------------------------------------ a fixed Newton budget (issue 52)
+@pytest.mark.parametrize("tangent", ["iteration", "reuse"])
+@pytest.mark.parametrize("k, within", [(1, False), (2, False), (12, True)])
+def test_a_fixed_budget_does_exactly_k_iterations_and_says_when_the_residual_is_above_tolerance(tangent, k, within):
+    """``iterations = k``: k iterations whatever the residual (a converged step does not stop
+    early: its cost is the budget's), the state advanced, and ``within_tolerance`` on both sides."""
+    calls = []
+
+    def counted(u):
+        calls.append(u[0])
+        return residual(u)
+
+    opts = NewtonOptions(rtol=1e-10, tangent=tangent, iterations=k)
+    u, rep = newton(np.array([0.0]), counted, sparse_jacobian, 2.0, opts)
+    assert rep.converged and rep.iterations == k and len(calls) == k + 1  # the predictor's residual and one a step
+    assert rep.within_tolerance is within and (rep.message == "") is within
+    if not within:
+        assert f"fixed budget of {k} Newton iterations" in rep.message and "above the tolerance" in rep.message
+    if tangent == "iteration":
+        assert u[0] == pytest.approx(hand_newton(0.0, k)[0][-1], rel=1e-14)
+    free = newton(np.array([0.0]), residual, sparse_jacobian, 2.0, NewtonOptions(rtol=1e-10, tangent=tangent))[1]
+    assert free.iterations < 12  # without the budget it stops at the tolerance
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, True, "3"])
+def test_a_fixed_budget_must_be_a_positive_integer(bad):
+    with pytest.raises(ValueError, match="newton_iterations"):
+        newton_options("HHT", {"newton_iterations": bad})
+    assert newton_options("HHT", {"newton_iterations": 3}).iterations == 3

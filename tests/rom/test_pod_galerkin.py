@@ -151,7 +151,8 @@ def test_deim_interpolates_the_training_forces_with_the_rank_of_their_snapshots(
 @pytest.mark.parametrize("options, match", [
     ({"hyper": "gappy"}, "hyper = 'gappy'"), ({"ecsw_tol": 0.0}, "ecsw_tol"), ({"n_modes": 2.5}, "n_modes"),
     ({"integrator": "central_difference"}, "integrator = 'central_difference'"), ({"energy": 1.5}, "energy"),
-    ({"inner": "stiffness"}, "inner = 'stiffness'"), ({"deim_modes": 0}, "deim_modes")])
+    ({"inner": "stiffness"}, "inner = 'stiffness'"), ({"deim_modes": 0}, "deim_modes"),
+    ({"newton_iterations": 0}, "newton_iterations"), ({"newton_iterations": 2.5}, "newton_iterations")])
 def test_bad_options_are_refused_naming_them(options, match):
     with pytest.raises(ValueError, match=match):
         make_method("pod_galerkin", **options)
@@ -246,3 +247,25 @@ def test_the_fe_baselines_in_time_start_their_integrator_in_start_too(point_load
     assert np.array_equal(started, lazy)
     if method == "linear_fe":  # one matrix for the run: formed by start, by the first step without it
         assert first_started == 0 and formed[0] >= 1
+
+
+# ------------------------------------------------------------------ a fixed Newton budget (issue 52, item 5)
+def test_a_fixed_newton_budget_steps_with_k_iterations_and_counts_the_steps_left_above_rtol(point_load):
+    """``newton_iterations = k``: every step does k iterations (a haptic frame's fixed cost); with
+    one, the large bend leaves steps above rtol, each said in its message and counted, and the
+    trajectory stays near the converged one; with enough, none is left and the numbers are the
+    converged run's to its tolerance."""
+    training, res = point_load
+    mus = [{"time": float(k * DT), "load_factor": _history(k * DT)} for k in range(1, round(T_END / DT) + 1)]
+    converged, U = _run(training, n_modes=8, hyper="none", rtol=1e-10)
+    for k, above in ((1, True), (8, False)):
+        model = make_method("pod_galerkin", n_modes=8, hyper="none", rtol=1e-10, newton_iterations=k).build(training)
+        results = model.solve(mus, dt=DT)
+        assert all(r.ok for r in results)
+        assert {r.info["iterations"] for r in results if r.info["iterations"]} == {k}
+        flagged = [r for r in results if r.info.get("within_tolerance") is False]
+        assert (model.steps_above_tolerance > 0) is above and len(flagged) == model.steps_above_tolerance
+        assert all(f"fixed budget of {k} Newton iterations" in r.message for r in flagged)
+        V = np.array([model.reconstruct(r) for r in results])
+        gap = float(np.linalg.norm(V - U) / np.linalg.norm(U))
+        assert gap <= (0.05 if above else 1e-8), gap

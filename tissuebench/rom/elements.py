@@ -110,7 +110,8 @@ def element_kernel(training, cells=None) -> CellKernel:
 
 
 def galerkin_model(training, basis, cells=None, weights=None, *, name: str = "galerkin", integrator=None,
-                   rtol: float = 1e-6, max_iterations: int = 20, newton_tangent: str = "reuse", info=None):
+                   rtol: float = 1e-6, max_iterations: int = 20, newton_tangent: str = "reuse",
+                   newton_iterations: int | None = None, info=None):
     """A POD-Galerkin trajectory model on ``basis`` with the internal force of weighted ``cells``.
 
     The online model of ``pod_galerkin`` (the scene's implicit integrator on the Galerkin projection
@@ -130,7 +131,7 @@ def galerkin_model(training, basis, cells=None, weights=None, *, name: str = "ga
         (as ``pod_galerkin``; ``info["rule_note"]`` says so).
     name : str
         The model's name (its messages say it).
-    integrator, rtol, max_iterations, newton_tangent
+    integrator, rtol, max_iterations, newton_tangent, newton_iterations
         As ``pod_galerkin``'s options (``integrator`` None: the scene's, HHT where it is explicit).
     info : dict, optional
         Entries added to the model's ``info`` (the offline record a sweep stores).
@@ -179,7 +180,7 @@ def galerkin_model(training, basis, cells=None, weights=None, *, name: str = "ga
     system = reduced_system(full, V, free, forces, be, driven, linear=linear)
     try:  # the options of pod_galerkin's Newton iteration, checked by it
         stepping = PodGalerkin(rtol=rtol, max_iterations=max_iterations, newton_tangent=newton_tangent,
-                               integrator=integrator)
+                               newton_iterations=newton_iterations, integrator=integrator)
     except ValueError as exc:
         raise ValueError(f"{who}: {str(exc).replace('pod_galerkin option ', '')}") from None
     options = stepping._integrator(training)

@@ -238,8 +238,8 @@ class Bathe(Integrator):
         rep2, u1, v1, a1, fe, fi, c1 = self._solve(
             self.t + dt, uh + h * vh + 0.5 * h * h * ah, backward3(u0, v0, uh, vh), 9.0 / (dt * dt), 3.0 / dt,
             self._lu2, r_ref, uc1, backward3(self.uc, self.vc, uch, vch))
-        rep = StepReport(rep2.converged, rep1.iterations + rep2.iterations, rep2.message,
-                         rep1.residuals + rep2.residuals)
+        rep = StepReport(rep2.converged, rep1.iterations + rep2.iterations, rep2.message or rep1.message,
+                         rep1.residuals + rep2.residuals, rep1.within_tolerance and rep2.within_tolerance)
         if not rep2.converged:
             rep.message = f"t={self.t + dt:.6g} (second sub-step): {rep2.message}"
             return rep

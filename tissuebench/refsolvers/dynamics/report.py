@@ -10,9 +10,12 @@ __all__ = ["StepReport"]
 
 @dataclass
 class StepReport:
-    """Outcome of one step: ``converged`` False means the state was not advanced."""
+    """Outcome of one step: ``converged`` False means the state was not advanced;
+    ``within_tolerance`` False, that it was advanced after a fixed Newton budget whose last
+    residual was still above the tolerance (``message`` says by how much)."""
 
     converged: bool = True
     iterations: int = 0
     message: str = ""
     residuals: list = field(default_factory=list)
+    within_tolerance: bool = True

@@ -57,6 +57,11 @@ class NewtonOptions:
     term of the step, in N; floor: the system's round-off floor, see :func:`newton`) or when
     ``||du|| <= utol * max(||u||, 1e-300)`` [m]. Norms are scaled (no underflow below 1e-154 N).
     ``tangent``: when the Newton matrix is formed (:data:`NEWTON_TANGENTS`).
+    ``iterations``: None, iterate to the tolerance (at most ``max_iter``); an integer k, every
+    step does exactly k iterations, as a real-time loop does to keep its frame (a step's cost then
+    does not depend on its state): the step is accepted after them, converged or not, and its
+    report says when the residual was still above the tolerance (``within_tolerance``); what
+    that costs in accuracy is the model's error against the reference.
     """
 
     rtol: float = 1e-10
@@ -65,6 +70,7 @@ class NewtonOptions:
     max_iter: int = 25
     linear_solver: str = "auto"
     tangent: str = "auto"
+    iterations: int | None = None
 
     def __post_init__(self):
         for name in ("rtol", "atol", "utol"):
@@ -79,13 +85,17 @@ class NewtonOptions:
             raise ValueError(f"linear_solver must be one of {list(STEP_SOLVERS)}, got {self.linear_solver!r}")
         if self.tangent not in NEWTON_TANGENTS:
             raise ValueError(f"newton_tangent must be one of {list(NEWTON_TANGENTS)}, got {self.tangent!r}")
+        it = self.iterations
+        if it is not None and (isinstance(it, bool) or not isinstance(it, (int, np.integer)) or it < 1):
+            raise ValueError(f"newton_iterations must be None or an integer >= 1, got {it!r}")
 
 
 def newton_options(owner: str, opts: dict) -> NewtonOptions:
     """NewtonOptions from keyword options ``newton_rtol``, ``newton_atol``, ``newton_utol``,
-    ``newton_max_iter``, ``newton_tangent`` and ``linear_solver`` (one of :data:`STEP_SOLVERS`);
-    anything else is a ValueError naming ``owner``."""
-    valid = ("newton_rtol", "newton_atol", "newton_utol", "newton_max_iter", "newton_tangent", "linear_solver")
+    ``newton_max_iter``, ``newton_tangent``, ``newton_iterations`` and ``linear_solver`` (one of
+    :data:`STEP_SOLVERS`); anything else is a ValueError naming ``owner``."""
+    valid = ("newton_rtol", "newton_atol", "newton_utol", "newton_max_iter", "newton_tangent", "newton_iterations",
+             "linear_solver")
     unknown = sorted(set(opts) - set(valid))
     if unknown:
         raise ValueError(f"{owner}: unknown option(s) {unknown}; valid Newton options: {list(valid)}")
@@ -222,7 +232,8 @@ def newton(u, residual, jacobian, r_ref, opts: NewtonOptions, linear=False, solv
         return u, StepReport(True, 1, "", norms)
     if opts.tangent == "reuse" or (opts.tangent == "auto" and len(u) >= REUSE_MIN_DOFS):
         return _modified(u, r, norms, tol, residual, jacobian, opts, solver, floor)
-    for it in range(1, opts.max_iter + 1):
+    budget = opts.iterations or opts.max_iter
+    for it in range(1, budget + 1):
         try:
             du = solver.solve(jacobian(u), -r)
         except LinearSolverError as exc:  # singular effective matrix
@@ -233,9 +244,20 @@ def newton(u, residual, jacobian, r_ref, opts: NewtonOptions, linear=False, solv
         if not (np.isfinite(norms[-1]) and np.all(np.isfinite(u))):
             return u, StepReport(False, it, f"non-finite residual in Newton iteration {it}", norms)
         small_du = scaled_norm(du) <= opts.utol * max(scaled_norm(u), 1e-300)
-        if norms[-1] <= tol or small_du:
+        if opts.iterations is None and (norms[-1] <= tol or small_du):
             return u, StepReport(True, it, "", norms)
+    if opts.iterations is not None:
+        return u, _budget_spent(opts.iterations, norms, tol)
     return u, StepReport(False, opts.max_iter, _not_converged("Newton", opts.max_iter, norms[-1], tol, floor), norms)
+
+
+def _budget_spent(k, norms, tol) -> StepReport:
+    """The report of a step that did its fixed ``k`` iterations (:class:`NewtonOptions`)."""
+    if norms[-1] <= tol:
+        return StepReport(True, k, "", norms)
+    return StepReport(True, k, f"fixed budget of {k} Newton iterations spent with ||r|| = {norms[-1]:.3e} N above "
+                      f"the tolerance {tol:.3e} N (the step is accepted: newton_iterations = {k})", norms,
+                      within_tolerance=False)
 
 
 def _below_round_off(scale, floor) -> str:
@@ -256,7 +278,8 @@ def _modified(u, r, norms, tol, residual, jacobian, opts: NewtonOptions, solver:
     ``"newton"``, formed again after a poor contraction; an iteration of kept factors that does
     not reduce the residual is discarded (it counts) and done again with fresh ones."""
     refresh = not (solver.has_factors and solver.key == "newton")
-    for it in range(1, opts.max_iter + 1):
+    fixed = opts.iterations is not None
+    for it in range(1, (opts.iterations or opts.max_iter) + 1):
         if refresh:
             solver.refresh()
         fresh = refresh
@@ -276,10 +299,12 @@ def _modified(u, r, norms, tol, residual, jacobian, opts: NewtonOptions, solver:
         dr = r_new - r
         u, r = u_new, r_new
         norms.append(n_new)
-        if n_new <= tol or scaled_norm(du) <= opts.utol * max(scaled_norm(u), 1e-300):
+        if not fixed and (n_new <= tol or scaled_norm(du) <= opts.utol * max(scaled_norm(u), 1e-300)):
             return u, StepReport(True, it, "", norms)
         refresh = n_new > (REFRESH_RATIO_SECANT if solver.dense else REFRESH_RATIO) * norms[-2]
         if not refresh:  # a kept dense matrix (a reduced model's) follows the iterates by secant updates
             solver.secant_update(du, dr)
+    if fixed:
+        return u, _budget_spent(opts.iterations, norms, tol)
     return u, StepReport(False, opts.max_iter, _not_converged("modified Newton", opts.max_iter, norms[-1], tol, floor),
                          norms)

@@ -86,6 +86,11 @@ class PodGalerkin(RomMethod):
     newton_tangent : {"reuse", "iteration"}
         The reduced tangent kept across iterations and steps, formed again on a poor contraction
         (modified Newton), or formed at every iteration (:mod:`~tissuebench.refsolvers.dynamics.step_newton`).
+    newton_iterations : int or None
+        None: Newton to ``rtol`` (at most ``max_iterations``); k: exactly k iterations every step,
+        accepted converged or not (a haptic loop's fixed budget: the step's cost no longer depends
+        on the state, so its p99 stays near its median); a step left above ``rtol`` says so in its
+        message, and the error against the reference states the price.
     """
 
     name = "pod_galerkin"
@@ -110,7 +115,7 @@ class PodGalerkin(RomMethod):
 
     def __init__(self, n_modes=None, energy=0.99999, inner="euclidean", velocities=False, hyper="ecsw",
                  ecsw_tol=5e-3, deim_modes=None, deim_oversampling=2.0, hyper_states=60, integrator=None, rtol=1e-6,
-                 max_iterations=20, newton_tangent="reuse"):
+                 max_iterations=20, newton_tangent="reuse", newton_iterations=None):
         for name, value, valid in (("inner", inner, _INNER), ("hyper", hyper, HYPER),
                                    ("velocities", velocities, (True, False)),
                                    ("newton_tangent", newton_tangent, ("reuse", "iteration"))):
@@ -125,7 +130,8 @@ class PodGalerkin(RomMethod):
                             deim_oversampling=_at_least_one("deim_oversampling", deim_oversampling),
                             hyper_states=_number("hyper_states", hyper_states, 1, True), integrator=integrator,
                             rtol=_number("rtol", rtol, 0), newton_tangent=newton_tangent,
-                            max_iterations=_number("max_iterations", max_iterations, 0, True))
+                            max_iterations=_number("max_iterations", max_iterations, 0, True),
+                            newton_iterations=_number("newton_iterations", newton_iterations, 0, True, True))
 
     # ------------------------------------------------------------------ offline
     def build(self, training: Training) -> GalerkinModel:
@@ -202,4 +208,4 @@ class PodGalerkin(RomMethod):
             name, opts = "hht", {}
         opts = {k: v for k, v in opts.items() if not k.startswith("newton_") and k != "linear_solver"}
         return name, {**opts, "newton_rtol": o["rtol"], "newton_max_iter": o["max_iterations"],
-                      "newton_tangent": o["newton_tangent"]}
+                      "newton_tangent": o["newton_tangent"], "newton_iterations": o["newton_iterations"]}

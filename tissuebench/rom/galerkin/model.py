@@ -49,6 +49,8 @@ class GalerkinModel(LinearReconstruction, OnlineModel):
         self.integrator_name, self.integrator_options = integrator
         self.projector, self._envelope, self.info = projector, dict(envelope), info
         self._integ = self._pending = self._stopped = self._bound_for = None
+        #: steps accepted after a fixed Newton budget with the residual still above rtol (since start)
+        self.steps_above_tolerance = 0
 
     @property
     def n_reduced(self) -> int:
@@ -79,6 +81,7 @@ class GalerkinModel(LinearReconstruction, OnlineModel):
                                              else np.zeros(0)]))
             x0, v0 = parts
         self._pending, self._integ, self._stopped = (x0, v0, float(dt)), None, None
+        self.steps_above_tolerance = 0
         self.history.scale = 1.0
         self._bound_for = first_step_time(mu0, dt)  # the integrator's start: work of the run's start
         if self._bound_for is not None:
@@ -128,7 +131,12 @@ class GalerkinModel(LinearReconstruction, OnlineModel):
             self._stopped = f"{self.name}: stopped at t = {t:.6g}: {rep.message}"
             return StepResult(None, "failed", f"{self.name}: {rep.message}", {"iterations": rep.iterations}, mu=out)
         status, message = self._status(lam, unrepresented)
-        return StepResult(integ.u.copy(), status, message, {"iterations": rep.iterations}, mu=out)
+        info = {"iterations": rep.iterations}
+        if not rep.within_tolerance:  # a fixed Newton budget (newton_iterations) left the residual above rtol
+            self.steps_above_tolerance += 1
+            info["within_tolerance"] = False
+            message = "; ".join(m for m in (message, f"{self.name}: {rep.message}") if m)
+        return StepResult(integ.u.copy(), status, message, info, mu=out)
 
     def floor_ops(self):
         """One reduced Newton iteration on the sampled elements: the reduced force at the current
