@@ -85,7 +85,7 @@ def test_default_options():
         "n_modes": None, "energy": 0.99999, "inner": "euclidean", "velocities": False, "hyper": "ecsw",
         "ecsw_tol": 5e-3, "deim_modes": None, "deim_oversampling": 2.0, "hyper_states": 60, "integrator": None,
         "rtol": 1e-6,
-        "newton_tangent": "reuse", "max_iterations": 20}
+        "newton_tangent": "reuse", "max_iterations": 20, "newton_iterations": None}
 
 
 @pytest.mark.parametrize("option, scene, info, name, opts", [
@@ -102,7 +102,7 @@ def test_the_reduced_integrator(option, scene, info, name, opts):
     method = make_method("pod_galerkin", integrator=option, rtol=1e-9, max_iterations=7, newton_tangent="iteration")
     training = SimpleNamespace(scene=SimpleNamespace(analysis=scene) if scene is not None else None, info=info)
     assert method._integrator(training) == (name, {**opts, "newton_rtol": 1e-9, "newton_max_iter": 7,
-                                                   "newton_tangent": "iteration"})
+                                                   "newton_tangent": "iteration", "newton_iterations": None})
 
 
 # ---------------------------------------------------------------- the envelope
@@ -528,7 +528,8 @@ def test_build_records_its_pieces():
     n_cells = training.backend.problem.mesh.n_cells
     assert info["hyper"] == {"scheme": "none", "elements": n_cells} and info["elements_per_evaluation"] == n_cells
     assert info["n_modes"] == 3 and info["linear_material"] is False and info["integrator"] == "hht"
-    assert info["integrator_options"] == {"newton_rtol": 1e-6, "newton_max_iter": 20, "newton_tangent": "reuse"}
+    assert info["integrator_options"] == {"newton_rtol": 1e-6, "newton_max_iter": 20, "newton_tangent": "reuse",
+                                          "newton_iterations": None}
     assert set(info["offline"]) == {"basis_s", "hyper_s"} and all(0 <= v < 100 for v in info["offline"].values())
     assert model.envelope == {"load_factor": (0.0, 1.0)} and model.n_reduced == 3 and model.system.r == 3
     assert model.integrator_name == "hht" and model.projector.shape == (3, len(training.system.free))

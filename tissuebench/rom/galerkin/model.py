@@ -132,7 +132,8 @@ class GalerkinModel(LinearReconstruction, OnlineModel):
             return StepResult(None, "failed", f"{self.name}: {rep.message}", {"iterations": rep.iterations}, mu=out)
         status, message = self._status(lam, unrepresented)
         info = {"iterations": rep.iterations}
-        if not rep.within_tolerance:  # a fixed Newton budget (newton_iterations) left the residual above rtol
+        # a fixed Newton budget (newton_iterations) left the residual above rtol
+        if not getattr(rep, "within_tolerance", True):
             self.steps_above_tolerance += 1
             info["within_tolerance"] = False
             message = "; ".join(m for m in (message, f"{self.name}: {rep.message}") if m)
