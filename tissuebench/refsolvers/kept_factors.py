@@ -19,6 +19,7 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from .solver_base import LinearSolver, canonical_csr
+from .sparse_direct import NgsolveSparseSolver
 
 __all__ = ["KeptFactorSolver"]
 
@@ -28,9 +29,10 @@ class KeptFactorSolver(LinearSolver):
 
     Parameters
     ----------
-    inner : LinearSolver
+    inner : LinearSolver, optional
         A direct solver with :attr:`~.solver_base.LinearSolver.keeps_factors` (its
-        :meth:`~.solver_base.LinearSolver.solve_again` applies the kept factors).
+        :meth:`~.solver_base.LinearSolver.solve_again` applies the kept factors); default
+        NGSolve's sparse LDL^T (:class:`~.sparse_direct.NgsolveSparseSolver`).
     max_iterations : int
         CG iterations before the system is factorised afresh and solved directly.
     refactor_share : float
@@ -42,7 +44,8 @@ class KeptFactorSolver(LinearSolver):
     iterative = True
     keeps_factors = True
 
-    def __init__(self, inner: LinearSolver, max_iterations: int = 30, refactor_share: float = 0.5):
+    def __init__(self, inner: LinearSolver | None = None, max_iterations: int = 30, refactor_share: float = 0.5):
+        inner = NgsolveSparseSolver() if inner is None else inner
         if not getattr(inner, "keeps_factors", False):
             raise TypeError(f"KeptFactorSolver: inner solver {type(inner).__name__} keeps no factors")
         if int(max_iterations) != max_iterations or max_iterations < 1:

@@ -108,14 +108,8 @@ class AutoDirectSolver(LinearSolver):
         return self.chosen.solve_again(b)
 
 
-def _kept_factor_cg(**options):
-    return KeptFactorSolver(NgsolveSparseSolver(), **options)
-
-
-_kept_factor_cg.name = KeptFactorSolver.name
-
 LINEAR_SOLVERS = {"auto": AutoDirectSolver, "direct": DirectSolver, "cholesky": NgsolveSparseSolver,
-                  "amg-cg": AmgCgSolver, KeptFactorSolver.name: _kept_factor_cg}
+                  "amg-cg": AmgCgSolver, KeptFactorSolver.name: KeptFactorSolver}
 
 
 def make_linear_solver(name="auto", **options):

@@ -260,11 +260,8 @@ class NgsolveSparseSolver(LinearSolver):
         bb = np.asarray(b, dtype=float)
         cols = bb.reshape(n, -1)
         x = np.empty_like(cols)
-        bv, xv = self._A.CreateColVector(), self._A.CreateColVector()
         for j in range(cols.shape[1]):
-            bv.FV().NumPy()[:] = cols[:, j]
-            xv.data = self._inv * bv
-            x[:, j] = xv.FV().NumPy()
+            x[:, j] = self._apply_factors(cols[:, j])
         if not np.all(np.isfinite(x)):
             raise LinearSolverError(f"{self.name} solver: non-finite solution (singular matrix?)")
         info = {"solver": "ngsolve-direct", "iterations": 1, "factor_s": factor_s, "factor_cpu_s": factor_cpu_s,
@@ -272,13 +269,17 @@ class NgsolveSparseSolver(LinearSolver):
                 "solve_s": time.perf_counter() - t0 - factor_s, "symbolic": symbolic}
         return x.reshape(bb.shape), info
 
+    def _apply_factors(self, b):
+        """``K^-1 b`` (n,) with the current factors."""
+        bv, xv = self._A.CreateColVector(), self._A.CreateColVector()
+        bv.FV().NumPy()[:] = b
+        xv.data = self._inv * bv
+        return xv.FV().NumPy().copy()
+
     def solve_again(self, b):
         if self._inv is None:
             raise LinearSolverError(f"{self.name} solver: no factors yet (solve first)")
-        bv, xv = self._A.CreateColVector(), self._A.CreateColVector()
-        bv.FV().NumPy()[:] = np.asarray(b, dtype=float)
-        xv.data = self._inv * bv
-        x = xv.FV().NumPy().copy()
+        x = self._apply_factors(np.asarray(b, dtype=float))
         if not np.all(np.isfinite(x)):
             raise LinearSolverError(f"{self.name} solver: non-finite solution (singular matrix?)")
         return x
