@@ -107,6 +107,12 @@ def _parser():
                      help="only the reference convergence check of SCENE (a scene file or case): its monitored "
                           "quantities at h and h/2 (with RESULTS: written to RESULTS/_convergence.parquet)")
     ver.add_argument("--variant", default=None, help="with --convergence: the scene's variant")
+    ver.add_argument("--same-formulation", action="store_true",
+                     help="with --convergence: keep the scene's element at h/2 even where it locks (default: a P1 "
+                          "that locks is checked against average nodal pressure tetrahedra at h/2)")
+    ver.add_argument("--memory-limit", type=float, default=None, metavar="GB",
+                     help="with --convergence: the memory the h/2 run may take (default: the machine's available "
+                          "memory); a refinement estimated above it is refused before any solve")
     ver.add_argument("--no-backends", action="store_true",
                      help="skip the backend agreement (with RESULTS: every FE scene of the sweep on both backends, "
                           "written to RESULTS/_backends.parquet)")
@@ -660,7 +666,8 @@ def _verify(args) -> int:
         check_output_location(args.results, overwrite=True)  # writable, before minutes of solves
     if args.convergence is not None:
         return _convergence(args.convergence, args.variant, args.resolution, args.backend, args.results,
-                            quiet=args.quiet)
+                            quiet=args.quiet, same_formulation=args.same_formulation,
+                            memory_limit=None if args.memory_limit is None else args.memory_limit * 1e9)
 
     def anchor_line(case, quantity):
         _progress_line(f"verify: anchor {case}: {quantity} ({args.backend}, {args.resolution})")
@@ -684,18 +691,27 @@ def _verify(args) -> int:
     return 1 if len(bad) or disagree else 0
 
 
-def _convergence(case, variant, resolution, backend, results, quiet=False) -> int:
+def _convergence(case, variant, resolution, backend, results, quiet=False, same_formulation=False,
+                 memory_limit=None) -> int:
     """The h/2 check of a scene (:mod:`.reference.convergence`), printed and, with ``results``,
     written to ``results/_convergence.parquet`` (the report's verification section shows it).
     Unless ``quiet``, each mesh, load increment and mesh's end is a line on stderr as it happens
-    (stdout keeps the table only: two meshes of an organ take hours)."""
+    (stdout keeps the table only: two meshes of an organ take hours). A refinement that would not
+    fit in memory is refused before any solve: exit 1 with the estimate."""
     from .cases.scene import load
-    from .reference.convergence import convergence_check
+    from .reference.convergence import RefinementTooLarge, convergence_check
     from .studies.results import write_table
 
+    if memory_limit is not None and not memory_limit > 0:
+        raise ValueError(f"--memory-limit must be > 0 GB, got {memory_limit / 1e9:g}")
     scene = load(case, resolution=resolution, variant=variant)
     print(f"verify: {scene.name}: the reference at h and h/2 ({backend})", flush=True)
-    table = convergence_check(scene, backend, log=None if quiet else _progress_line)
+    try:
+        table = convergence_check(scene, backend, log=None if quiet else _progress_line,
+                                  same_formulation=same_formulation, memory_limit=memory_limit)
+    except RefinementTooLarge as exc:
+        print(f"verify: refused: {exc}", file=sys.stderr)
+        return 1
     with _pd_display():
         print(table[["case", "quantity", "h", "h_half", "rel_diff", "dofs_h", "dofs_h_half", "status_h",
                      "status_h_half"]].to_string(index=False))

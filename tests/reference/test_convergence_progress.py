@@ -47,10 +47,13 @@ def test_verify_convergence_says_each_mesh_increment_and_end_on_stderr_and_quiet
     out, err = capsys.readouterr()
     for mesh, vertices, dofs in (("h", 45, 135), ("h/2", 225, 675)):
         said = _lines(err, f"convergence block {mesh}")
-        if mesh == "h/2":  # what comes before its solve
+        if mesh == "h/2":  # what comes before its solve: its formulation, its memory's estimate
             assert "refining the mesh (each tetrahedron split in eight)" in said.pop(0)
+            assert re.search(r"h/2 estimated at \S+ [kMG]?B .*; the available memory \S+ [kMG]?B$", said.pop(0))
         size, *increments, end = said
-        assert f"{vertices} vertices" in size and f"{dofs} displacement dofs" in size and "P1 displacement" in size
+        # P1 at nu = 0.45 locks on the block (its indicator): h/2 takes ANP (test_convergence_refinement.py)
+        form = "P1 displacement" if mesh == "h" else "average nodal pressure tetrahedra (ANP)"
+        assert f"{vertices} vertices" in size and f"{dofs} displacement dofs" in size and form in size
         assert "2 load steps" in size
         assert len(increments) == 2, said  # the scene's two load steps, each converged at once
         for k, (line, lam) in enumerate(zip(increments, ("0.5/1", "1/1")), start=1):
@@ -72,8 +75,8 @@ def test_the_lines_change_no_number_of_the_table(block):
     said = []
     with_lines = convergence_check(scene, "skfem", log=said.append)
     without = convergence_check(scene, "skfem")
-    assert len(said) == 2 + 2 * 4 + 2  # formulation (2), per mesh: size, 2 increments, end; refining, total
-    columns = [c for c in with_lines.columns if c != "wall_s"]
+    assert len(said) == 2 + 2 * 4 + 3  # formulation (2), per mesh: size, 2 increments, end; refining, memory, total
+    columns = [c for c in with_lines.columns if c not in ("wall_s", "memory_estimate_h_half")]
     assert with_lines[columns].equals(without[columns])
 
 

@@ -357,11 +357,12 @@ def convergence_table(name: str, conv: pd.DataFrame) -> dict:
     def col(r, k, default="-"):
         return getattr(r, k, default)
 
-    rows = [[str(r.case), str(col(r, "formulation")), str(r.quantity), number(r.h), number(r.h_half),
+    rows = [[str(r.case), str(col(r, "formulation")), str(col(r, "formulation_h_half", col(r, "formulation"))),
+             str(r.quantity), number(r.h), number(r.h_half),
              number(r.rel_diff, 2), f"{col(r, 'dofs_h')} / {col(r, 'dofs_h_half')}",
              f"{col(r, 'status_h')} / {col(r, 'status_h_half')}"] for r in conv.itertuples()]
-    cols = ["case", "formulation", "quantity", "at h", "at h/2", "relative difference", "dofs h / h/2",
-            "status h / h/2"]
+    cols = ["case", "formulation at h", "formulation at h/2", "quantity", "at h", "at h/2", "relative difference",
+            "dofs h / h/2", "status h / h/2"]
     return Table(name, cols, rows, conv)
 
 
