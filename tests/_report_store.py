@@ -46,6 +46,7 @@ def unit_row(case, method, options, error, median, p99, evil, info=None):
             "haptic_median_s": median, "haptic_p99_s": p99, "haptic_n": 200, "reconstruct_median_s": 1e-4,
             "reconstruct_p99_s": 2e-4, "reference_step_s": 10e-3, "speedup": 10e-3 / median, "calibration_s": 1e-3,
             "haptic_per_calibration": median / 1e-3, "floor_s": median / 4, "efficiency": 0.25,
+            "floor_p99_s": median / 4 * 1.6,
             "blas": "openblas", "blas_threads": 1, "offline_s": 0.5,
             "build_peak_bytes": 2_000_000, "model_bytes": 10_000, "model_info": json.dumps(info or {}),
             "git_commit": "abc", "code_hash": "def", "tissuebench": "0.1.0", "numpy": "2", "scipy": "1",

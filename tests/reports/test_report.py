@@ -202,6 +202,8 @@ def test_report_writes_page_and_every_table_data(store, tmp_path):
     # and its tail: p99 over median (issue 52: a frame is missed at the p99, not at the median)
     assert np.allclose(ranking["p99_over_median"], ranking["p99_s"] / ranking["haptic_median_s"], equal_nan=True)
     assert (ranking["p99_over_median"].dropna() >= 1).all() and "p99 / median (the tail" in page
+    # beside it the machine's own tail on the model's arithmetic, in the same run
+    assert np.allclose(ranking["floor_p99_over_median"].dropna(), 1.6) and "tail: the floor" in page
     # no anchors: the command that produces them, runnable as printed (the results folder positional)
     assert f"<code>tissuebench verify {store}</code>" in page
     assert _external_resources(page) == []  # works offline: every script inline, nothing fetched

@@ -196,23 +196,25 @@ def ranking_table(name: str, ranked: pd.DataFrame) -> dict:
         return ranked[c] if c in ranked else pd.Series(default, index=ranked.index)
 
     floor, eff, n_seen, n_ref = col("floor_s"), col("efficiency"), col("n_seen", 0), col("n_reference_points", 0)
+    floor_tail = col("floor_p99_s") / floor.where(floor > 0)
     state, absolute, unit = col("max_rel_l2"), col("max_abs_error"), col("length_unit", "")
     load, cpus = col("load_average"), col("n_cpus", -1)
     rows = []
-    for r, f, e, k, n, sr, a, lu, la, nc in zip(ranked.itertuples(), floor, eff, n_seen, n_ref, state, absolute,
-                                               unit, load, cpus):
+    for r, f, ft, e, k, n, sr, a, lu, la, nc in zip(ranked.itertuples(), floor, floor_tail, eff, n_seen, n_ref,
+                                                   state, absolute, unit, load, cpus):
         meets = {"text": "seen", "cls": "seen"} if r.seen else \
             {"text": "meets" if r.meets else "no", "cls": "pass" if r.meets else "fail"}
         cells = [r.label, meets, number(r.margin, 3), seconds(r.p99_s), p99_samples(r), hz(r.rate_hz),
                  seconds(r.haptic_median_s), number(r.p99_s / r.haptic_median_s, 3) if r.haptic_median_s > 0 else "-",
-                 seconds(f), number(e, 2), percent(r.error), percent(sr),
+                 number(ft, 3) if np.isfinite(ft) else "-", seconds(f), number(e, 2), percent(r.error), percent(sr),
                  f"{number(a, 3)} {lu or ''}".rstrip() if np.isfinite(a) else "-",
                  f"{number(la, 3)} / {int(nc)}" if np.isfinite(la) and nc > 0 else "-",
                  f"{int(k)} / {int(n)}" if k >= 0 and n >= 0 else "", r.misses]
         # a unit evaluated on its training data: greyed, with the reason (recommend.SEEN_REASON)
         rows.append([c if isinstance(c, dict) else {"text": c, "cls": "seen"} for c in cells] if r.seen else cells)
     cols = ["unit", "meets", "margin", "haptic p99", "timed steps behind the p99", "rate on p99", "haptic median",
-            "p99 / median (the tail: a frame missed at the p99, not the median)", "arithmetic floor",
+            "p99 / median (the tail: a frame missed at the p99, not the median)",
+            "the machine's tail: the floor's p99 / median, same run", "arithmetic floor",
             "efficiency (floor / median)", "error", "state-relative worst (max_rel_l2)",
             "absolute error (max_abs_error)", "load average / CPUs while timed", "points seen in training",
             "misses by"]
@@ -220,7 +222,8 @@ def ranking_table(name: str, ranked: pd.DataFrame) -> dict:
             "p99_tail", "rate_hz", "haptic_median_s",
             "error", "misses"] + [c for c in ranked.columns if c.startswith("headroom_")]
     tail = ranked["p99_s"] / ranked["haptic_median_s"].where(ranked["haptic_median_s"] > 0)
-    data = ranked[keep].assign(p99_over_median=tail, floor_s=floor, efficiency=eff, n_seen=n_seen,
+    data = ranked[keep].assign(p99_over_median=tail, floor_p99_over_median=floor_tail, floor_s=floor, efficiency=eff,
+                               n_seen=n_seen,
                                max_rel_l2=state, max_abs_error=absolute, load_average=load, n_cpus=cpus)
     return Table(name, cols, rows, data)
 

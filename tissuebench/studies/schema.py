@@ -63,8 +63,9 @@ UNIT_COLUMNS = {
     "haptic_median_s": _F, "haptic_p99_s": _F, "haptic_n": _I, "reconstruct_median_s": _F, "reconstruct_p99_s": _F,
     "reference_step_s": _F, "speedup": _F, "calibration_s": _F, "haptic_per_calibration": _F,
     # the arithmetic floor of the step (OnlineModel.floor_ops, median, timed beside it) and
-    # efficiency = floor_s / haptic_median_s (1: nothing but the arithmetic)
-    "floor_s": _F, "efficiency": _F,
+    # efficiency = floor_s / haptic_median_s (1: nothing but the arithmetic); the floor's p99:
+    # floor_p99_s / floor_s is the machine's own tail on the same arithmetic in the same run
+    "floor_s": _F, "efficiency": _F, "floor_p99_s": _F,
     "blas": _S, "blas_threads": _I,
     # the machine's load when the unit was timed: the 1-minute load average (os.getloadavg, the
     # unit's own process included) and the CPUs the process may run on (NaN / -1: not recorded)
@@ -83,8 +84,8 @@ UNIT_COLUMNS = {
 #: statuses, keys)
 RUN_DEPENDENT_COLUMNS = frozenset({
     "haptic_median_s", "haptic_p99_s", "reconstruct_median_s", "reconstruct_p99_s", "reference_step_s", "speedup",
-    "calibration_s", "haptic_per_calibration", "floor_s", "efficiency", "offline_s", "build_peak_bytes", "date",
-    "model_info", "machine", "blas_threads", "unit_wall_s", "load_average", "n_cpus"})
+    "calibration_s", "haptic_per_calibration", "floor_s", "efficiency", "floor_p99_s", "offline_s", "build_peak_bytes",
+    "date", "model_info", "machine", "blas_threads", "unit_wall_s", "load_average", "n_cpus"})
 POINT_COLUMNS = {"unit_key": _S, "point": _I, "x": _F, "group": _F, "mu": _S, "status": _S, "message": _S,
                  "rel_l2": _F, "rel_max_displacement": _F, "has_reference": _B,
                  # issue 52: the error over the largest reference of the claimed range (the validity
@@ -154,6 +155,8 @@ UNIT_COLUMNS_DOC = {
     "haptic_per_calibration": "haptic_median_s / calibration_s (to compare machines)",
     "floor_s": "the step's arithmetic floor (`OnlineModel.floor_ops`) [s]",
     "efficiency": "floor_s / haptic_median_s (1: nothing but the arithmetic)",
+    "floor_p99_s": "the floor's 99th percentile [s] (floor_p99_s / floor_s: the machine's tail on the same arithmetic, "
+                   "same run)",
     "blas": "the BLAS library", "blas_threads": "its threads while the unit ran",
     "load_average": "the machine's 1-minute load average when the unit was timed (its own process included)",
     "n_cpus": "the CPUs the unit's process could run on",

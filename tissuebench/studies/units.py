@@ -256,6 +256,7 @@ def _measure(unit: WorkUnit, row: dict) -> dict:
             "reference_step_s": ref_step, "speedup": ref_step / h.median if h.median > 0 else np.nan,
             "calibration_s": calib, "haptic_per_calibration": h.median / calib, **blas_info(), **load,
             "floor_s": lat["floor"].median, "efficiency": lat["floor"].median / h.median,
+            "floor_p99_s": lat["floor"].p99,
             "offline_s": offline, "build_peak_bytes": int(peak), "model_bytes": _nbytes(model),
             "scene_hash": scene.content_hash(), "kind": model.kind,  # the built model's (a baseline's varies)
             "length_unit": (getattr(scene, "units", None) or {}).get("length", ""),
