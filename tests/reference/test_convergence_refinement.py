@@ -15,7 +15,7 @@ from tissuebench.reference import convergence
 from tissuebench.reference.convergence import RefinementTooLarge, convergence_check, refined_formulation
 from tissuebench.reference.formulation import Formulation
 from tissuebench.reference.runner import solve
-from tissuebench.reference.memory import MEMORY_MARGIN, RefinedMemory
+from tissuebench.reference.memory import MEMORY_MARGIN, RefinedMemory, size_text
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _mesh_scene import scene_file, write_block  # noqa: E402
@@ -67,9 +67,10 @@ def test_a_refinement_estimated_above_the_limit_is_refused_before_any_solve(bloc
     monkeypatch.setattr(convergence, "solve", no_solve)
     scene = load(block)
     said = []
-    limit = int(MEMORY_MARGIN * TWO_GB.peak)  # 3 GB: the margin's product just above it is refused
-    with pytest.raises(RefinementTooLarge, match=r"would not fit: h/2 estimated at 2 GB .* x 1.5 margin = 3 GB > "
-                                                 r"memory_limit 3 GB; nothing was solved") as info:
+    limit = int(MEMORY_MARGIN * TWO_GB.peak)  # the margin's product: a byte below it is refused
+    product = size_text(MEMORY_MARGIN * TWO_GB.peak)
+    refused = rf"would not fit: h/2 estimated at 2 GB .* x {MEMORY_MARGIN:g} margin = {product} > memory_limit {product}"
+    with pytest.raises(RefinementTooLarge, match=refused + "; nothing was solved") as info:
         convergence_check(scene, "skfem", log=said.append, memory_limit=limit - 1)
     assert info.value.estimate is TWO_GB and info.value.limit == limit - 1
     assert any("h/2 estimated at 2 GB" in line for line in said)
@@ -83,9 +84,9 @@ def test_a_refinement_estimated_above_the_limit_is_refused_before_any_solve(bloc
 
 
 def test_verify_refuses_a_refinement_over_memory_limit_with_the_estimate(block, capsys):
-    assert main(["verify", "--convergence", str(block), "--backend", "skfem", "--memory-limit", "2.9"]) == 1
-    err = capsys.readouterr().err
-    assert "verify: refused: block: the h/2 run would not fit: h/2 estimated at 2 GB" in err and "2.9 GB" in err
+    assert main(["verify", "--convergence", str(block), "--backend", "skfem", "--memory-limit", "2.4"]) == 1
+    err = capsys.readouterr().err  # 1.25 x 2 GB > 2.4 GB
+    assert "verify: refused: block: the h/2 run would not fit: h/2 estimated at 2 GB" in err and "2.4 GB" in err
     assert "increment" not in err  # nothing solved
     assert main(["verify", "--convergence", str(block), "--memory-limit", "-1"]) == 2
     assert "--memory-limit must be > 0 GB, got -1" in capsys.readouterr().err

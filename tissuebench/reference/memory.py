@@ -11,15 +11,19 @@ two parts of a Newton iteration's memory, with the formulation the refined run w
 * the **factorisation** of its free block, which grows as ``(n_h/2 / n_h)^(4/3)``
   (:data:`FILL_EXPONENT`).
 
-The estimate is their sum above the process's resident memory when the refined run starts: an
-upper estimate, since the assembly's triplets are freed before the factorisation. Each part is
-the rise of the process's peak resident set (Linux ``VmHWM``, reset through
-``/proc/self/clear_refs``) while it runs; where the peak cannot be reset (not Linux) the probe
+The estimate is their sum above the process's resident memory when the refined run starts. Each
+part is the rise of the process's peak resident set (Linux ``VmHWM``, reset through
+``/proc/self/clear_refs``) while it runs, after the memory the process has freed is given back to
+the system (glibc's ``malloc_trim``: without it a part reuses pages the process still holds and
+reads low, by a third on the organ below); where the peak cannot be reset (not Linux) the probe
 reports that and no estimate is made. Measured on the 5k-node organ (nu = 0.499, h/2 107 805
 dofs): see ``docs/explanation/nearly-incompressible.md``.
 """
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import gc
 import re
 import time
 from dataclasses import dataclass
@@ -35,9 +39,9 @@ __all__ = ["FILL_EXPONENT", "MEMORY_MARGIN", "PeakProbe", "RefinedMemory", "esti
 
 #: growth of a nested-dissection factor's entries with the unknowns of a 3D mesh
 FILL_EXPONENT = 4.0 / 3.0
-#: a refinement is refused when this times its estimate exceeds the memory it may use: the estimate
-#: was 0.97x (P1) and 0.81x (ANP) of the measured peak on the 5k-node organ (module docstring)
-MEMORY_MARGIN = 1.5
+#: a refinement is refused when this times its estimate exceeds the memory it may use: on the 5k-node
+#: organ the estimate was 0.95-1.01x (P1) and 0.97-1.00x (ANP) of the h/2 run's measured peak rise
+MEMORY_MARGIN = 1.25
 _STATUS, _CLEAR = Path("/proc/self/status"), Path("/proc/self/clear_refs")
 
 
@@ -54,6 +58,17 @@ def available_bytes() -> int:
     return int(psutil.virtual_memory().available)
 
 
+def _release_freed_memory() -> None:
+    """Give memory the process has freed back to the system (glibc's ``malloc_trim``), so that what
+    a probe allocates next raises the resident set instead of reusing pages it already holds."""
+    gc.collect()
+    name = ctypes.util.find_library("c")
+    try:
+        ctypes.CDLL(name).malloc_trim(0)
+    except (OSError, AttributeError, TypeError):  # not glibc: the probe may then read low
+        pass
+
+
 def _peak_rss() -> int | None:
     try:
         match = re.search(r"VmHWM:\s+(\d+)\s+kB", _STATUS.read_text())
@@ -67,6 +82,7 @@ class PeakProbe:
     above its resident set at entry, bytes (None where the peak cannot be reset)."""
 
     def __enter__(self):
+        _release_freed_memory()
         try:
             _CLEAR.write_text("5")  # resets VmHWM to the current resident set (Linux >= 4.0)
             self._reset = True
