@@ -91,6 +91,7 @@ def test_a_reference_five_units_need_is_computed_once_on_two_workers(spec, tmp_p
     assert sorted(p.name for p in (tmp_path / "cache" / "references").iterdir()) == sorted(set(counted))
 
 
+@pytest.mark.slow  # ~9 s: a process pool
 def test_serial_and_processes_keep_their_cache_argument(spec, tmp_path, counted):
     """The cache a sweep is given reaches the units of every executor (not the environment's)."""
     url = f"memory://tb-{uuid.uuid4().hex[:8]}/serial"

@@ -63,7 +63,7 @@ def test_unknown_linear_solver_is_refused_naming_it():
                   method="hht", linear_solver="lu")
 
 
-@pytest.mark.parametrize("method", ["hht", "bathe", "backward_euler"])
+@pytest.mark.parametrize("method", ["hht", pytest.param("bathe", marks=pytest.mark.slow), "backward_euler"])
 def test_superlu_and_ngsolve_give_the_same_nonlinear_history(method):
     be = bar(CUBE_MR, [0.024, 0.0, 0.0])      # pulled to 30 % strain in 0.2 s
     system = SecondOrderSystem.from_backend(be, ramp(0.2))

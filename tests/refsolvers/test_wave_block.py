@@ -183,6 +183,7 @@ def test_backends_give_the_same_trajectory(element, material, tol, method):
 
 
 # ------------------------------------------------------------------ stability study
+@pytest.mark.slow  # ~9 s: the default run keeps the block's integrators by the tests above
 def test_stability_study_small(tmp_path):
     """SVK block, 1 x 1 x 8 hexes, 0.5 s (400 steps), trapezoidal vs Bathe vs HHT."""
     out = wb.run_study(tmp_path / "study", t_end=0.5, divisions=(1, 1, 8), verbose=False)

@@ -118,6 +118,7 @@ def test_left_ventricle_mixed_apex_inside_the_published_spread_at_ci():
     assert endo["ours"] == pytest.approx(-26.51, abs=0.02)
 
 
+@pytest.mark.slow  # ~8 s: every scene of a sweep on both backends
 def test_verify_compares_both_backends_on_every_scene_of_a_sweep(tmp_path, monkeypatch):
     """``tissuebench verify RESULTS`` solves every FE scene of the sweep with scikit-fem and
     NGSolve: the cube and the cornea agree to 1e-10 (measured: 1e-16 .. 1e-14), the 1D frame is

@@ -85,6 +85,7 @@ def test_execute_yields_every_unit_once(name):
     assert sorted(u.key for u, _ in execute(units, name, workers, run=sleepy)) == sorted(u.key for u in units)
 
 
+@pytest.mark.slow  # ~8 s: a Dask cluster; the default run kills a process worker (test_7_...)
 def test_a_unit_that_kills_every_dask_worker_it_runs_on_is_stored_failed_and_the_others_finish():
     """Dask runs a task whose worker died on another worker, up to ``allowed-failures`` times; past
     that (0 here: the first death) the unit is a failed row saying so, not the end of the sweep.

@@ -337,6 +337,7 @@ def test_an_odd_store_layout_reads_as_nothing_with_names(tmp_path):
 
 
 # ------------------------------------------------------------------------ minor: what is capped is said
+@pytest.mark.slow  # ~7 s: a sweep
 def test_minor_modes_warmup_and_threads_beyond_what_runs_are_said_in_the_row(tmp_path):
     import os
 

@@ -32,7 +32,7 @@ def podreg(tmp_path, monkeypatch):
     forget_modules("podreg")
 
 
-@pytest.mark.parametrize("executor", ["processes", "dask"])
+@pytest.mark.parametrize("executor", [pytest.param("processes", marks=pytest.mark.slow), "dask"])  # ~9 s each
 def test_a_plugin_method_runs_on_the_parallel_executors(podreg, tmp_path, executor):
     spec = tmp_path / "s.toml"
     spec.write_text(SPEC)
