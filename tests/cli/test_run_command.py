@@ -123,6 +123,7 @@ def test_numerical_failure_is_stored_with_its_status(tmp_path):
     assert not t["converged"].iloc[-1] and t["apex_endo_z"].iloc[-1] != t["apex_endo_z"].iloc[-1]  # NaN, flagged
 
 
+@pytest.mark.slow  # ~5 s: a liver run
 def test_liver_without_the_shared_folder_runs_on_the_fallback_shape_and_says_so(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("TISSUEBENCH_DATA", str(tmp_path / "empty"))
     (tmp_path / "empty").mkdir()

@@ -263,7 +263,7 @@ def _slow_variant(test):
 
 
 @pytest.mark.parametrize("cell_type", ["tetra", "hexahedron"])
-@settings(FUZZ, max_examples=_examples(80))  # 80 (200 before: CI time); the slow variant runs LONG_EXAMPLES
+@settings(FUZZ, max_examples=_examples(50))  # 50 (200, 80 before: CI time); the slow variant runs LONG_EXAMPLES
 @given(data=st.data())
 def test_defective_meshes_read_or_name_the_cells(cell_type, folder, data):
     _defective_mesh_example(cell_type, folder, data)
@@ -694,7 +694,7 @@ def _stray_example(root, data):
                 p.unlink(missing_ok=True)
 
 
-@settings(FILES, max_examples=_examples(100))  # 100 (200 before: CI time); the slow variant runs LONG_EXAMPLES
+@settings(FILES, max_examples=_examples(60))  # 60 (200, 100 before: CI time); the slow variant runs LONG_EXAMPLES
 @given(data=st.data())
 def test_stray_files_in_a_store_are_never_read_as_units(small_store, data):
     _stray_example(small_store, data)
