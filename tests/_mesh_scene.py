@@ -35,6 +35,16 @@ load_steps = 2
 """
 
 
+#: the block's tip displacement, a monitor for the scenes whose checks read one (the convergence tests)
+TIP_MONITOR = """[[monitor]]
+name = "tip_uy"
+quantity = "displacement"
+point = [0.04, 0.02, 0.01]
+component = "y"
+unit = "m"
+"""
+
+
 def write_block(folder, name="block.msh", size_mm=(40.0, 20.0, 20.0)):
     """A small tetrahedral block in millimetres, written as a gmsh file with meshio."""
     m = box_mesh(size_mm, (4, 2, 2), "tetra")

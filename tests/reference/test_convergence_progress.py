@@ -20,15 +20,8 @@ from tissuebench.reference.progress_lines import SolveLines
 from tissuebench.refsolvers.backends import make_backend
 from tissuebench.refsolvers.newton import newton_solve
 
-from _mesh_scene import scene_file, write_block
+from _mesh_scene import TIP_MONITOR as MONITOR, scene_file, write_block
 
-MONITOR = """[[monitor]]
-name = "tip_uy"
-quantity = "displacement"
-point = [0.04, 0.02, 0.01]
-component = "y"
-unit = "m"
-"""
 
 
 @pytest.fixture

@@ -18,20 +18,13 @@ from tissuebench.reference.runner import solve
 from tissuebench.reference.memory import MEMORY_MARGIN, RefinedMemory, size_text
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _mesh_scene import scene_file, write_block  # noqa: E402
+from _mesh_scene import TIP_MONITOR as MONITOR, scene_file, write_block  # noqa: E402
 
 SCENES = Path(__file__).resolve().parents[2] / "tissuebench" / "studies" / "presets" / "scenes"
 LOCKS = {"computed": True, "locks": True, "deviation": -0.3}
 DOES_NOT_LOCK = {"computed": True, "locks": False, "deviation": -0.01}
 
 
-MONITOR = """[[monitor]]
-name = "tip_uy"
-quantity = "displacement"
-point = [0.04, 0.02, 0.01]
-component = "y"
-unit = "m"
-"""
 #: an estimate of 2 GB, whatever this process's memory did (the probe itself: test_memory_estimate.py)
 TWO_GB = RefinedMemory(2_000_000_000, 100_000_000, 100_000_000, 108, 600, 0.01)
 

@@ -220,6 +220,8 @@ class NgsolveSparseSolver(LinearSolver):
                 kind = "sparsecholesky"
                 inv = A.Inverse(inverse=kind)
         self._A, self._inv, self._kind = A, inv, kind
+        # the vectors every application of these factors fills (CG applies them once per iteration)
+        self._bv, self._xv = A.CreateColVector(), A.CreateColVector()
         self._pattern.clear()
         if self.reuse:
             # the in-place refill writes K.data into NGSolve's value array: valid only if
@@ -271,10 +273,9 @@ class NgsolveSparseSolver(LinearSolver):
 
     def _apply_factors(self, b):
         """``K^-1 b`` (n,) with the current factors."""
-        bv, xv = self._A.CreateColVector(), self._A.CreateColVector()
-        bv.FV().NumPy()[:] = b
-        xv.data = self._inv * bv
-        return xv.FV().NumPy().copy()
+        self._bv.FV().NumPy()[:] = b
+        self._xv.data = self._inv * self._bv
+        return self._xv.FV().NumPy().copy()
 
     def solve_again(self, b):
         if self._inv is None:
