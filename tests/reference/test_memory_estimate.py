@@ -67,5 +67,8 @@ def test_no_estimate_where_the_peak_cannot_be_measured(monkeypatch):
 
 @pytest.mark.parametrize("n, text", [(2.24e9, "2.24 GB"), (45.4e6, "45.4 MB"), (12e3, "12 kB"), (999, "999 B"),
                                      (1e9, "1 GB")])
-def test_size_text(n, text):
-    assert size_text(n) == text
+def test_size_text_and_the_reports_sizes_are_one_formatting(n, text):
+    from tissuebench.reports.format import nbytes
+
+    assert size_text(n) == text and nbytes(n) == text
+    assert nbytes(-1) == "-" and nbytes(float("nan")) == "-"  # the schema's missing value

@@ -41,12 +41,11 @@ def percent(v) -> str:
 
 def nbytes(v) -> str:
     """A size [bytes] in kB / MB / GB (1000-based); ``-`` for the schema's missing value (-1)."""
+    from ..reference.memory import size_text  # lazy: the reference layer's, one formatting of a size
+
     if not _finite(v) or v < 0:
         return "-"
-    for scale, unit in ((1e9, "GB"), (1e6, "MB"), (1e3, "kB")):
-        if v >= scale:
-            return f"{v / scale:.3g} {unit}"
-    return f"{int(v)} B"
+    return size_text(v)
 
 
 def number(v, digits: int = 4) -> str:
