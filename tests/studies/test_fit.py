@@ -199,7 +199,7 @@ def test_references_are_added_while_they_help_and_the_model_grows_when_they_no_l
     grown = {**state, "last_action": "grow"}
     assert loop.decide(grown, _point(0.095 * 0.899, action="grow"), t, 4, True, True)[0] == "add"
     action, why = loop.decide(grown, _point(0.095 * 0.901, action="grow"), t, 4, True, True)
-    assert action == "stop" and "neither more training nor a larger model" in why
+    assert action == "stop" and "neither more training nor a larger or refined model" in why
     spent = {**once, "refs_added": 4}
     assert loop.decide(spent, _point(0.05), t, 4, True, True)[0] == "grow"
     assert loop.decide(spent, _point(0.05), t, 4, True, False) == ("stop", "the budget of 4 references is spent")

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, Callable, ClassVar, Mapping, Sequence
@@ -560,6 +561,11 @@ class RomMethod(ABC):
     #: ECSW beside ``("pod_galerkin", {"hyper": "ecsw"})``), or ``{training kind: (name, options)}``
     #: where it differs by training kind; None: none. The report pairs the units of a sweep by it.
     counterpart: ClassVar[tuple | dict | None] = None
+    #: options that refine a model at a fixed basis size, which ``tissuebench fit`` tries beside a
+    #: larger basis once more training no longer helps: ``{option: factor}``, each refinement
+    #: multiplying the option's value by ``factor`` (below 1: a tolerance tightened, ECSW's cubature
+    #: ``{"ecsw_tol": 0.5}``); :meth:`refinements_for` says which change a given option set
+    refinements: ClassVar[dict] = {}
 
     def __init_subclass__(cls, **kwargs):
         # the model of every build refuses a parameter it does not read (:mod:`.reads`)
@@ -611,6 +617,13 @@ class RomMethod(ABC):
                 return (f"needs a mesh of the {' or '.join(repr(b) for b in a.mesh_builders)} builder (its layered "
                         f"anterior surface is the vademecum's parameter domain); the scene's mesh is {where}")
         return ""
+
+    @classmethod
+    def refinements_for(cls, options: Mapping) -> dict:
+        """The :attr:`refinements` that change the model built with ``options`` (default: every one);
+        a method whose refinement applies only with some option (ECSW's tolerance with ``hyper =
+        "ecsw"``) overrides it."""
+        return dict(cls.refinements)
 
     @classmethod
     def unavailable(cls) -> str:
@@ -685,6 +698,12 @@ def check_method_class(cls, what: str = "register") -> None:
                         "'_', '.' or '-' (it names a results folder)")
     if cls.kind not in MODEL_KINDS:
         raise TypeError(f"{what}: {cls.__name__}.kind = {cls.kind!r}; valid: {MODEL_KINDS}")
+    refinements = cls.refinements
+    if not isinstance(refinements, dict) or not all(
+            isinstance(k, str) and isinstance(f, (int, float)) and not isinstance(f, bool) and math.isfinite(f)
+            and 0 < f != 1 for k, f in refinements.items()):
+        raise TypeError(f"{what}: {cls.__qualname__}.refinements = {refinements!r}: expected {{option name: factor}} "
+                        "with each factor finite, positive and not 1")
     if inspect.isabstract(cls):
         raise TypeError(f"{what}: {cls.__qualname__} does not implement {sorted(cls.__abstractmethods__)}")
 

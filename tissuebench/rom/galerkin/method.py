@@ -98,6 +98,13 @@ class PodGalerkin(RomMethod):
     nested = ()
     training_kinds = ("trajectory",)
     applies = Applies(dead_loads=True)
+    refinements = {"ecsw_tol": 0.5}
+
+    @classmethod
+    def refinements_for(cls, options) -> dict:
+        """ECSW's tolerance, halved by each refinement (more elements in the cubature), with ``hyper =
+        "ecsw"`` (the default) only: it changes no other model."""
+        return dict(cls.refinements) if (options or {}).get("hyper", "ecsw") == "ecsw" else {}
 
     @classmethod
     def why_not(cls, scene, options=None) -> str:

@@ -43,7 +43,7 @@ from ..training import training_references
 from ..units import options_text
 from .specs import family_case, round_spec, toml_text
 
-__all__ = ["finish", "cheapest", "heading", "report_text"]
+__all__ = ["finish", "cheapest", "heading", "report_text", "size_text"]
 
 
 def _row(p: dict) -> dict:
@@ -89,6 +89,18 @@ def best_per_clause(m: dict, target) -> dict:
             "speed": min(accurate, key=lambda x: x[1]["p99_s"]) if accurate else None}
 
 
+def size_text(point: dict) -> str:
+    """A point's model size as written: the size option's value, and its refinement where it has one
+    (``30, ecsw_tol 0.0025``)."""
+    refined = point.get("refined") or {}
+    return ", ".join([str(point.get("size"))] + [f"{k} {v:g}" for k, v in refined.items()])
+
+
+def _action_text(p: dict) -> str:
+    grew = f" ({p['grew']})" if p.get("grew") else ""
+    return f"{p['action']}{grew}{' (dropped)' if p.get('dropped') else ''}"
+
+
 def heading(curve: list, target_error: float | None) -> dict:
     """Where a learning curve is heading: over the points of its last size measured after added
     references (at least two), the error's fall per reference (a fitted log-linear rate) and the
@@ -96,8 +108,8 @@ def heading(curve: list, target_error: float | None) -> dict:
     pts = [p for p in curve if not p.get("dropped") and p["error"] is not None and p["status"] == "ok"]
     if len(pts) < 2:
         return {"rate": None, "more_references": None, "words": "one point: no trend yet"}
-    size = pts[-1]["size"]
-    same = [p for p in pts if p["size"] == size]
+    size = size_text(pts[-1])
+    same = [p for p in pts if size_text(p) == size]
     if len(same) < 2 or same[-1]["references"] == same[0]["references"]:
         return {"rate": None, "more_references": None, "words": "no reference added at the last size: no trend"}
     x = np.array([p["references"] for p in same], float)
@@ -346,8 +358,8 @@ def report_text(m: dict, target) -> str:
         for p in st["curve"]:
             ad = added.get(p["round"])
             where = f"{st.get('axis')} {ad['value']:.6g} ({ad['indicator']:.3g})" if ad else ""
-            lines.append(f"| {name} | {p['round']} | {p['references']} | {p['size']} | {_pct(p['error'])} | "
-                         f"{_ms(p['p99_s'])} | {p['action']}{' (dropped)' if p.get('dropped') else ''} | {where} |")
+            lines.append(f"| {name} | {p['round']} | {p['references']} | {size_text(p)} | {_pct(p['error'])} | "
+                         f"{_ms(p['p99_s'])} | {_action_text(p)} | {where} |")
     dense = m.get("dense") or {}
     if dense:
         lines += ["", "## Dense check", "", "| unit | held out | dense | ratio | cases |", "|---|---|---|---|---|"]

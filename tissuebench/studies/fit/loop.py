@@ -13,9 +13,13 @@ executor asked) of the families still going, one unit each, after one decision p
   its units are measured again. The indicator's ranking is checked against the true errors the
   unit measured at the evaluation's points (Spearman's rho, recorded per round).
 * **grow**: when the last :data:`PATIENCE` references each lowered the error by less than
-  :data:`MIN_GAIN` (more training no longer helps), the model's size (``n_modes`` ..., :data:`.specs.SIZE_KEYS`) takes
-  its next value (:func:`next_size`); a larger model that fails or misses the speed clauses is
-  dropped and the family goes on at its size.
+  :data:`MIN_GAIN` (more training no longer helps), the model grows along each of its two axes, both
+  measured in the same round: its size (``n_modes`` ..., :data:`.specs.SIZE_KEYS`) takes its next
+  value (:func:`next_size`), and, where the method declares one for the lead's options
+  (:attr:`~tissuebench.rom.base.RomMethod.refinements`: ECSW's ``ecsw_tol`` halved, more elements
+  in the cubature), the model is refined at its size (:func:`next_refinement`). The more accurate of
+  the two that meets the speed clauses becomes the lead; an axis whose model fails or misses the
+  speed clauses is not tried again, and when both do the family goes on at its size.
 * **stop**: the lead meets the requirement (``met``); neither a reference nor a larger model
   lowered the error by :data:`MIN_GAIN`; no candidate or budget is left; no option set meets the
   speed clauses (more training does not make a model faster); a practitioner baseline learns
@@ -48,22 +52,19 @@ from ..spec import load_spec
 from ..sweep import run_sweep
 from ..training import build_training, case_scene
 from .answer import finish
+from .growth import GROWTH, MAX_GROWTH, MAX_REFINEMENTS, next_refinement, next_size
 from .axes import axis_of
 from .manifest import check_settings, new_manifest, read_manifest, write_manifest
 from .specs import family_case, round_spec, scene_plan, toml_text
 from .target import Target
 
 __all__ = ["FitSettings", "run_fit", "next_size", "decide", "speed_ok", "load_factor", "MIN_GAIN", "PATIENCE", "GROWTH",
-           "MAX_GROWTH"]
+           "MAX_GROWTH", "MAX_REFINEMENTS", "next_refinement"]
 
 #: a reference (or a larger model) "helps" when the family's error falls by at least this fraction
 MIN_GAIN = 0.10
 #: added references in a row that each fail to lower the error by MIN_GAIN before "training no longer helps"
 PATIENCE = 2
-#: past its grid, a size grows by this factor (rounded up for an integer option)
-GROWTH = 1.5
-#: the largest size a fit tries, as a multiple of the grid's largest
-MAX_GROWTH = 4.0
 
 
 @dataclass
@@ -121,20 +122,6 @@ def _stderr(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
-def next_size(family, current):
-    """The family's next model size after ``current``: the next larger value of its grid, then
-    ``GROWTH`` times the current one (an integer rounded up), up to ``MAX_GROWTH`` times the
-    grid's largest; None past it or without a size option."""
-    if not family.size_key or current is None:
-        return None
-    values = sorted(family.grid.get(family.size_key, [family.options.get(family.size_key, current)]))
-    larger = [v for v in values if v > current]
-    if larger:
-        return larger[0]
-    grown = math.ceil(current * GROWTH) if isinstance(current, int) else float(current) * GROWTH
-    return grown if grown <= MAX_GROWTH * max(values) else None
-
-
 def _error_rows(rows: pd.DataFrame, metric: str) -> pd.DataFrame:
     rows = rows.copy()
     rows["error"] = rows[metric].astype(float) if metric in rows else np.nan
@@ -143,8 +130,9 @@ def _error_rows(rows: pd.DataFrame, metric: str) -> pd.DataFrame:
 
 def _point(row, round_, fam_state, action) -> dict:
     opts = json.loads(row["options"]) if isinstance(row.get("options"), str) else {}
-    size_key = fam_state["size_key"]
+    size_key, refine_key = fam_state["size_key"], fam_state.get("refine_key")
     return {"round": round_, "references": fam_state["refs_added"], "size": opts.get(size_key) if size_key else None,
+            "refined": {refine_key: opts[refine_key]} if refine_key and refine_key in opts else None,
             "options": opts, "unit_key": row["unit_key"], "label": row["label"], "status": row["unit_status"],
             "error": _num(row.get("error")), "claimed_error": _num(row.get("claimed_error")),
             "peak_rel_l2": _num(row.get("peak_rel_l2")), "max_rel_l2": _num(row.get("max_rel_l2")),
@@ -221,7 +209,7 @@ def decide(fam_state: dict, point: dict, target: Target, budget_refs: int, can_a
     last = fam_state.get("last_action", "start")
     budget_left = fam_state["refs_added"] < budget_refs
     if last == "grow" and not _helped(previous, point["error"]):
-        return "stop", (f"neither more training nor a larger model lowers the error by {MIN_GAIN:.0%} "
+        return "stop", (f"neither more training nor a larger or refined model lowers the error by {MIN_GAIN:.0%} "
                         f"({_pct(previous)} -> {_pct(point['error'])})")
     stale = _stale_adds(curve + [{**point, "action": last}])
     if last == "add" and stale >= PATIENCE:
@@ -291,7 +279,8 @@ class _Fit:
             if k == 0:
                 out.append((family_case(self.plan, name, []), fam, None))
             elif st["status"] == "active" and st["next"] is not None:
-                out.append((family_case(self.plan, name, st["next"]["runs"]), fam, [st["next"]["options"]]))
+                sets = [a["options"] for a in st["next"].get("alternatives", [])] or [st["next"]["options"]]
+                out.append((family_case(self.plan, name, st["next"]["runs"]), fam, sets))
         return out
 
     def run(self) -> dict:
@@ -391,17 +380,15 @@ class _Fit:
         if k == 0:
             lead = _lead(fam_rows, target)
             st["grid_points"] = [_point(row, k, st, "grid") for _, row in fam_rows.iterrows()]
+        elif action == "grow":
+            point = self.choose_growth(k, name, st, fam_rows)
+            if point is None:  # every larger or refined model failed or missed the speed clauses
+                st["last_action"] = "add"
+                return next(p for p in reversed(st["curve"]) if not p.get("dropped")), True
         else:
             lead = fam_rows.iloc[0]
-        point = _point(lead, k, st, action)
-        if action == "grow" and not speed_ok(target, point):
-            # a larger model that fails or misses the speed clauses: the family goes on at its size
-            point["dropped"] = True
-            st["curve"].append(point)
-            st["ladder_done"] = True
-            st["last_action"] = "add"
-            self.log(f"fit: round {k}: {name}: {point['label']} {_said(point)}: dropped (the size stays)")
-            return next(p for p in reversed(st["curve"]) if not p.get("dropped")), True
+        if action != "grow" or k == 0:
+            point = _point(lead, k, st, action)
         st["curve"].append(point)
         st["lead"] = point["options"]
         self.log(f"fit: round {k}: {name}: {point['label']} {_said(point)}")
@@ -413,6 +400,42 @@ class _Fit:
                       why="a practitioner baseline: it learns nothing from references (measured once)")
             return None
         return point, False
+
+    def choose_growth(self, k, name, st, fam_rows):
+        """The point of the growth round ``k`` of family ``name`` that becomes its lead: among its
+        alternatives (a larger size, a refinement), the most accurate that meets the speed clauses;
+        an axis whose model fails or misses them is closed (module docstring). None when none is kept
+        (each tried one is added to the curve, dropped)."""
+        target = self.s.target
+        alternatives = st["next"].get("alternatives") or [{"options": st["next"]["options"],
+                                                            "option": st["size_key"], "value": None}]
+        tried, kept = [], []
+        for alt in alternatives:
+            rows = [row for _, row in fam_rows.iterrows() if _options(row) == alt["options"]]
+            if not rows:
+                continue
+            point = {**_point(rows[0], k, st, "grow"), "grew": alt["option"]}
+            good = point["status"] == "ok" and speed_ok(target, point)
+            tried.append({"option": alt["option"], "value": alt["value"], "error": point["error"],
+                          "p99_s": point["p99_s"], "status": point["status"], "kept": False})
+            if good:
+                kept.append((point, tried[-1]))
+                continue
+            st["refine_done" if alt["option"] == st.get("refine_key") else "ladder_done"] = True
+            self.log(f"fit: round {k}: {name}: {point['label']} {_said(point)}: dropped ({alt['option']} stays)")
+            st["curve"].append({**point, "dropped": True})
+        if st.get("grew_to"):
+            st["grew_to"][-1]["tried"] = tried
+        if not kept:
+            return None
+        point, record = min(kept, key=lambda pr: pr[0]["error"] if pr[0]["error"] is not None else math.inf)
+        record["kept"] = True
+        if point["grew"] == st.get("refine_key"):
+            st["refinements"] = st.get("refinements", 0) + 1
+        for other, _ in kept:
+            if other is not point:
+                st["curve"].append({**other, "dropped": True, "why": "the other growth was more accurate"})
+        return point
 
     def next_step(self, k, name, st, point, entry, force_after_drop=False) -> None:
         """Decide family ``name``'s next step after ``point`` and record it (module docstring). A
@@ -435,6 +458,8 @@ class _Fit:
         fam, target = self.fams[name], self.s.target
         size = point["options"].get(fam.size_key) if fam.size_key else None
         grow_to = None if st.get("ladder_done") else next_size(fam, size)
+        refine = None if st.get("refine_done") or not fam.learns else next_refinement(
+            fam.name, point["options"], st.get("refinements", 0))
         model = training = None
         candidates = np.zeros(0)
         axis = self.axis_for(name)
@@ -455,16 +480,25 @@ class _Fit:
                 "stop", "a larger model misses the requirement's speed or fails, and no reference is left to add")
         else:
             action, why = decide(st, point, target, self.s.budget_references, bool(len(candidates)),
-                                 grow_to is not None)
+                                 grow_to is not None or refine is not None)
         if action == "met":
             st.update(status="met", why=why, next=None)
         elif action == "stop":
             st.update(status="stopped", why=why, next=None)
         elif action == "grow":
-            opts = {**point["options"], fam.size_key: grow_to}
-            st["grew_to"].append({"round": k, "size": grow_to})
-            st["next"] = {"action": "grow", "options": opts, "runs": list(st["runs"]), "why": why,
-                          "value_text": ""}
+            alternatives = []
+            if grow_to is not None:
+                alternatives.append({"options": {**point["options"], fam.size_key: grow_to}, "option": fam.size_key,
+                                     "value": grow_to})
+            if refine is not None:
+                st["refine_key"] = refine[0]
+                alternatives.append({"options": {**point["options"], refine[0]: refine[1]}, "option": refine[0],
+                                     "value": refine[1]})
+            st["grew_to"].append({"round": k, "size": grow_to, "refinement": list(refine) if refine else None})
+            st["next"] = {"action": "grow", "options": alternatives[0]["options"], "alternatives": alternatives,
+                          "runs": list(st["runs"]), "why": why, "value_text": ""}
+            self.log(f"fit: round {k}: {name}: grow: " + " and ".join(f"{a['option']} {a['value']:g}"
+                                                                      for a in alternatives))
         else:
             self.log(f"fit: round {k}: {name}: indicator at {len(candidates)} candidate {axis.name}s")
             ind = axis.indicators(model, training, candidates)
@@ -498,6 +532,10 @@ class _Fit:
     def unit_points(self, k, unit_key) -> pd.DataFrame:
         points = read_points(self.out / self.m["rounds"][k]["folder"])
         return points[points["unit_key"] == unit_key] if not points.empty else points
+
+
+def _options(row) -> dict:
+    return json.loads(row["options"]) if isinstance(row.get("options"), str) else {}
 
 
 def _said(p: dict) -> str:
