@@ -78,6 +78,10 @@ class NoDefault(Sound):
         self.gain = float(gain)
 
 
+class RefinesNoOption(Sound):
+    refinements = {"tolerance": 0.5}  # no such option: the fit could not set it
+
+
 class ParametersOfAnotherKind(Sound):
     applies = Applies(dead_loads=True, parameters={"positions": ("position",)})
 
@@ -365,6 +369,7 @@ class CtrlCInStep(Sound):
 
 NEGATIVE = [
     ("options_are_constructor_keywords", NoDefault, "options ['gain'] have no default"),
+    ("options_are_constructor_keywords", RefinesNoOption, "refinements = {'tolerance': 0.5}: not all are options"),
     ("applies_is_declared_and_consistent", ParametersOfAnotherKind, "names training kind 'positions'"),
     ("builds_an_online_model", BuildsNothing, "build returned dict, not a tissuebench.rom.OnlineModel"),
     ("build_does_not_mutate_training", MutatesItsTraining, "the build changed its training: snapshots"),
@@ -525,3 +530,13 @@ def test_with_sigint_ignored_a_keyboard_interrupt_the_code_raises_is_a_failed_ch
         assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
     finally:
         signal.signal(signal.SIGINT, before)
+
+
+def test_a_refinement_of_an_option_passes_and_one_of_no_option_fails():
+    """Both sides of the refinements rule: a declared option passes, an undeclared one fails."""
+    class RefinesGain(Sound):
+        refinements = {"gain": 0.5}
+
+    [ok] = check_method(RefinesGain, checks=["options_are_constructor_keywords"], raise_on_failure=False)
+    [bad] = check_method(RefinesNoOption, checks=["options_are_constructor_keywords"], raise_on_failure=False)
+    assert ok.status == "passed" and bad.status == "failed"

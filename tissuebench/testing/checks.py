@@ -68,7 +68,8 @@ class Context:
 
 def options_are_constructor_keywords(ctx: Context) -> None:
     """The options are the constructor's named keywords, each with a default; an unknown one is
-    refused by name; ``kind``, ``training_kinds`` and ``nested`` are known values."""
+    refused by name; ``kind``, ``training_kinds``, ``nested`` and ``refinements`` are known values
+    (``refinements_for`` answers with some of ``refinements``)."""
     cls = ctx.cls
     params = [] if cls.__init__ is object.__init__ else [  # no constructor of its own: no options
         p for p in inspect.signature(cls.__init__).parameters.values() if p.name != "self"]
@@ -90,6 +91,13 @@ def options_are_constructor_keywords(ctx: Context) -> None:
         raise CheckFailure(f"training_kinds = {kinds}: expected some of {list(TRAINING_KINDS)}")
     if any(k not in named for k in cls.nested):
         raise CheckFailure(f"nested = {list(cls.nested)}: not all are options ({named})")
+    if any(k not in named for k in cls.refinements):
+        raise CheckFailure(f"refinements = {cls.refinements}: not all are options ({named}); tissuebench fit sets "
+                           "them by name")
+    applied = cls.refinements_for({})
+    if not isinstance(applied, dict) or any(k not in cls.refinements for k in applied):
+        raise CheckFailure(f"refinements_for({{}}) = {applied!r}: expected a dict of some of refinements "
+                           f"{cls.refinements}")
     try:
         make_method(cls, bogus_option=1)
     except ValueError as exc:
