@@ -156,3 +156,17 @@ def test_a_fit_measures_both_growths_in_one_round_and_says_which_it_kept(tmp_pat
     assert [t["option"] for t in tried] == ["n_modes", "ecsw_tol"] and sum(t["kept"] for t in tried) == 1
     assert st["status"] == "stopped" and "nor a larger or refined model" in st["why"]
     assert "grow (" in (out / "fit.md").read_text()
+
+
+def test_the_learning_curves_label_what_grew_and_show_the_growth_not_kept(tmp_path):
+    from tissuebench.reports.fit_figure import _grew_text, draw_learning_curves
+
+    kept = {"round": 3, "references": 2, "size": 30, "refined": {"ecsw_tol": 0.0025}, "grew": "ecsw_tol",
+            "error": 0.00713, "status": "ok", "action": "grow"}
+    other = {**kept, "size": 45, "refined": None, "grew": "n_modes", "error": 0.0091, "dropped": True}
+    assert _grew_text(kept) == "ecsw_tol 0.0025" and _grew_text(other) == "n_modes 45"
+    start = {**kept, "round": 0, "references": 0, "refined": None, "grew": None, "error": 0.00817, "action": "start"}
+    manifest = {"scene_name": "dome", "error_metric": "peak_rel_l2", "target": [["error", "<=", 0.004]],
+                "families": {"pod_galerkin": {"learns": True, "curve": [start, other, kept]}}}
+    path = draw_learning_curves(manifest, tmp_path / "curves.png")
+    assert path.stat().st_size > 10_000
