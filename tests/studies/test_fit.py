@@ -304,6 +304,15 @@ def test_the_manifest_refuses_another_fits_settings_and_a_foreign_file(tmp_path)
     check_settings(m, {**SETTINGS, "budget_references": 9}, tmp_path)  # a budget may change on resume
     with pytest.raises(ValueError, match="holds a fit with require = 'error<=1%', not 'error<=2%'"):
         check_settings(m, {**SETTINGS, "require": "error<=2%"}, tmp_path)
+    grow = {"options": {"n_modes": 45}, "option": "n_modes", "value": 45}
+    m["families"] = {"pod_galerkin": {"next": {"action": "grow", "alternatives": [grow]}}}
+    write_manifest(tmp_path, m)
+    assert read_manifest(tmp_path)["families"]["pod_galerkin"]["next"]["alternatives"] == [grow]
+    for damaged in ([{**grow, "options": "n_modes=45"}], [{**grow, "value": None}], [], {"n_modes": 45}):
+        m["families"]["pod_galerkin"]["next"]["alternatives"] = damaged
+        write_manifest(tmp_path, m)
+        with pytest.raises(ValueError, match="families.pod_galerkin.next.alternatives = .*the manifest is damaged"):
+            read_manifest(tmp_path)
     (tmp_path / "fit.json").write_text(json.dumps({"kind": "something else"}))
     with pytest.raises(ValueError, match="not the manifest of a tissuebench fit"):
         read_manifest(tmp_path)

@@ -18,7 +18,7 @@ from tissuebench.rom.base import RomMethod, check_method_class
 from tissuebench.rom.galerkin.method import PodGalerkin
 from tissuebench.studies.fit import Target, loop
 from tissuebench.studies.fit.answer import heading, size_text
-from tissuebench.studies.fit.growth import MAX_REFINEMENTS, next_refinement
+from tissuebench.studies.fit.growth import MAX_REFINEMENTS, next_refinement, refinements_kept
 
 
 def test_ecsw_declares_its_tolerance_halved_and_only_with_hyper_ecsw():
@@ -99,14 +99,17 @@ def test_the_more_accurate_growth_that_meets_the_speed_clauses_is_kept():
     point = loop._Fit.choose_growth(_FakeFit(TARGET), 4, "pod_galerkin", st, _rows(
         (size, 0.0091, 2e-3, "ok"), (tol, 0.0061, 3e-3, "ok")))
     assert point["grew"] == "ecsw_tol" and point["error"] == 0.0061 and point["refined"] == {"ecsw_tol": 0.0025}
-    assert st["refinements"] == 1 and not st.get("ladder_done") and not st.get("refine_done")
+    assert not st.get("ladder_done") and not st.get("refine_done")
+    assert refinements_kept(st["curve"], "ecsw_tol") == 0  # the kept point is not in the curve yet
+    assert refinements_kept(st["curve"] + [point], "ecsw_tol") == 1 and refinements_kept([point], None) == 0
     assert [(t["option"], t["kept"]) for t in st["grew_to"][-1]["tried"]] == [("n_modes", False), ("ecsw_tol", True)]
     assert [p["dropped"] for p in st["curve"]] == [True] and st["curve"][0]["grew"] == "n_modes"  # kept, not lost
     # the other way round: the larger basis wins, the refinement count stays
     st, size, tol = _state(LEAD)
     point = loop._Fit.choose_growth(_FakeFit(TARGET), 4, "pod_galerkin", st, _rows(
         (size, 0.0060, 2e-3, "ok"), (tol, 0.0061, 3e-3, "ok")))
-    assert point["grew"] == "n_modes" and point["size"] == 45 and st.get("refinements", 0) == 0
+    assert point["grew"] == "n_modes" and point["size"] == 45
+    assert refinements_kept(st["curve"] + [point], "ecsw_tol") == 0  # the refinement measured, dropped
 
 
 def test_a_growth_too_slow_or_failed_closes_its_axis_and_the_other_is_kept():

@@ -670,6 +670,12 @@ class RomMethod(ABC):
                 if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
 
     @classmethod
+    def option_defaults(cls) -> dict:
+        """``{option: default}`` of the constructor's keyword options that have a default."""
+        return {p.name: p.default for p in inspect.signature(cls.__init__).parameters.values()
+                if p.name in cls.option_names() and p.default is not p.empty}
+
+    @classmethod
     def check_options(cls, options: Mapping) -> None:
         """ValueError naming an option the method does not take, listing the valid ones."""
         unknown = sorted(set(options) - set(cls.option_names()))

@@ -10,12 +10,11 @@ else of it.
 """
 from __future__ import annotations
 
-import inspect
 import math
 
 from ...rom.base import method_class
 
-__all__ = ["next_size", "next_refinement", "GROWTH", "MAX_GROWTH", "MAX_REFINEMENTS"]
+__all__ = ["next_size", "next_refinement", "refinements_kept", "GROWTH", "MAX_GROWTH", "MAX_REFINEMENTS"]
 
 #: past its grid, a size grows by this factor (rounded up for an integer option)
 GROWTH = 1.5
@@ -49,7 +48,7 @@ def next_refinement(method, options: dict, done: int = 0):
         return None
     cls = method_class(method)
     for key, factor in cls.refinements_for(dict(options)).items():
-        value = options.get(key, _default(cls, key))
+        value = options.get(key, cls.option_defaults().get(key))
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
             continue
         if isinstance(value, int):
@@ -61,9 +60,7 @@ def next_refinement(method, options: dict, done: int = 0):
     return None
 
 
-def _default(cls, key):
-    try:
-        param = inspect.signature(cls.__init__).parameters.get(key)
-    except (TypeError, ValueError):
-        return None
-    return None if param is None or param.default is inspect.Parameter.empty else param.default
+def refinements_kept(curve: list, refine_key) -> int:
+    """How many growths of a family's learning ``curve`` were refinements of ``refine_key`` that
+    became the lead (a refinement measured and not kept does not count)."""
+    return sum(bool(refine_key) and p.get("grew") == refine_key and not p.get("dropped") for p in curve)

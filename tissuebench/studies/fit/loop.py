@@ -52,7 +52,7 @@ from ..spec import load_spec
 from ..sweep import run_sweep
 from ..training import build_training, case_scene
 from .answer import finish
-from .growth import GROWTH, MAX_GROWTH, MAX_REFINEMENTS, next_refinement, next_size
+from .growth import GROWTH, MAX_GROWTH, MAX_REFINEMENTS, next_refinement, next_size, refinements_kept
 from .rules import MIN_GAIN, PATIENCE, _as_row, _pct, decide, load_factor, speed_ok
 from .axes import axis_of
 from .manifest import check_settings, new_manifest, read_manifest, write_manifest
@@ -126,7 +126,7 @@ def _error_rows(rows: pd.DataFrame, metric: str) -> pd.DataFrame:
 
 
 def _point(row, round_, fam_state, action) -> dict:
-    opts = json.loads(row["options"]) if isinstance(row.get("options"), str) else {}
+    opts = _options(row)
     size_key, refine_key = fam_state["size_key"], fam_state.get("refine_key")
     return {"round": round_, "references": fam_state["refs_added"], "size": opts.get(size_key) if size_key else None,
             "refined": {refine_key: opts[refine_key]} if refine_key and refine_key in opts else None,
@@ -346,8 +346,6 @@ class _Fit:
             return None
         point, record = min(kept, key=lambda pr: pr[0]["error"] if pr[0]["error"] is not None else math.inf)
         record["kept"] = True
-        if point["grew"] == st.get("refine_key"):
-            st["refinements"] = st.get("refinements", 0) + 1
         for other, _ in kept:
             if other is not point:
                 st["curve"].append({**other, "dropped": True, "why": "the other growth was more accurate"})
@@ -375,7 +373,7 @@ class _Fit:
         size = point["options"].get(fam.size_key) if fam.size_key else None
         grow_to = None if st.get("ladder_done") else next_size(fam, size)
         refine = None if st.get("refine_done") or not fam.learns else next_refinement(
-            fam.name, point["options"], st.get("refinements", 0))
+            fam.name, point["options"], refinements_kept(st["curve"], st.get("refine_key")))
         model = training = None
         candidates = np.zeros(0)
         axis = self.axis_for(name)

@@ -52,7 +52,23 @@ def read_manifest(out) -> dict | None:
     for key in ("settings", "families", "rounds"):
         if key not in data:
             raise ValueError(f"{path}: the manifest lacks {key!r}; choose another --out")
+    for name, st in data["families"].items() if isinstance(data["families"], dict) else ():
+        _check_growth(path, name, (st or {}).get("next") if isinstance(st, dict) else None)
     return data
+
+
+def _check_growth(path, family, step) -> None:
+    """A pending growth's alternatives, which the next round runs: a list of ``{"options": {...},
+    "option": name, "value": number}`` (ValueError naming the family and the entry otherwise)."""
+    alternatives = step.get("alternatives") if isinstance(step, dict) else None
+    if alternatives is None:
+        return
+    ok = isinstance(alternatives, list) and alternatives and all(
+        isinstance(a, dict) and isinstance(a.get("options"), dict) and isinstance(a.get("option"), str)
+        and isinstance(a.get("value"), (int, float)) and not isinstance(a.get("value"), bool) for a in alternatives)
+    if not ok:
+        raise ValueError(f"{path}: families.{family}.next.alternatives = {alternatives!r}: expected a list of "
+                         "{options: {...}, option: name, value: number}; the manifest is damaged, choose another --out")
 
 
 def check_settings(manifest: dict, settings: dict, out) -> None:

@@ -67,8 +67,7 @@ def decide(fam_state: dict, point: dict, target: Target, budget_refs: int, can_a
     references is ``budget_refs``. Training "no longer helps" after :data:`PATIENCE` references in
     a row that each lowered the error by less than :data:`MIN_GAIN` (one may land where the
     indicator misleads: near rest, where a stiff tangent inflates the residual of a small error)."""
-    row = {"unit_status": point["status"], "seen": point["seen"], "error": point["error"] if point["error"] is not
-           None else float("nan"), "haptic_p99_s": point["p99_s"] if point["p99_s"] is not None else float("nan")}
+    row = _as_row(point)
     if target.meets(row):
         return "met", "meets " + target.text()
     if point["status"] != "ok":
