@@ -60,10 +60,10 @@ def _parser():
     run.add_argument("--out", type=Path, default=None, help="result folder (default: out/CASE[-VARIANT]-BACKEND-RES)")
     run.add_argument("--force", action="store_true", help="replace an existing result folder")
     run.add_argument("--linear-solver", default="auto",
-                     choices=["auto", "direct", "cholesky", "amg-cg", "kept-factor-cg"],
-                     help="linear solver of the Newton iterations (default auto: CG preconditioned by kept LDL^T "
-                          "factors from 50 000 dofs, NGSolve's sparse LDL^T from 1000 dofs, SuperLU below; which "
-                          "to pick: docs/explanation/benchmarks.md)")
+                     choices=["auto", "direct", "cholesky", "amg-cg", "kept-factor-cg", "pardiso"],
+                     help="linear solver of the Newton iterations (default auto: CG preconditioned by kept factors "
+                          "from 50 000 dofs, MKL PARDISO's where it is installed, else NGSolve's LDL^T; NGSolve's "
+                          "sparse LDL^T from 1000 dofs, SuperLU below; which to pick: docs/explanation/benchmarks.md)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     cases = sub.add_parser("cases", help="list the catalogue")
     cases.add_argument("--no-mesh", action="store_true", help="do not build meshes to count nodes")

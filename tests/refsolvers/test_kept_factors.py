@@ -132,9 +132,10 @@ def test_the_ngsolve_backend_takes_ngsolve_at_every_size_and_the_kept_factors_fr
     assert type(auto._choose(linear_solvers.KEPT_FACTORS_MIN_DOFS)) is KeptFactorSolver
 
 
-def test_kept_factor_cg_by_name_keeps_ngsolve_factors():
+def test_kept_factor_cg_by_name_keeps_the_large_system_solvers_factors():
+    from tissuebench.refsolvers.kept_factors import large_system_solver
     from tissuebench.refsolvers.linear_solvers import make_linear_solver
 
     solver = make_linear_solver("kept-factor-cg", max_iterations=5)
-    assert isinstance(solver, KeptFactorSolver) and isinstance(solver.inner, NgsolveSparseSolver)
+    assert isinstance(solver, KeptFactorSolver) and type(solver.inner) is type(large_system_solver())
     assert solver.max_iterations == 5

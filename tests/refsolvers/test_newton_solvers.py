@@ -8,7 +8,7 @@ from tissuebench.refsolvers import make_backend
 from tissuebench.refsolvers.newton import NewtonOptions, newton_solve
 
 BACKENDS = ["skfem", pytest.param("ngsolve", marks=pytest.mark.ngsolve)]
-SOLVERS = ["direct", "cholesky", "amg-cg"]
+SOLVERS = ["direct", "cholesky", "amg-cg", "pardiso"]
 
 
 @pytest.fixture(scope="module", params=BACKENDS)
@@ -31,9 +31,11 @@ def test_same_newton_iterations_and_converged_state(runs, solver):
 
 
 def test_exact_solvers_give_the_same_iterates(runs):
-    """Residual histories of SuperLU and NGSolve Cholesky agree to 1e-6 relative for every
+    """Residual histories of SuperLU, NGSolve Cholesky and PARDISO agree to 1e-6 relative for every
     iterate above 1e-6 of the largest (below, round-off of the residual dominates)."""
-    for a, b in zip(runs["cholesky"].increments, runs["direct"].increments):
+    pairs = [*zip(runs["cholesky"].increments, runs["direct"].increments),
+             *zip(runs["pardiso"].increments, runs["direct"].increments)]
+    for a, b in pairs:
         ra, rb = np.array(a.residual_norms), np.array(b.residual_norms)
         big = rb > 1e-6 * rb.max()
         np.testing.assert_allclose(ra[big], rb[big], rtol=1e-6)

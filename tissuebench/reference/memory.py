@@ -8,8 +8,9 @@ two parts of a Newton iteration's memory, with the formulation the refined run w
 
 * the **assembly** of one tangent (element matrices and the triplets they are summed from),
   which grows with the cells: 8 times at h/2 (each tetrahedron split in eight);
-* the **factorisation** of its free block, which grows as ``(n_h/2 / n_h)^(4/3)``
-  (:data:`FILL_EXPONENT`).
+* the **factorisation** of its free block, by the direct solver the refined run will factorise
+  with (:func:`~tissuebench.refsolvers.linear_solvers.direct_solver_for` its unknowns: MKL
+  PARDISO where it is installed), which grows as ``(n_h/2 / n_h)^(4/3)`` (:data:`FILL_EXPONENT`).
 
 The estimate is their sum above the process's resident memory when the refined run starts. Each
 part is the rise of the process's peak resident set (Linux ``VmHWM``, reset through
@@ -32,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import psutil
 
-from ..refsolvers.sparse_direct import factorized
+from ..refsolvers.linear_solvers import direct_solver_for
 
 __all__ = ["FILL_EXPONENT", "MEMORY_MARGIN", "PeakProbe", "RefinedMemory", "estimate_refined_peak", "available_bytes",
            "size_text"]
@@ -129,9 +130,11 @@ def estimate_refined_peak(backend, dofs_h_half: int) -> RefinedMemory:
     t0 = time.perf_counter()
     with PeakProbe() as assembly:
         K_ff = backend.tangent(np.zeros(pb.ndof))[free][:, free]
+    solver = direct_solver_for(int(dofs_h_half))
     with PeakProbe() as factor:
-        solve = factorized(K_ff)
-    del solve
+        solver.solve(K_ff, np.ones(K_ff.shape[0]))
+    solver.reset()
+    del solver
     wall = time.perf_counter() - t0
     n_h = int(len(free))
     if assembly.rise is None or factor.rise is None:

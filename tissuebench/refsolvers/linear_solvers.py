@@ -12,8 +12,10 @@ while the sparsity pattern stays the same (checked exactly):
 * ``"amg-cg"``: CG preconditioned by pyamg smoothed aggregation with the rigid-body modes,
   the hierarchy reused across Newton iterations and load increments, stopping at
   Newton's forcing term (:class:`~tissuebench.refsolvers.amg.AmgCgSolver`).
-* ``"kept-factor-cg"``: CG preconditioned by the factors (NGSolve's LDL^T) of an earlier
-  tangent, factorised again only when CG stalls or costs half a factorisation, stopping at
+* ``"pardiso"``: Intel MKL PARDISO (pypardiso), nested-dissection ordering, refactorised on the
+  same ordering (:class:`~tissuebench.refsolvers.pardiso.PardisoSolver`); where MKL is installed.
+* ``"kept-factor-cg"``: CG preconditioned by the factors (PARDISO's where MKL is installed, else
+  NGSolve's LDL^T) of an earlier tangent, factorised again only when CG stalls or costs half a factorisation, stopping at
   Newton's forcing term (:class:`~tissuebench.refsolvers.kept_factors.KeptFactorSolver`).
 * ``"auto"`` (the default of the statics): ``"kept-factor-cg"`` from :data:`KEPT_FACTORS_MIN_DOFS`
   unknowns on, ``"cholesky"`` from
@@ -38,24 +40,34 @@ from .solver_base import (
     canonical_csr,
     forcing_term,
 )
-from .kept_factors import KeptFactorSolver
+from .kept_factors import KeptFactorSolver, large_system_solver
+from .pardiso import PardisoSolver, pardiso_available
 from .sparse_direct import NGSOLVE_MIN_DOFS, DirectSolver, NgsolveSparseSolver
 
 __all__ = ["KEPT_FACTORS_MIN_DOFS", "LINEAR_SOLVERS", "AmgCgSolver", "AutoDirectSolver", "DirectSolver",
-           "KeptFactorSolver", "LinearSolver", "LinearSolverError", "NgsolveSparseSolver", "SparsityPattern",
-           "canonical_csr", "forcing_term", "make_linear_solver", "rigid_body_modes"]
+           "KeptFactorSolver", "LinearSolver", "LinearSolverError", "NgsolveSparseSolver", "PardisoSolver",
+           "SparsityPattern", "canonical_csr", "direct_solver_for", "forcing_term", "make_linear_solver",
+           "pardiso_available", "rigid_body_modes"]
 
 
 #: from this many unknowns on, ``"auto"`` keeps the factors and solves by CG with them
-#: (:class:`KeptFactorSolver`): the 5k-node organ at h/2 (107 805 dofs) factorised in 13.5 s and
-#: solved with the factors in 0.42 s; its 10 load increments took 755 s with a factorisation per
-#: Newton iteration
+#: (:class:`KeptFactorSolver`), PARDISO's where MKL is installed: the 5k-node organ at h/2 (107 805
+#: dofs) factorised in 13.5 s and solved with the factors in 0.42 s (NGSolve, P1); its 10 load
+#: increments took 755 s with a factorisation per Newton iteration
 KEPT_FACTORS_MIN_DOFS = 50_000
 
 
+def direct_solver_for(n: int, **ngsolve_options) -> LinearSolver:
+    """The direct solver ``"auto"`` factorises a system of ``n`` unknowns with (the kept factors'
+    from :data:`KEPT_FACTORS_MIN_DOFS` on): what a memory probe must factorise with."""
+    if n >= KEPT_FACTORS_MIN_DOFS:
+        return large_system_solver(**ngsolve_options)
+    return NgsolveSparseSolver(**ngsolve_options) if n >= NGSOLVE_MIN_DOFS else DirectSolver()
+
+
 class AutoDirectSolver(LinearSolver):
-    """A solver chosen by size on the first system: CG with kept LDL^T factors
-    (:class:`KeptFactorSolver`) from :data:`KEPT_FACTORS_MIN_DOFS` unknowns on, NGSolve's sparse
+    """A solver chosen by size on the first system: CG with kept factors (:class:`KeptFactorSolver`;
+    PARDISO's where MKL is installed) from :data:`KEPT_FACTORS_MIN_DOFS` unknowns on, NGSolve's sparse
     LDL^T (:class:`NgsolveSparseSolver`) from ``NGSOLVE_MIN_DOFS``, SciPy's SuperLU below. LDL^T
     does not pivot, so a factorised solution whose residual is not small (an indefinite tangent
     near a limit point) is solved again by SuperLU, which then serves for good."""
@@ -80,7 +92,7 @@ class AutoDirectSolver(LinearSolver):
 
     def _choose(self, n):
         if n >= KEPT_FACTORS_MIN_DOFS:
-            return KeptFactorSolver(NgsolveSparseSolver(**self.options))
+            return KeptFactorSolver(large_system_solver(**self.options))
         return NgsolveSparseSolver(**self.options) if n >= self.ngsolve_from else DirectSolver()
 
     def solve(self, K, b, rtol=None):
@@ -109,7 +121,7 @@ class AutoDirectSolver(LinearSolver):
 
 
 LINEAR_SOLVERS = {"auto": AutoDirectSolver, "direct": DirectSolver, "cholesky": NgsolveSparseSolver,
-                  "amg-cg": AmgCgSolver, KeptFactorSolver.name: KeptFactorSolver}
+                  "amg-cg": AmgCgSolver, KeptFactorSolver.name: KeptFactorSolver, PardisoSolver.name: PardisoSolver}
 
 
 def make_linear_solver(name="auto", **options):
