@@ -15,8 +15,8 @@ while the sparsity pattern stays the same (checked exactly):
 * ``"pardiso"``: Intel MKL PARDISO (pypardiso), nested-dissection ordering, refactorised on the
   same ordering (:class:`~tissuebench.refsolvers.pardiso.PardisoSolver`); where MKL is installed.
 * ``"kept-factor-cg"``: CG preconditioned by the factors (PARDISO's where MKL is installed, else
-  NGSolve's LDL^T) of an earlier tangent, factorised again only when CG stalls or costs half a factorisation, stopping at
-  Newton's forcing term (:class:`~tissuebench.refsolvers.kept_factors.KeptFactorSolver`).
+  NGSolve's LDL^T) of an earlier tangent, factorised again only when CG stalls or costs half a
+  factorisation, stopping at Newton's forcing term (:class:`~tissuebench.refsolvers.kept_factors.KeptFactorSolver`).
 * ``"auto"`` (the default of the statics): ``"kept-factor-cg"`` from :data:`KEPT_FACTORS_MIN_DOFS`
   unknowns on, ``"cholesky"`` from
   :data:`~tissuebench.refsolvers.sparse_direct.NGSOLVE_MIN_DOFS` unknowns on, ``"direct"``
