@@ -287,9 +287,23 @@ def calibration_seconds(n: int = 256, repeats: int = 30, seed: int = 0) -> float
     return float(np.median(samples))
 
 
+def _numpy_blas_api() -> str | None:
+    """threadpoolctl's name (``internal_api``) of the BLAS NumPy was built with, None if not known."""
+    try:
+        name = str(np.show_config(mode="dicts")["Build Dependencies"]["blas"]["name"]).lower()
+    except Exception:  # noqa: BLE001 -- an older or unusual NumPy build: every BLAS counts
+        return None
+    return next((api for api in ("openblas", "mkl", "blis", "flexiblas") if api in name), None)
+
+
 def blas_info() -> dict:
-    """BLAS libraries and their thread counts as threadpoolctl reports them."""
+    """The BLAS NumPy calls (the methods' steps) and its thread count, as threadpoolctl reports it.
+    Another BLAS loaded in the process is not it: MKL comes in with PARDISO's factorisations of a
+    large reference (:mod:`tissuebench.refsolvers.pardiso`), so counting it would make the row depend
+    on what else the process solved before."""
     info = [i for i in threadpool_info() if i.get("user_api") == "blas"]
+    api = _numpy_blas_api()
+    info = [i for i in info if i["internal_api"] == api] or info
     return {"blas": ",".join(sorted({i["internal_api"] for i in info})) or "unknown",
             "blas_threads": max((i["num_threads"] for i in info), default=0)}
 
