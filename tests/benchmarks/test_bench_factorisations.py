@@ -18,14 +18,14 @@ from _fe_helpers import element_mesh
 from tissuebench.refsolvers import Dirichlet, NeoHookean, Problem
 from tissuebench.refsolvers.anp import AnpBackend
 from tissuebench.refsolvers.backends import make_backend
-from tissuebench.refsolvers.pardiso import PardisoSolver, pardiso_available
+from tissuebench.refsolvers.pardiso import PardisoSolver, why_no_pardiso
 from tissuebench.refsolvers.sparse_direct import NgsolveSparseSolver
 
 pytestmark = [pytest.mark.benchmark, pytest.mark.ngsolve]
 
 SOLVERS = {"ngsolve-ldlt": lambda: NgsolveSparseSolver(),
-           "pardiso": pytest.param(PardisoSolver, marks=pytest.mark.skipif(bool(pardiso_available()),
-                                                                           reason=pardiso_available() or "-"))}
+           "pardiso": pytest.param(PardisoSolver, marks=pytest.mark.skipif(bool(why_no_pardiso()),
+                                                                           reason=why_no_pardiso() or "-"))}
 
 
 @pytest.fixture(scope="module")

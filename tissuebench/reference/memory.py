@@ -134,7 +134,6 @@ def estimate_refined_peak(backend, dofs_h_half: int) -> RefinedMemory:
     with PeakProbe() as factor:
         solver.solve(K_ff, np.ones(K_ff.shape[0]))
     solver.reset()
-    del solver
     wall = time.perf_counter() - t0
     n_h = int(len(free))
     if assembly.rise is None or factor.rise is None:

@@ -18,7 +18,7 @@ import time
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from .pardiso import PardisoSolver, pardiso_available
+from .pardiso import PardisoSolver, why_no_pardiso
 from .solver_base import LinearSolver, canonical_csr
 from .sparse_direct import NgsolveSparseSolver
 
@@ -29,7 +29,7 @@ def large_system_solver(**ngsolve_options) -> LinearSolver:
     """The direct solver whose factors are kept on a large system: MKL PARDISO where it is
     installed (:mod:`.pardiso`: nested dissection, 3.5 times faster than NGSolve's LDL^T on the
     5k-node organ's ANP tangent at h/2), else NGSolve's LDL^T with ``ngsolve_options``."""
-    return NgsolveSparseSolver(**ngsolve_options) if pardiso_available() else PardisoSolver()
+    return PardisoSolver() if not why_no_pardiso() else NgsolveSparseSolver(**ngsolve_options)
 
 
 class KeptFactorSolver(LinearSolver):

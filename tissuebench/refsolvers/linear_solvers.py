@@ -41,13 +41,13 @@ from .solver_base import (
     forcing_term,
 )
 from .kept_factors import KeptFactorSolver, large_system_solver
-from .pardiso import PardisoSolver, pardiso_available
+from .pardiso import PardisoSolver, why_no_pardiso
 from .sparse_direct import NGSOLVE_MIN_DOFS, DirectSolver, NgsolveSparseSolver
 
 __all__ = ["KEPT_FACTORS_MIN_DOFS", "LINEAR_SOLVERS", "AmgCgSolver", "AutoDirectSolver", "DirectSolver",
            "KeptFactorSolver", "LinearSolver", "LinearSolverError", "NgsolveSparseSolver", "PardisoSolver",
            "SparsityPattern", "canonical_csr", "direct_solver_for", "forcing_term", "make_linear_solver",
-           "pardiso_available", "rigid_body_modes"]
+           "why_no_pardiso", "rigid_body_modes"]
 
 
 #: from this many unknowns on, ``"auto"`` keeps the factors and solves by CG with them
@@ -57,12 +57,13 @@ __all__ = ["KEPT_FACTORS_MIN_DOFS", "LINEAR_SOLVERS", "AmgCgSolver", "AutoDirect
 KEPT_FACTORS_MIN_DOFS = 50_000
 
 
-def direct_solver_for(n: int, **ngsolve_options) -> LinearSolver:
+def direct_solver_for(n: int, ngsolve_from: int = NGSOLVE_MIN_DOFS, **ngsolve_options) -> LinearSolver:
     """The direct solver ``"auto"`` factorises a system of ``n`` unknowns with (the kept factors'
-    from :data:`KEPT_FACTORS_MIN_DOFS` on): what a memory probe must factorise with."""
+    from :data:`KEPT_FACTORS_MIN_DOFS` on, NGSolve's LDL^T from ``ngsolve_from``, SuperLU below):
+    what a memory probe must factorise with."""
     if n >= KEPT_FACTORS_MIN_DOFS:
         return large_system_solver(**ngsolve_options)
-    return NgsolveSparseSolver(**ngsolve_options) if n >= NGSOLVE_MIN_DOFS else DirectSolver()
+    return NgsolveSparseSolver(**ngsolve_options) if n >= ngsolve_from else DirectSolver()
 
 
 class AutoDirectSolver(LinearSolver):
@@ -91,9 +92,8 @@ class AutoDirectSolver(LinearSolver):
         return isinstance(self.chosen, KeptFactorSolver)
 
     def _choose(self, n):
-        if n >= KEPT_FACTORS_MIN_DOFS:
-            return KeptFactorSolver(large_system_solver(**self.options))
-        return NgsolveSparseSolver(**self.options) if n >= self.ngsolve_from else DirectSolver()
+        direct = direct_solver_for(n, self.ngsolve_from, **self.options)
+        return KeptFactorSolver(direct) if n >= KEPT_FACTORS_MIN_DOFS else direct
 
     def solve(self, K, b, rtol=None):
         if self.chosen is None:

@@ -7,7 +7,7 @@ on both cores. On the 5k-node organ refined to h/2 with average nodal pressure t
 take 2.5 GB and 38-45 s, a solve with them 0.2-0.3 s; NGSolve's took 147 s and 1.42 s
 (``docs/explanation/nearly-incompressible.md``). The statics' ``"auto"`` solver keeps
 PARDISO's factors from :data:`~tissuebench.refsolvers.linear_solvers.KEPT_FACTORS_MIN_DOFS`
-unknowns on where MKL is installed (:func:`pardiso_available`), NGSolve's elsewhere.
+unknowns on where MKL is installed (:func:`why_no_pardiso`), NGSolve's elsewhere.
 
 A symmetric ``K`` is factorised as symmetric indefinite (``mtype = -2``: Bunch-Kaufman
 pivoting within the supernodes, upper triangle stored), anything else as real unsymmetric
@@ -22,15 +22,15 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from .solver_base import LinearSolver, LinearSolverError, SparsityPattern, canonical_csr
+from .solver_base import LinearSolver, LinearSolverError, SparsityPattern, canonical_csr, is_symmetric
 
-__all__ = ["PardisoSolver", "pardiso_available"]
+__all__ = ["PardisoSolver", "why_no_pardiso"]
 
 _AVAILABLE: list = []
 
 
-def pardiso_available() -> str:
-    """``""`` when pypardiso finds MKL's PARDISO here, else why not (checked once)."""
+def why_no_pardiso() -> str:
+    """Why MKL's PARDISO cannot be used here, or ``""`` when pypardiso finds it (checked once)."""
     if not _AVAILABLE:
         try:
             import pypardiso
@@ -40,10 +40,6 @@ def pardiso_available() -> str:
         except Exception as exc:  # noqa: BLE001 -- no pypardiso, no MKL on this platform
             _AVAILABLE.append(f"MKL PARDISO is not available here ({type(exc).__name__}: {exc})")
     return _AVAILABLE[0]
-
-
-def _is_symmetric(K) -> bool:
-    return K.nnz == 0 or abs(K - K.T).max() <= 1e-12 * abs(K).max()
 
 
 class PardisoSolver(LinearSolver):
@@ -62,18 +58,18 @@ class PardisoSolver(LinearSolver):
     PERTURBED_RTOL = 1e-8
 
     def __init__(self, symmetric: bool | None = None):
-        why = pardiso_available()
+        why = why_no_pardiso()
         if why:
             raise LinearSolverError(f"{self.name} solver: {why}")
         self.symmetric = symmetric
-        self._solver, self._A, self._mtype = None, None, None
-        self._pattern = SparsityPattern()
+        self._solver, self._pattern = None, SparsityPattern()
         self.reset()
 
     def reset(self):
         if self._solver is not None:
             self._solver.free_memory(everything=True)
-        self._solver, self._A, self._mtype, self.perturbed_pivots, self.negative_pivots = None, None, None, 0, 0
+        self._solver, self._A, self._K, self._mtype = None, None, None, None
+        self.perturbed_pivots = self.negative_pivots = 0
         self._pattern.clear()
 
     def __del__(self):
@@ -103,11 +99,12 @@ class PardisoSolver(LinearSolver):
     def _stored(self, K):
         """``(matrix PARDISO reads, mtype)``: the upper triangle of a symmetric ``K`` with every diagonal
         entry stored (PARDISO requires it), else ``K``."""
-        symmetric = _is_symmetric(K) if self.symmetric is None else bool(self.symmetric)
+        symmetric = is_symmetric(K) if self.symmetric is None else bool(self.symmetric)
         if symmetric:
             upper = canonical_csr(sp.triu(K, format="csr"))
-            has_diagonal = np.diff(upper.indptr) > 0
-            if has_diagonal.all() and np.array_equal(upper.indices[upper.indptr[:-1]], np.arange(K.shape[0])):
+            # each row's first stored entry is its diagonal (no empty row, none missing)
+            if (np.diff(upper.indptr) > 0).all() and np.array_equal(upper.indices[upper.indptr[:-1]],
+                                                                    np.arange(K.shape[0])):
                 return upper, -2
         return K, 11
 
@@ -123,7 +120,7 @@ class PardisoSolver(LinearSolver):
             raise LinearSolverError(f"{self.name} solver: phase {phase} failed ({exc})") from None
 
     def _factorise(self, K) -> str:
-        A, mtype = self._stored(canonical_csr(K))
+        A, mtype = self._stored(K)
         same = self._solver is not None and self._mtype == mtype and self._pattern.matches(A)
         none = np.zeros(A.shape[0])
         if not same:
@@ -132,7 +129,7 @@ class PardisoSolver(LinearSolver):
             self._call(11, A, none)  # the ordering and symbolic factorisation, once per pattern
             self._pattern.store(A)
         self._call(22, A, none)
-        self._A = A
+        self._A, self._K = A, K
         self.perturbed_pivots = int(self._solver.get_iparm(14))
         self.negative_pivots = int(self._solver.get_iparm(23)) if mtype == -2 else 0
         return "reused" if same else "computed"
@@ -142,8 +139,7 @@ class PardisoSolver(LinearSolver):
         if not np.all(np.isfinite(x)):
             raise LinearSolverError(f"{self.name} solver: non-finite solution (singular matrix?)")
         if self.perturbed_pivots:
-            K = self._A + sp.triu(self._A, 1).T if self._mtype == -2 else self._A
-            r = np.linalg.norm(K @ x - b)
+            r = np.linalg.norm(self._K @ x - b)
             if not r <= self.PERTURBED_RTOL * max(np.linalg.norm(b), 1e-300):
                 raise LinearSolverError(f"{self.name} solver: singular matrix ({self.perturbed_pivots} pivots "
                                         f"perturbed, relative residual {r / max(np.linalg.norm(b), 1e-300):.3g})")

@@ -44,6 +44,12 @@ class LinearSolver:
         """Forget cached orderings, factors or hierarchies."""
 
 
+def is_symmetric(K, tol: float = 1e-12) -> bool:
+    """``max |K - K^T| <= tol max |K|`` for a sparse square ``K`` (compared entry by entry; a
+    :class:`SparsityPattern` that holds ``K``'s pattern answers faster)."""
+    return K.nnz == 0 or abs(K - K.T).max() <= tol * abs(K).max()
+
+
 def canonical_csr(K) -> sp.csr_matrix:
     """``K`` as CSR with sorted column indices and no duplicates (copied only if needed)."""
     K = sp.csr_matrix(K)
@@ -93,7 +99,7 @@ class SparsityPattern:
             return False
         perm = self._transpose_permutation()
         if perm[0] < 0:  # structurally non-symmetric: compare explicitly
-            return abs(K - K.T).max() <= tol * scale
+            return is_symmetric(K, tol)
         return np.abs(K.data - K.data[perm]).max() <= tol * scale
 
     def matches(self, K) -> bool:

@@ -24,7 +24,7 @@ import time
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from .solver_base import (LinearSolver, LinearSolverError, SparsityPattern, canonical_csr,
+from .solver_base import (LinearSolver, LinearSolverError, SparsityPattern, canonical_csr, is_symmetric,
                           idle_core)
 
 
@@ -178,7 +178,7 @@ class NgsolveSparseSolver(LinearSolver):
             if same_pattern:
                 sym = self._pattern.is_symmetric(K)
             else:
-                sym = K.nnz == 0 or abs(K - K.T).max() <= 1e-12 * abs(K).max()
+                sym = is_symmetric(K)
         return "sparsecholesky" if sym else "umfpack"
 
     def _factorise(self, K):

@@ -31,6 +31,7 @@ For every unit, in one process, one unit at a time, with the BLAS thread count l
 """
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 
@@ -287,6 +288,7 @@ def calibration_seconds(n: int = 256, repeats: int = 30, seed: int = 0) -> float
     return float(np.median(samples))
 
 
+@functools.lru_cache(maxsize=1)
 def _numpy_blas_api() -> str | None:
     """threadpoolctl's name (``internal_api``) of the BLAS NumPy was built with, None if not known."""
     try:
